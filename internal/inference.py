@@ -1,0 +1,46 @@
+"""Deterministic rendering of whole images in fixed-size chunks (one compile per chunk size)."""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from internal import rays as rays_lib
+from internal import train_step as train_step_lib
+
+OUTPUT_KEYS = ('rgb', 'acc', 'distance_mean', 'distance_median')
+
+
+def make_render_fn(config, model, params, step: int, compute_normals: bool = False):
+  """jit-compiled rays [N, ...] -> fine-level outputs, with the masks of the checkpoint step."""
+  mask_point, mask_view = train_step_lib.masks_at(config, jnp.asarray(step))
+  padding = config.resample_padding_final
+  keys = OUTPUT_KEYS + (('normals',) if compute_normals else ())
+
+  @jax.jit
+  def render(chunk):
+    renderings, _ = model.apply({'params': params}, None, chunk, mask_point, mask_view, padding,
+                                compute_normals=compute_normals)
+    return {k: renderings[-1][k] for k in keys}
+
+  return render
+
+
+def render_image(render_fn, rays, chunk_size: int):
+  """Renders Rays with [H, W, ...] fields chunk by chunk; returns numpy outputs [H, W, ...]."""
+  shape = rays.origins.shape[:-1]
+  flat = rays_lib.map_rays(lambda x: np.reshape(x, (-1, x.shape[-1])), rays)
+  num_rays = flat.origins.shape[0]
+  pad = (-num_rays) % chunk_size if num_rays > chunk_size else 0
+  padded = rays_lib.map_rays(lambda x: np.pad(x, ((0, pad), (0, 0)), mode='edge'), flat)
+  size = min(chunk_size, num_rays)
+  pieces = [jax.device_get(render_fn(rays_lib.map_rays(functools.partial(_slice, i, size), padded)))
+            for i in range(0, num_rays + pad, size)]
+  return {k: np.concatenate([p[k] for p in pieces])[:num_rays].reshape(shape + pieces[0][k].shape[1:])
+          for k in pieces[0]}
+
+
+def _slice(start, size, x):
+  """Rows start:start+size of x."""
+  return x[start:start + size]

@@ -1,0 +1,107 @@
+"""One jit-compiled, pure training step: masks, losses, clipping, Adam, non-finite guard."""
+
+import functools
+from typing import Any
+
+import flax
+import jax
+import jax.numpy as jnp
+from jax import random
+import optax
+
+from internal import freq_mask
+from internal import losses
+from internal import models
+from internal import occlusion
+from internal import optim
+from internal import schedule
+
+
+@flax.struct.dataclass
+class TrainState:
+  """Parameters and optimizer state after `step` updates."""
+  step: jax.Array
+  params: Any
+  opt_state: Any
+
+
+class NonFiniteGradientError(FloatingPointError):
+  """A step produced NaN/Inf gradients under Config.nonfinite_grad_policy = 'raise'."""
+
+
+def create_train_state(config, key, example_rays):
+  """(model, TrainState at step 0) for Config, initialized on example rays [B, ...]."""
+  model, variables = models.construct_model(key, example_rays, config.white_background)
+  params = variables['params']
+  return model, TrainState(step=jnp.array(0, jnp.int32), params=params,
+                           opt_state=optim.adam(config.adam_eps).init(params))
+
+
+def masks_at(config, step):
+  """Frequency masks (point, view) of Config at a (possibly traced) step; (None, None) when off."""
+  return freq_mask.encoding_masks(
+      step, freq_reg=config.freq_reg, freq_reg_end=config.freq_reg_end,
+      layout=config.freq_mask_layout, max_vis_freq_ratio=config.max_vis_freq_ratio)
+
+
+def compute_loss(config, model, params, batch, key, step):
+  """(total loss, stats) of one batch {'rays': Rays [B, ...], 'rgb': [B, 3]} at step."""
+  mask_point, mask_view = masks_at(config, step)
+  rays = batch['rays']
+  renderings, history = model.apply(
+      {'params': params}, key if config.randomized else None, rays, mask_point, mask_view,
+      schedule.resample_padding(config, step))
+  stats = {}
+  level_losses = []
+  for level, rendering in enumerate(renderings):
+    level_losses.append(losses.data_loss(rendering['rgb'], batch['rgb'], rays.lossmult))
+    stats[f'loss_level{level}'] = level_losses[-1]
+    stats[f'psnr_level{level}'] = losses.true_psnr(rendering['rgb'], batch['rgb'], rays.lossmult)
+  loss = level_losses[-1] + config.coarse_loss_mult * sum(level_losses[:-1])
+  stats['weight_l2'] = losses.weight_l2(params)
+  loss += config.weight_decay_mult * stats['weight_l2']
+  fine = history[-1]
+  if config.occ_reg_loss_mult > 0:
+    stats['loss_occ'] = occlusion.occlusion_loss(
+        fine['density'], fine['rgb'], config.occ_reg_range, config.occ_wb_prior, config.occ_wb_range)
+    loss += config.occ_reg_loss_mult * stats['loss_occ']
+  if config.distortion_loss_mult > 0:
+    s_vals = (fine['t_vals'] - rays.near) / (rays.far - rays.near)
+    stats['loss_distortion'] = losses.distortion_loss(s_vals, fine['weights'])
+    loss += config.distortion_loss_mult * stats['loss_distortion']
+  if mask_point is not None:
+    stats['mask_visible_point'] = jnp.mean(mask_point)
+    stats['mask_visible_view'] = jnp.mean(mask_view)
+  stats['loss'] = loss
+  stats['psnr'] = stats[f'psnr_level{len(renderings) - 1}']
+  return loss, stats
+
+
+def make_train_step(config, model):
+  """jit-compiled (state, batch, key) -> (state, stats); step t = state.step + 1 drives mask and lr."""
+  adam = optim.adam(config.adam_eps)
+
+  def train_step(state, batch, key):
+    step = state.step + 1
+    grad_fn = jax.value_and_grad(functools.partial(compute_loss, config, model), has_aux=True)
+    (_, stats), grads = grad_fn(state.params, batch, random.fold_in(key, step), step)
+    finite = optim.all_finite(grads)
+    grads, clip_stats = optim.clip_gradients(grads, config.grad_max_val, config.grad_max_norm)
+    lr = schedule.config_learning_rate(config, step)
+    updates, opt_state = adam.update(grads, state.opt_state, state.params)
+    params = optax.apply_updates(state.params, jax.tree.map(lambda u: -lr * u, updates))
+    keep = lambda new, old: jax.tree.map(lambda n, o: jnp.where(finite, n, o), new, old)
+    stats.update(clip_stats, lr=lr, grads_finite=finite)
+    new_state = TrainState(step=step, params=keep(params, state.params),
+                           opt_state=keep(opt_state, state.opt_state))
+    return new_state, stats
+
+  return jax.jit(train_step, donate_argnums=(0,))
+
+
+def check_stats(stats, step: int, policy: str) -> None:
+  """Raises NonFiniteGradientError under policy 'raise' when the step's gradients were not finite."""
+  if policy == 'raise' and not bool(stats['grads_finite']):
+    raise NonFiniteGradientError(
+        f'step {step}: gradients contain NaN/Inf (update skipped, parameters unchanged); '
+        "set Config.nonfinite_grad_policy = 'skip' to continue past such steps")

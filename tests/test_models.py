@@ -1,0 +1,106 @@
+"""The MLP and the two-level model: defaults, noise modes, masks in the graph, normals on request."""
+
+import gin
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax import random
+
+from conftest import random_rays
+from internal import freq_mask
+from internal import models
+
+TINY = ['MLP.net_depth = 2', 'MLP.net_width = 16', 'MLP.net_width_viewdirs = 8',
+        'MipNerfModel.num_samples = 8']
+
+
+def _tiny(bindings=()):
+  gin.parse_config(TINY + list(bindings))
+  return models.construct_model(random.PRNGKey(0), random_rays(0, 4), white_background=False)
+
+
+def test_default_parameter_count_and_layer_names():
+  _, variables = models.construct_model(random.PRNGKey(0), random_rays(0, 2), True)
+  params = variables['params']['mlp']
+  assert models.num_params(params) == 614276
+  assert sorted(params, key=lambda n: int(n.split('_')[1])) == [f'Dense_{i}' for i in range(12)]
+  assert params['Dense_5']['kernel'].shape == (256 + 99, 256)  # Skip after trunk layer 4.
+  assert params['Dense_10']['kernel'].shape == (256 + 27, 128)
+
+
+def test_outputs_per_level_and_ranges():
+  model, variables = _tiny()
+  renderings, history = model.apply(variables, random.PRNGKey(1), random_rays(1, 5))
+  assert len(renderings) == len(history) == 2
+  for rendering, level in zip(renderings, history):
+    assert rendering['rgb'].shape == (5, 3)
+    assert level['rgb'].shape == (5, 8, 3) and level['density'].shape == (5, 8)
+    assert level['t_vals'].shape == (5, 9)
+    assert np.all(np.asarray(level['rgb']) >= -0.001) and np.all(np.asarray(level['rgb']) <= 1.001)
+    assert 'normals' not in rendering
+
+
+def _noise_shift(bindings):
+  """Pre-activation density with noise minus without, at fixed Gaussians [2, 16]."""
+  gin.parse_config(TINY + bindings)
+  mlp = models.MLP()
+  means = random.normal(random.PRNGKey(0), (2, 16, 3))
+  covs = jnp.full((2, 16, 3), 1e-3)
+  params = mlp.init(random.PRNGKey(1), None, means, covs, None, method=models.MLP.predict_density)
+  density = lambda key: mlp.apply(params, key, means, covs, None, method=models.MLP.predict_density)[0]
+  raw = lambda d: np.log(np.expm1(np.asarray(d, np.float64)))  # Inverse softplus.
+  return raw(density(random.PRNGKey(3))) - raw(density(None))
+
+
+def test_density_noise_per_sample_by_default_and_shared_as_released():
+  per_sample = _noise_shift(['MLP.density_noise = 1.0'])
+  assert 0.6 < np.std(per_sample) < 1.4  # Independent N(0, 1) draws.
+  gin.clear_config()
+  shared = _noise_shift(['MLP.density_noise = 1.0', 'MLP.density_noise_shared = True'])
+  assert np.std(shared) < 1e-3 and abs(np.mean(shared)) > 1e-3  # One scalar for every sample.
+
+
+def test_no_mask_multiplication_in_graph_when_regularization_off():
+  model, variables = _tiny()
+  rays = random_rays(0, 4)
+  masks = freq_mask.encoding_masks(jnp.asarray(5), freq_reg=True, freq_reg_end=10,
+                                   layout='released', max_vis_freq_ratio=0.)
+  count = lambda *m: str(jax.make_jaxpr(lambda v: model.apply(v, None, rays, *m))(variables)).count(' mul ')
+  # Point and view-direction masks, in each of the 2 levels.
+  assert count(*masks) - count(None, None) == 4
+
+
+def test_mask_zero_hides_encoding():
+  # A mask that keeps only the identity makes the output independent of the high-frequency features.
+  model, variables = _tiny()
+  rays = random_rays(0, 4)
+  masks = (freq_mask.fixed_ratio_mask(99, 3 / 99), freq_mask.fixed_ratio_mask(27, 3 / 27))
+  out = model.apply(variables, None, rays, *masks)[0][-1]['rgb']
+  assert np.all(np.isfinite(np.asarray(out)))
+
+
+def test_normals_only_when_asked_and_unit_length():
+  model, variables = _tiny()
+  renderings, _ = model.apply(variables, None, random_rays(4, 3), compute_normals=True,
+                              compute_extras=True)
+  normals = np.asarray(renderings[-1]['normals'])
+  assert normals.shape == (3, 3) and np.all(np.isfinite(normals))
+  assert np.all(np.linalg.norm(normals, axis=-1) <= 1 + 1e-5)
+
+
+def test_normals_match_gradient_of_applied_density():
+  model, variables = _tiny()
+  mlp = models.MLP()
+  params = {'params': variables['params']['mlp']}
+  means = random.normal(random.PRNGKey(5), (2, 4, 3))
+  covs = jnp.full((2, 4, 3), 1e-4)
+  normals = np.asarray(mlp.apply(params, means, covs, None, method=models.MLP.normals))
+  density = lambda m: mlp.apply(params, None, m, covs, None, method=models.MLP.predict_density)[0].sum()
+  grad = np.asarray(jax.grad(density)(means))
+  np.testing.assert_allclose(normals, -grad / np.linalg.norm(grad, axis=-1, keepdims=True), atol=1e-5)
+
+
+def test_unknown_ray_shape_is_a_clear_error():
+  with pytest.raises(ValueError, match='ray_shape'):
+    _tiny(["MipNerfModel.ray_shape = 'sphere'"])

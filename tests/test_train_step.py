@@ -1,0 +1,138 @@
+"""The jitted train step: one compile for many steps, released lr convention, non-finite guard, sharding."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import gin
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax import random
+
+from conftest import random_rays
+from internal import configs
+from internal import schedule
+from internal import train_step as ts
+
+TINY = ['MLP.net_depth = 2', 'MLP.net_width = 16', 'MLP.net_width_viewdirs = 8',
+        'MipNerfModel.num_samples = 8', 'MLP.density_noise = 1.0']
+
+
+def _setup(num_rays=8, **overrides):
+  gin.parse_config(TINY)
+  fields = dict(max_steps=100, lr_init=2e-3, lr_final=2e-5, lr_delay_steps=512, lr_delay_mult=0.01,
+                grad_max_norm=0.1, grad_max_val=0.1, freq_reg=True, freq_reg_end=10,
+                occ_reg_loss_mult=0.01, occ_wb_prior=True, white_background=False)
+  fields.update(overrides)
+  config = configs.Config(**fields)
+  rays = random_rays(0, num_rays)
+  model, state = ts.create_train_state(config, random.PRNGKey(0), rays)
+  rgb = np.random.default_rng(0).uniform(size=(num_rays, 3)).astype(np.float32)
+  return config, model, state, {'rays': rays, 'rgb': rgb}
+
+
+def _run(config, model, state, batch, steps):
+  step_fn = ts.make_train_step(config, model)
+  stats = None
+  for _ in range(steps):
+    state, stats = step_fn(state, batch, random.PRNGKey(1))
+  return step_fn, state, stats
+
+
+def test_many_steps_compile_once_and_mask_follows_step():
+  config, model, state, batch = _setup()
+  step_fn, state, stats = _run(config, model, state, batch, 12)  # Crosses T = 10.
+  assert step_fn._cache_size() == 1
+  assert int(state.step) == 12
+  assert float(stats['mask_visible_point']) == 1.0
+  for key in ('loss', 'loss_level0', 'loss_level1', 'psnr_level0', 'psnr_level1', 'loss_occ', 'lr',
+              'grad_norm_raw', 'grad_norm', 'grad_norm_clipped', 'grad_abs_max', 'grads_finite'):
+    assert np.isfinite(float(stats[key])), key
+
+
+def test_first_update_uses_lr_of_step_one():
+  # Adam's first step moves every parameter with |g| >> eps by exactly lr.
+  config, model, state, batch = _setup(max_steps=43945)
+  before = jax.tree.map(np.asarray, state.params)
+  _, after, stats = _run(config, model, state, batch, 1)
+  moved = max(float(np.max(np.abs(np.asarray(a) - b)))
+              for a, b in zip(jax.tree.leaves(after.params), jax.tree.leaves(before)))
+  lr1 = float(schedule.learning_rate(1, 2e-3, 2e-5, 43945, 512, 0.01))
+  assert float(stats['lr']) == pytest.approx(lr1, rel=1e-6)
+  assert moved == pytest.approx(lr1, rel=1e-3)
+
+
+def test_clipping_bounds_the_update_gradient():
+  config, model, state, batch = _setup()
+  _, _, stats = _run(config, model, state, batch, 1)
+  assert float(stats['grad_abs_max']) <= 0.1 + 1e-7
+  assert float(stats['grad_norm_clipped']) <= 0.1 + 1e-6
+
+
+@pytest.mark.parametrize('policy', ['skip', 'raise'])
+def test_nonfinite_gradient_never_writes_nan_parameters(policy):
+  config, model, state, batch = _setup(nonfinite_grad_policy=policy)
+  batch['rgb'][0, 0] = np.nan
+  before = jax.tree.map(np.asarray, state.params)
+  _, state, stats = _run(config, model, state, batch, 2)
+  assert not bool(stats['grads_finite'])
+  for a, b in zip(jax.tree.leaves(state.params), jax.tree.leaves(before)):
+    np.testing.assert_array_equal(np.asarray(a), b)
+  if policy == 'raise':
+    with pytest.raises(ts.NonFiniteGradientError, match='nonfinite_grad_policy'):
+      ts.check_stats(stats, 2, policy)
+  else:
+    ts.check_stats(stats, 2, policy)
+
+
+@pytest.mark.parametrize('overrides', [
+    dict(freq_reg_end=0), dict(freq_reg_end=1), dict(freq_reg=False, occ_reg_loss_mult=0.),
+    dict(occ_reg_range=0, occ_wb_prior=False), dict(occ_reg_range=1000),
+    dict(max_vis_freq_ratio=0.2), dict(freq_mask_layout='paper'), dict(distortion_loss_mult=0.01)])
+def test_extreme_settings_train_finitely(overrides):
+  config, model, state, batch = _setup(**overrides)
+  _, state, stats = _run(config, model, state, batch, 2)
+  assert np.isfinite(float(stats['loss']))
+  assert all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves(state.params))
+
+
+def test_batch_of_one_ray_and_zero_length_viewdir():
+  config, model, state, batch = _setup(num_rays=1)
+  batch['rays'] = batch['rays']._replace(viewdirs=np.zeros((1, 3), np.float32))
+  _, state, stats = _run(config, model, state, batch, 2)
+  assert bool(stats['grads_finite']) and np.isfinite(float(stats['loss']))
+
+
+SHARDED = textwrap.dedent('''
+    import os, sys
+    sys.path.insert(0, os.getcwd()); sys.path.insert(0, os.path.join(os.getcwd(), 'tests'))
+    import jax, numpy as np
+    from jax import random
+    import test_train_step as t
+    from internal import sharding
+    assert len(jax.devices()) == 2
+    results = []
+    for mesh in (None, sharding.data_mesh()):
+      config, model, state, batch = t._setup(num_rays=16)
+      if mesh is not None:
+        state, batch = sharding.replicate(state, mesh), sharding.shard_batch(batch, mesh)
+      _, state, stats = t._run(config, model, state, batch, 3)
+      results.append((float(stats['loss']), jax.tree.map(np.asarray, state.params)))
+    (loss1, p1), (loss2, p2) = results
+    assert abs(loss1 - loss2) < 1e-5, (loss1, loss2)
+    diff = max(float(np.max(np.abs(a - b))) for a, b in zip(jax.tree.leaves(p1), jax.tree.leaves(p2)))
+    assert diff < 1e-5, diff
+    print('OK', loss1, loss2, diff)
+''')
+
+
+def test_two_device_mesh_matches_one_device():
+  root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+  env = dict(os.environ, XLA_FLAGS='--xla_force_host_platform_device_count=2', JAX_PLATFORMS='cpu')
+  result = subprocess.run([sys.executable, '-c', SHARDED], cwd=root, env=env, capture_output=True,
+                          text=True, timeout=600)
+  assert result.returncode == 0, result.stdout + result.stderr
+  assert 'OK' in result.stdout
