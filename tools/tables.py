@@ -1,0 +1,304 @@
+"""Gathers the metrics.json files of many runs into the paper's tables (Markdown + CSV).
+
+Usage: python -m tools.tables RUN_ROOT... --out DIR [--allow-incomplete]
+
+metrics.json (written by eval.py through `make_record` / `write_record`; see RECORD_FIELDS):
+  {"dataset": "dtu" | "llff" | "blender", "scene": str (e.g. "scan8", "fern", "lego"), "n_input_views": int,
+   "method": str (e.g. "freenerf", "mipnerf"), "step": int,
+   "means": {metric: float or null}, the mean over test views of each per-image value (null: not available),
+   "per_image": [{"id": int, metric: float or null, ...}], one entry per evaluated test view, in test order,
+   "complete": bool, true when every test view was evaluated at full resolution}
+Metric names are internal.metrics.FULL_METRICS (+ MASKED_METRICS for DTU object metrics).
+
+A table's mean over scenes is the mean of the per-scene means, each the mean over test views (the paper's
+convention, also for the 'Avg' column: the mean of per-image avg_error). A mean is only given over the full
+scene list of the protocol (DTU: the 15 pixelNeRF test scans, LLFF: the 8 scenes), with every run complete and
+the metric present; otherwise the cell is left empty and a warning names what is missing. --allow-incomplete
+averages what exists instead and marks such means with '*'.
+"""
+
+import argparse
+import csv
+import dataclasses
+import json
+import math
+import pathlib
+import sys
+from typing import Dict, List, Optional, Sequence, Tuple
+
+from internal.metrics import FULL_METRICS, MASKED_METRICS
+
+METRICS_FILENAME = 'metrics.json'
+RECORD_FIELDS = {'dataset': str, 'scene': str, 'n_input_views': int, 'method': str, 'step': int,
+                 'means': dict, 'per_image': list, 'complete': bool}
+EXPECTED_SCENES = {
+    'dtu': tuple(f'scan{i}' for i in (8, 21, 30, 31, 34, 38, 40, 41, 45, 55, 63, 82, 103, 110, 114)),
+    'llff': ('fern', 'flower', 'fortress', 'horns', 'leaves', 'orchids', 'room', 'trex'),
+    'blender': ('chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship'),
+}
+DATASETS = tuple(EXPECTED_SCENES)
+# Column groups of the paper's tables: (label, metric keys).
+METRIC_GROUPS = {
+    'dtu': (('object', MASKED_METRICS), ('full', FULL_METRICS)),
+    'llff': (('', FULL_METRICS),),
+    'blender': (('', FULL_METRICS),),
+}
+_DISPLAY = {'psnr': 'PSNR', 'ssim': 'SSIM', 'lpips': 'LPIPS', 'avg_error': 'Avg'}
+Key = Tuple[str, str, int, str]  # (dataset, method, n_input_views, scene)
+
+
+def _mean(values: Sequence[Optional[float]]) -> Optional[float]:
+  """Mean of the values; None when there are none or one is None."""
+  if not values or any(v is None for v in values):
+    return None
+  return float(math.fsum(values) / len(values))
+
+
+def check_record(record: dict, where: str) -> None:
+  """Raises ValueError naming `where` and the field when a record does not follow the schema."""
+  for field, kind in RECORD_FIELDS.items():
+    if not isinstance(record.get(field), kind) or (kind is int and isinstance(record[field], bool)):
+      raise ValueError(f'{where}: field {field!r} = {record.get(field)!r}; expected {kind.__name__}')
+  if record['dataset'] not in DATASETS:
+    raise ValueError(f'{where}: dataset {record["dataset"]!r}; expected one of {list(DATASETS)}')
+
+
+def make_record(dataset: str, scene: str, n_input_views: int, method: str, step: int,
+                per_image: List[dict], complete: bool) -> dict:
+  """A metrics.json record; means[m] = mean of per_image[i][m] (None if any image lacks m)."""
+  names = [name for name in (per_image[0] if per_image else {}) if name != 'id']
+  record = {'dataset': dataset, 'scene': scene, 'n_input_views': n_input_views, 'method': method,
+            'step': step, 'means': {name: _mean([img.get(name) for img in per_image]) for name in names},
+            'per_image': per_image, 'complete': complete}
+  check_record(record, f'record {dataset}/{scene}')
+  return record
+
+
+def write_record(path, record: dict) -> None:
+  """Writes a record as JSON (after checking it)."""
+  check_record(record, str(path))
+  pathlib.Path(path).write_text(json.dumps(record, indent=1))
+
+
+def read_record(path) -> dict:
+  """Reads and checks a metrics.json file."""
+  record = json.loads(pathlib.Path(path).read_text())
+  check_record(record, str(path))
+  return record
+
+
+def find_metrics_files(roots: Sequence[str]) -> List[pathlib.Path]:
+  """metrics.json files under each root (a directory, searched recursively, or a file), without repeats."""
+  found = []
+  for root in map(pathlib.Path, roots):
+    if not root.exists():
+      raise FileNotFoundError(f'run root {str(root)!r} does not exist')
+    found += [root] if root.is_file() else sorted(root.rglob(METRICS_FILENAME))
+  return list(dict.fromkeys(path.resolve() for path in found))
+
+
+def collect(paths: Sequence[pathlib.Path]) -> Tuple[Dict[Key, dict], List[str]]:
+  """Records by (dataset, method, views, scene); of several runs the highest step is kept, with a warning."""
+  chosen, sources, warnings = {}, {}, []
+  for path in paths:
+    record = read_record(path)
+    key = (record['dataset'], record['method'], record['n_input_views'], record['scene'])
+    if key in chosen:
+      if chosen[key]['step'] == record['step']:
+        raise ValueError(f'{sources[key]} and {path} both hold {key} at step {record["step"]}')
+      if record['step'] < chosen[key]['step']:  # Keep the higher step in (path, record).
+        path, record, sources[key], chosen[key] = sources[key], chosen[key], path, record
+      warnings.append(f'{_label(key[:3])} {key[3]}: using step {record["step"]} ({path}), '
+                      f'ignoring step {chosen[key]["step"]} ({sources[key]})')
+    chosen[key], sources[key] = record, path
+  return chosen, warnings
+
+
+@dataclasses.dataclass(frozen=True)
+class Value:
+  """A metric cell: number None = empty; mark '*' = mean over an incomplete set."""
+  number: Optional[float]
+  metric: str
+  mark: str = ''
+
+
+@dataclasses.dataclass
+class Table:
+  """An output table; `name` is its CSV file stem, rows hold str labels and Value cells."""
+  name: str
+  title: str
+  header: List[str]
+  rows: List[list]
+  notes: List[str]
+
+
+def _label(group: Tuple[str, str, int]) -> str:
+  """(dataset, method, views) -> 'DTU freenerf 3 views'."""
+  return f'{group[0].upper()} {group[1]} {group[2]} views'
+
+
+def _gaps(scenes: Dict[str, dict], dataset: str) -> List[str]:
+  """What keeps a group's means from covering the protocol's scene list, complete runs, every metric."""
+  expected = EXPECTED_SCENES[dataset]
+  present = [s for s in expected if s in scenes]
+  gaps = []
+  if len(present) < len(expected):
+    gaps.append(f'missing scenes: {", ".join(s for s in expected if s not in scenes)}')
+  partial = [s for s in present if not scenes[s]['complete']]
+  if partial:
+    gaps.append(f'incomplete runs (complete=false): {", ".join(partial)}')
+  for _, metrics in METRIC_GROUPS[dataset]:
+    for metric in metrics:
+      lacking = [s for s in present if scenes[s]['means'].get(metric) is None]
+      if lacking:
+        gaps.append(f'{metric} missing for: {", ".join(lacking)}')
+  return gaps
+
+
+def _scene_mean(scenes: Dict[str, dict], dataset: str, metric: str, allow_incomplete: bool) -> Value:
+  """Mean over the protocol's scenes of a metric; empty when incomplete, or marked '*' if allowed."""
+  expected = EXPECTED_SCENES[dataset]
+  values = [scenes[s]['means'].get(metric) for s in expected if s in scenes]
+  usable = [v for v in values if v is not None]
+  if len(usable) == len(expected) and all(scenes[s]['complete'] for s in expected):
+    return Value(_mean(usable), metric)
+  if allow_incomplete and usable:
+    return Value(_mean(usable), metric, '*')
+  return Value(None, metric)
+
+
+def _metric_columns(dataset: str) -> List[Tuple[str, str]]:
+  """(column title, metric key) of a dataset's metric groups."""
+  return [(f'{label} {_DISPLAY[m.replace("_masked", "")]}'.strip(), m)
+          for label, metrics in METRIC_GROUPS[dataset] for m in metrics]
+
+
+def _note(gaps: List[str], allow_incomplete: bool) -> str:
+  """A footnote for a group with gaps."""
+  prefix = '* = mean over what exists only' if allow_incomplete else 'mean left empty'
+  return f'{prefix} ({"; ".join(gaps)})'
+
+
+def _scene_table(group: Tuple[str, str, int], scenes: Dict[str, dict], allow_incomplete: bool) -> Table:
+  """Per-scene rows and the mean row of one (dataset, method, views) group."""
+  dataset = group[0]
+  columns = _metric_columns(dataset)
+  extras = sorted(s for s in scenes if s not in EXPECTED_SCENES[dataset])
+  rows = []
+  for scene in EXPECTED_SCENES[dataset] + tuple(extras):
+    record = scenes.get(scene)
+    if record is None:
+      rows.append([scene, '', 'missing'] + [Value(None, m) for _, m in columns])
+      continue
+    note = 'not a protocol scene' if scene in extras else ('' if record['complete'] else 'incomplete')
+    rows.append([scene, str(record['step']), note] + [Value(record['means'].get(m), m) for _, m in columns])
+  rows.append(['mean', '', ''] + [_scene_mean(scenes, dataset, m, allow_incomplete) for _, m in columns])
+  gaps = _gaps(scenes, dataset)
+  notes = [_note(gaps, allow_incomplete)] if gaps else []
+  notes += [f'{s} is not one of the protocol\'s test scenes: shown, not averaged' for s in extras]
+  return Table(f'{dataset}_{group[1]}_{group[2]}views', _label(group) + ', per scene',
+               ['scene', 'step', 'note'] + [title for title, _ in columns], rows, notes)
+
+
+def _summary_tables(dataset: str, groups: Dict[Tuple[str, str, int], Dict[str, dict]],
+                    allow_incomplete: bool) -> List[Table]:
+  """One table per metric group: rows = methods, columns = views x metrics (means over scenes)."""
+  methods = sorted({m for d, m, _ in groups if d == dataset})
+  views = sorted({n for d, _, n in groups if d == dataset})
+  notes = []
+  for group in ((dataset, method, n) for method in methods for n in views):
+    gaps = _gaps(groups[group], dataset) if group in groups else ['no runs']
+    notes += [f'{_label(group)}: {_note(gaps, allow_incomplete)}'] if gaps else []
+  tables = []
+  for label, metrics in METRIC_GROUPS[dataset]:
+    header = ['method'] + [f'{n} views {_DISPLAY[m.replace("_masked", "")]}' for n in views for m in metrics]
+    rows = [[method] + [_scene_mean(groups.get((dataset, method, n), {}), dataset, m, allow_incomplete)
+                        for n in views for m in metrics] for method in methods]
+    name = f'{dataset}_summary' + (f'_{label}' if label else '')
+    title = f'{dataset.upper()} {label + " " if label else ""}metrics, mean over scenes'
+    tables.append(Table(name, title, header, rows, notes))
+  return tables
+
+
+def build_tables(records: Dict[Key, dict],
+                 allow_incomplete: bool) -> Tuple[Dict[str, List[Table]], List[str]]:
+  """Tables per dataset (summaries, then per-scene tables) and warnings about incomplete sets."""
+  groups: Dict[Tuple[str, str, int], Dict[str, dict]] = {}
+  for (dataset, method, views, scene), record in records.items():
+    groups.setdefault((dataset, method, views), {})[scene] = record
+  tables: Dict[str, List[Table]] = {}
+  warnings = []
+  for group, scenes in sorted(groups.items()):
+    table = _scene_table(group, scenes, allow_incomplete)
+    tables.setdefault(group[0], []).append(table)
+    warnings += [f'{_label(group)}: {note}' for note in table.notes]
+  for dataset in tables:
+    tables[dataset] = _summary_tables(dataset, groups, allow_incomplete) + tables[dataset]
+  return tables, warnings
+
+
+def _format(cell, digits: Optional[int], empty: str) -> str:
+  """A cell as text: Value with `digits` decimals (None = paper precision), '' or `empty` when absent."""
+  if not isinstance(cell, Value):
+    return cell
+  if cell.number is None:
+    return empty + cell.mark
+  places = digits if digits is not None else (2 if cell.metric.startswith('psnr') else 3)
+  return f'{cell.number:.{places}f}{cell.mark}'
+
+
+def to_markdown(table: Table) -> str:
+  """A table as Markdown, with paper precision, '–' for empty cells and its notes as footnotes."""
+  lines = [f'### {table.title}', '', '| ' + ' | '.join(table.header) + ' |',
+           '|' + '---|' * len(table.header)]
+  lines += ['| ' + ' | '.join(_format(c, None, '–') for c in row) + ' |' for row in table.rows]
+  lines += [''] + [f'- {note}' for note in table.notes]
+  return '\n'.join(lines) + '\n'
+
+
+def write_csv(table: Table, path: pathlib.Path) -> None:
+  """A table as CSV with 6 decimals and empty cells for missing values."""
+  with open(path, 'w', newline='') as f:
+    writer = csv.writer(f)
+    writer.writerow(table.header)
+    writer.writerows([_format(c, 6, '') for c in row] for row in table.rows)
+
+
+def write_tables(tables: Dict[str, List[Table]], out_dir) -> List[pathlib.Path]:
+  """Writes <dataset>.md (all its tables) and one <table name>.csv per table; returns the paths."""
+  out = pathlib.Path(out_dir)
+  out.mkdir(parents=True, exist_ok=True)
+  written = []
+  for dataset, dataset_tables in tables.items():
+    md = out / f'{dataset}.md'
+    md.write_text(f'# {dataset.upper()}\n\n' + '\n'.join(map(to_markdown, dataset_tables)))
+    written.append(md)
+    for table in dataset_tables:
+      write_csv(table, out / f'{table.name}.csv')
+      written.append(out / f'{table.name}.csv')
+  return written
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+  """CLI entry point; returns the exit status."""
+  parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+  parser.add_argument('roots', nargs='+', metavar='RUN_ROOT', help='run directories or metrics.json files')
+  parser.add_argument('--out', required=True, help='output directory for the .md and .csv tables')
+  parser.add_argument('--allow-incomplete', action='store_true',
+                      help='average over incomplete scene sets, marking such means with *')
+  args = parser.parse_args(argv)
+  paths = find_metrics_files(args.roots)
+  if not paths:
+    print(f'WARNING: no {METRICS_FILENAME} under {args.roots}', file=sys.stderr)
+    return 1
+  records, warnings = collect(paths)
+  tables, table_warnings = build_tables(records, args.allow_incomplete)
+  for warning in warnings + table_warnings:
+    print(f'WARNING: {warning}', file=sys.stderr)
+  for path in write_tables(tables, args.out):
+    print(path)
+  return 0
+
+
+if __name__ == '__main__':
+  sys.exit(main())
