@@ -1,0 +1,52 @@
+"""FreeNeRF's frequency-regularization masks over the encoding features (PROTOCOL §2.3)."""
+
+import numpy as np
+import jax.numpy as jnp
+
+from internal import encoding
+
+_LOW, _HIGH = 1e-8, 1. - 1e-8
+
+
+def _ramp_mask(group, num_groups, step, end):
+  """Opens feature groups (group [L] int) left to right: clip(ptr - group, 0, 1) -> f32 [L]."""
+  if end == 0:
+    return jnp.ones(group.shape, jnp.float32)
+  t = jnp.asarray(step, jnp.float32)
+  ptr = jnp.minimum(num_groups * t / end + 1., float(num_groups))
+  mask = jnp.clip(jnp.clip(ptr - jnp.asarray(group, jnp.float32), 0., 1.), _LOW, _HIGH)
+  return jnp.where(t >= end, jnp.ones_like(mask), mask)
+
+
+def released_mask(length, step, end):
+  """Released mask: chunks of 3 features open left to right; f32 [length]."""
+  return _ramp_mask(np.arange(length) // 3, length / 3, step, end)
+
+
+def paper_mask(num_degrees, step, end, num_coords=3):
+  """Paper-style mask: identity, then sin and cos of each degree together; f32 [C*(1+2*D)]."""
+  _, degree, _ = encoding.feature_layout(num_degrees, num_coords, append_identity=True)
+  return _ramp_mask(degree + 1, num_degrees + 1, step, end)
+
+
+def fixed_ratio_mask(length, ratio):
+  """Ablation mask: the first int(length*ratio) features 1, the rest 0; f32 [length]."""
+  return jnp.asarray(np.arange(length) < int(length * ratio), jnp.float32)
+
+
+def encoding_masks(step, *, freq_reg, freq_reg_end, layout, max_vis_freq_ratio,
+                   num_deg_point=16, num_deg_view=4):
+  """Masks for the point [3*(1+2*Dp)] and view [3*(1+2*Dv)] encodings, or (None, None)."""
+  len_point, len_view = 3 * (1 + 2 * num_deg_point), 3 * (1 + 2 * num_deg_view)
+  if max_vis_freq_ratio > 0:
+    return (fixed_ratio_mask(len_point, max_vis_freq_ratio),
+            fixed_ratio_mask(len_view, max_vis_freq_ratio))
+  if not freq_reg or freq_reg_end == 0:
+    return None, None
+  if layout == 'released':
+    return (released_mask(len_point, step, freq_reg_end),
+            released_mask(len_view, step, freq_reg_end))
+  if layout == 'paper':
+    return (paper_mask(num_deg_point, step, freq_reg_end),
+            paper_mask(num_deg_view, step, freq_reg_end))
+  raise ValueError(f"Config.freq_mask_layout = {layout!r}; expected 'released' or 'paper'")

@@ -1,0 +1,115 @@
+"""Tests of internal/encoding.py: lengths, the PROTOCOL §2.3 index map, IPE expectations, stability."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from internal import encoding
+
+
+def test_lengths():
+  x = jnp.ones((2, 5, 3))
+  assert encoding.pos_enc(x, 0, 16).shape == (2, 5, 99)
+  assert encoding.pos_enc(x[:, 0], 0, 4).shape == (2, 27)
+  assert encoding.pos_enc(x, 0, 4, append_identity=False).shape == (2, 5, 24)
+  assert encoding.integrated_pos_enc(x, x, 0, 16).shape == (2, 5, 99)
+  assert encoding.integrated_pos_enc(x, x, 0, 16, append_identity=False).shape == (2, 5, 96)
+  assert all(a.shape == (99,) for a in encoding.feature_layout(16))
+  assert all(a.shape == (27,) for a in encoding.feature_layout(4))
+  assert all(a.shape == (24,) for a in encoding.feature_layout(4, append_identity=False))
+
+
+def _table(num_degrees):
+  """PROTOCOL §2.3 index table written out: index -> (kind, degree, coord)."""
+  table = {c: (0, -1, c) for c in range(3)}
+  cos_start = 3 + 3 * num_degrees  # 51 for 16 degrees, 15 for 4 degrees
+  for k in range(num_degrees):
+    for c in range(3):
+      table[3 + 3 * k + c] = (1, k, c)
+      table[cos_start + 3 * k + c] = (2, k, c)
+  return table
+
+
+@pytest.mark.parametrize('num_degrees,cos_start', [(16, 51), (4, 15)])
+def test_feature_layout_matches_protocol_table(num_degrees, cos_start):
+  kind, degree, coord = encoding.feature_layout(num_degrees)
+  table = _table(num_degrees)
+  assert 3 + 3 * num_degrees == cos_start and len(table) == len(kind)
+  for i, expected in table.items():
+    assert (kind[i], degree[i], coord[i]) == expected, i
+
+
+@pytest.mark.parametrize('num_degrees', [16, 4])
+def test_pos_enc_values_follow_layout(num_degrees):
+  x = np.array([[0.3, -0.7, 0.05], [-0.01, 0.02, 0.9]], np.float32)
+  enc = np.asarray(encoding.pos_enc(jnp.asarray(x), 0, num_degrees))
+  for i, (kind, deg, c) in enumerate(zip(*encoding.feature_layout(num_degrees))):
+    arg = 2.**deg * x[:, c].astype(np.float64)
+    expected = {0: x[:, c], 1: np.sin(arg), 2: np.cos(arg)}[kind]
+    np.testing.assert_allclose(enc[:, i], expected, atol=2e-5 * max(1., 2.**deg * 0.9), err_msg=str(i))
+
+
+def test_pos_enc_min_deg_and_no_identity():
+  x = jnp.array([[0.2, 0.4, -0.3]])
+  full = encoding.pos_enc(x, 0, 4, append_identity=False)
+  part = encoding.pos_enc(x, 2, 4, append_identity=False)
+  np.testing.assert_allclose(part, jnp.concatenate([full[:, 6:12], full[:, 18:24]], -1), rtol=1e-6)
+
+
+def test_ipe_zero_variance_equals_pos_enc_and_identity_is_raw_mean():
+  mean = jax.random.uniform(jax.random.PRNGKey(0), (7, 3), minval=-2., maxval=2.)
+  ipe = encoding.integrated_pos_enc(mean, jnp.zeros_like(mean), 0, 16)
+  np.testing.assert_array_equal(ipe[:, :3], mean)
+  small = encoding.integrated_pos_enc(mean, jnp.zeros_like(mean), 0, 7)  # |2^k x| < 100 pi: no mod
+  np.testing.assert_allclose(small, encoding.pos_enc(mean, 0, 7), atol=1e-5)
+
+
+def test_ipe_matches_monte_carlo_expectation():
+  """E[sin(2^k x)] and E[cos(2^k x)] over x ~ N(mean, var), by sampling (float64) and closed form."""
+  rng = np.random.default_rng(0)
+  mean = np.array([0.4, -1.3, 2.2])
+  var = np.array([0.02, 0.002, 0.3])
+  num = 1_000_000
+  samples = mean + np.sqrt(var) * rng.standard_normal((num, 3))
+  ipe = np.asarray(encoding.integrated_pos_enc(jnp.asarray(mean, jnp.float32),
+                                               jnp.asarray(var, jnp.float32), 0, 5))
+  kind, degree, coord = encoding.feature_layout(5)
+  for i in range(3, len(kind)):
+    arg = 2.**degree[i] * samples[:, coord[i]]
+    vals = np.sin(arg) if kind[i] == 1 else np.cos(arg)
+    tol = 5. * vals.std() / np.sqrt(num) + 1e-5
+    assert abs(ipe[i] - vals.mean()) < tol, (i, ipe[i], vals.mean())
+    scaled_mean = 2.**degree[i] * mean[coord[i]]
+    closed = np.exp(-0.5 * 4.**degree[i] * var[coord[i]]) * (
+        np.sin(scaled_mean) if kind[i] == 1 else np.cos(scaled_mean))
+    assert abs(ipe[i] - closed) < 2e-6, (i, ipe[i], closed)
+
+
+def test_safe_sin_large_arguments():
+  x = jnp.array([1., 300., 400., -500., 1e4, 3.3e8])
+  y = encoding.safe_sin(x)
+  np.testing.assert_allclose(y[:5], np.sin(np.asarray(x[:5], np.float64)), atol=5e-4)
+  assert np.all(np.isfinite(y)) and np.all(np.abs(y) <= 1.)
+
+
+@pytest.mark.parametrize('cov_scale', [0., 1e-6, 1.])
+def test_ipe_large_coordinates_finite_with_gradients(cov_scale):
+  mean = jnp.array([[1e4, -1e4, 5e3], [0.5, 0.1, -0.2]])
+  cov = jnp.full_like(mean, cov_scale)
+
+  def loss(mean, cov):
+    return jnp.sum(encoding.integrated_pos_enc(mean, cov, 0, 16))
+
+  enc = encoding.integrated_pos_enc(mean, cov, 0, 16)
+  assert np.all(np.isfinite(enc)) and np.all(np.abs(enc[:, 3:]) <= 1.)
+  grads = jax.grad(loss, argnums=(0, 1))(mean, cov)
+  assert all(np.all(np.isfinite(g)) for g in grads)
+
+
+def test_zero_length_view_direction_finite():
+  d = jnp.zeros((2, 3))
+  enc = encoding.pos_enc(d, 0, 4)
+  np.testing.assert_allclose(enc, np.concatenate([np.zeros((2, 15)), np.ones((2, 12))], -1), atol=1e-6)
+  grad = jax.grad(lambda d: jnp.sum(encoding.pos_enc(d, 0, 4)))(d)
+  assert np.all(np.isfinite(grad))
