@@ -39,9 +39,11 @@ def create_train_state(config, key, example_rays):
 
 def masks_at(config, step):
   """Frequency masks (point, view) of Config at a (possibly traced) step; (None, None) when off."""
+  mlp = models.MLP()  # The gin-bound encoding degrees fix the mask lengths.
   return freq_mask.encoding_masks(
       step, freq_reg=config.freq_reg, freq_reg_end=config.freq_reg_end,
-      layout=config.freq_mask_layout, max_vis_freq_ratio=config.max_vis_freq_ratio)
+      layout=config.freq_mask_layout, max_vis_freq_ratio=config.max_vis_freq_ratio,
+      num_deg_point=mlp.max_deg_point - mlp.min_deg_point, num_deg_view=mlp.deg_view)
 
 
 def compute_loss(config, model, params, batch, key, step):
