@@ -44,7 +44,7 @@ class Config:
   factor: int = 0
   render_factor: int = 0
   downsample_mode: str = 'released'     # 'released' (bilinear quirk) | 'area' (block mean).
-  n_input_views: int = 9
+  n_input_views: int = 9               # 0 = every view of the training pool.
   batching: str = 'single_image'        # 'single_image' | 'all_images'.
   batch_size: int = 4096
   white_background: bool = True
@@ -54,6 +54,7 @@ class Config:
   render_path_frames: int = 240
   generated_rig: str = 'object'         # Generated scene: 'object' | 'forward'.
   generated_size: Sequence[int] = (64, 80)  # Generated scene image (H, W).
+  generated_seed: int = 0
 
   # Optimization.
   max_steps: int = 250000
@@ -123,10 +124,10 @@ def validate(config: Config) -> None:
   _choice(config, 'nonfinite_grad_policy', ('skip', 'raise'))
   _choice(config, 'lpips_input_range', ('released', 'official'))
   _choice(config, 'generated_rig', ('object', 'forward'))
-  for name in ('max_steps', 'batch_size', 'n_input_views', 'render_chunk_size', 'checkpoint_every'):
+  for name in ('max_steps', 'batch_size', 'render_chunk_size', 'checkpoint_every'):
     if getattr(config, name) < 1:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected a positive integer')
-  for name in ('freq_reg_end', 'occ_reg_range', 'occ_wb_range', 'lr_delay_steps'):
+  for name in ('n_input_views', 'freq_reg_end', 'occ_reg_range', 'occ_wb_range', 'lr_delay_steps'):
     if getattr(config, name) < 0:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected >= 0')
   if not 0. <= config.max_vis_freq_ratio <= 1.:

@@ -1,0 +1,101 @@
+"""The Dataset record, the loader errors and small checks shared by every loader."""
+
+import dataclasses
+import os
+from typing import List, Optional, Sequence
+
+import numpy as np
+
+from internal.rays import Rays
+
+SPLITS = ('train', 'test')
+
+
+class DatasetError(ValueError):
+  """Bad or missing input data; the message names the path or Config setting and what was expected."""
+
+
+class DatasetNotFoundError(DatasetError, FileNotFoundError):
+  """A file or folder the loader needs does not exist."""
+
+
+@dataclasses.dataclass
+class Dataset:
+  """One split of one scene: images f32 [N,H,W,3], cameras, rays [N,H,W,...] and optional masks/depths."""
+  images: np.ndarray            # f32 [N,H,W,3] in [0,1].
+  camtoworlds: np.ndarray       # f32 [N,3,4].
+  pixtocams: np.ndarray         # f32 [N,3,3] (inverse intrinsics at the loaded resolution).
+  ids: List[int]                # Original view indices, in load order.
+  height: int
+  width: int
+  near: float
+  far: float
+  masks: Optional[np.ndarray]   # f32 [N,H,W,3] DTU evaluation masks (test split), else None.
+  rays: Rays                    # numpy fields [N,H,W,3] or [N,H,W,1].
+  split: str
+  name: str
+  depths: Optional[np.ndarray] = None        # f32 [N,H,W] exact z-depth (generated scene), 0 = no hit.
+  object_masks: Optional[np.ndarray] = None  # f32 [N,H,W] object coverage (generated scene).
+
+
+def check_split(split: str) -> None:
+  """Raises DatasetError unless split is 'train' or 'test'."""
+  if split not in SPLITS:
+    raise DatasetError(f'unknown split {split!r}; expected one of {list(SPLITS)}')
+
+
+def check_choice(name: str, value: str, options: Sequence[str]) -> None:
+  """Raises DatasetError naming Config.<name> when value is not an option."""
+  if value not in options:
+    raise DatasetError(f'Config.{name} = {value!r}; expected one of {list(options)}')
+
+
+def listing(path: str) -> List[str]:
+  """Sorted entries of a folder ([] when it is absent)."""
+  return sorted(os.listdir(path)) if os.path.isdir(path) else []
+
+
+def require_file(path: str, what: str) -> str:
+  """Returns path, or raises DatasetNotFoundError naming it."""
+  if not os.path.isfile(path):
+    raise DatasetNotFoundError(f'{what}: file {path!r} does not exist')
+  return path
+
+
+def scene_dir(data_dir: str, scene: str, setting: str) -> str:
+  """<data_dir>/<scene> after checking both exist (the error lists the scenes found)."""
+  if not os.path.isdir(data_dir):
+    raise DatasetNotFoundError(f'Config.data_dir = {data_dir!r} does not exist (expected a folder holding scenes)')
+  path = os.path.join(data_dir, scene)
+  if not os.path.isdir(path):
+    found = [e for e in listing(data_dir) if os.path.isdir(os.path.join(data_dir, e))]
+    raise DatasetNotFoundError(f'Config.{setting} = {scene!r}: {path!r} does not exist; '
+                               f'{data_dir!r} holds {found}')
+  return path
+
+
+def first_n(pool: Sequence[int], n: int, what: str) -> List[int]:
+  """The first n ids of the training pool (n = 0: all of it); raises when n exceeds the pool."""
+  if n == 0:
+    return list(pool)
+  if n > len(pool):
+    raise DatasetError(f'Config.n_input_views = {n} exceeds the {len(pool)} training views of {what} '
+                       f'(pool {list(pool)}); Config.n_input_views = 0 selects all of them')
+  return list(pool[:n])
+
+
+def present_test_ids(ids: Sequence[int], paths: Sequence[str], allow_missing: bool) -> List[int]:
+  """Test ids whose image exists; missing ones raise unless Config.allow_missing_test_views."""
+  missing = [p for p in paths if not os.path.isfile(p)]
+  if missing and (not allow_missing or len(missing) == len(paths)):
+    raise DatasetNotFoundError(f'{len(missing)} of {len(paths)} test images are missing: {missing}. '
+                               'Set Config.allow_missing_test_views = True to evaluate on the views present only.')
+  return [i for i, p in zip(ids, paths) if os.path.isfile(p)]
+
+
+def load_factor(config, split: str) -> int:
+  """Total integer downsampling factor (>= 1): Config.factor, times Config.eval_factor for the test split."""
+  factor = max(int(config.factor), 1)
+  if split == 'test':
+    factor *= max(int(getattr(config, 'eval_factor', 1)), 1)
+  return factor

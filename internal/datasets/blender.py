@@ -1,0 +1,92 @@
+"""Blender (NeRF-synthetic) loader: transforms_{train,test}.json + RGBA PNGs, white compositing."""
+
+import json
+import os
+
+import numpy as np
+
+from internal.datasets import base, cameras, image_io, raygen
+
+DIETNERF_IDS = (26, 86, 2, 55, 75, 93, 16, 73)
+SPLIT_MODES = ('dietnerf', 'first_n')
+TEST_STRIDE = 8  # DietNeRF/FreeNeRF evaluate on test frames [::8] (25 views).
+
+
+def read_transforms(scene_dir: str, split: str) -> dict:
+  """The parsed transforms_{split}.json (camera_angle_x and frames[file_path, transform_matrix])."""
+  path = base.require_file(os.path.join(scene_dir, f'transforms_{split}.json'), 'Blender cameras')
+  try:
+    with open(path) as f:
+      meta = json.load(f)
+    float(meta['camera_angle_x'])
+    for frame in meta['frames']:
+      if np.shape(frame['transform_matrix']) != (4, 4):
+        raise ValueError(f'frame {frame.get("file_path")} has a transform_matrix that is not 4x4')
+  except (OSError, ValueError, KeyError, TypeError) as err:
+    raise base.DatasetError(f'cannot read camera file {path!r} (expected JSON with camera_angle_x and frames of '
+                            f'file_path + 4x4 transform_matrix): {err!r}') from err
+  return meta
+
+
+def frame_ids(split: str, n_frames: int, mode: str, n_views: int, test_stride: int) -> list:
+  """Frame positions of the split: DietNeRF ids or the first n (train); every test_stride-th frame (test)."""
+  base.check_choice('blender_split', mode, SPLIT_MODES)
+  if split == 'test':
+    return list(range(0, n_frames, test_stride))
+  if mode == 'dietnerf' and max(DIETNERF_IDS) >= n_frames:
+    raise base.DatasetError(f"Config.blender_split = 'dietnerf' needs train frames {list(DIETNERF_IDS)}; the "
+                            f"train json has {n_frames} frames (use blender_split = 'first_n')")
+  pool = list(DIETNERF_IDS) if mode == 'dietnerf' else list(range(n_frames))
+  return base.first_n(pool, n_views, f'the Blender {mode} split')
+
+
+def frame_path(scene_dir: str, frame: dict) -> str:
+  """Image path of a frame: <scene>/<file_path>.png."""
+  path = os.path.join(scene_dir, frame['file_path'])
+  return path if path.endswith('.png') else path + '.png'
+
+
+def composite(rgba: np.ndarray, white_background: bool) -> np.ndarray:
+  """[...,4] RGBA -> [...,3] RGB over white (rgb*a + 1-a), or the raw rgb when not white_background."""
+  if white_background:
+    return rgba[..., :3] * rgba[..., 3:] + (1. - rgba[..., 3:])
+  return rgba[..., :3]
+
+
+def load_blender(split: str, config, scene_dir: str, name: str, mode: str, test_stride: int) -> base.Dataset:
+  """Loads one split of a Blender-layout scene (OpenGL cameras, near/far from Config)."""
+  meta = read_transforms(scene_dir, split)
+  ids = frame_ids(split, len(meta['frames']), mode, config.n_input_views, test_stride)
+  paths = [frame_path(scene_dir, meta['frames'][i]) for i in ids]
+  if split == 'test':
+    ids = base.present_test_ids(ids, paths, config.allow_missing_test_views)
+    paths = [frame_path(scene_dir, meta['frames'][i]) for i in ids]
+  factor = base.load_factor(config, split)
+  images = np.stack([composite(image_io.load_rgba(p, factor, config.downsample_mode), config.white_background)
+                     for p in paths])
+  height, width = images.shape[1:3]
+  focal = .5 * width / np.tan(.5 * float(meta['camera_angle_x']))
+  pixtocam = cameras.focal_pixtocam(focal, height, width)
+  c2w = np.array([meta['frames'][i]['transform_matrix'] for i in ids], np.float64)[:, :3, :4]
+  rays = raygen.stack_rays((raygen.pinhole_rays(p, pixtocam, height, width, config.near, config.far, True)
+                            for p in c2w), len(c2w))
+  return base.Dataset(images=images.astype(np.float32), camtoworlds=c2w.astype(np.float32),
+                      pixtocams=np.repeat(pixtocam[None], len(ids), 0).astype(np.float32), ids=list(ids),
+                      height=height, width=width, near=config.near, far=config.far, masks=None, rays=rays,
+                      split=split, name=name)
+
+
+def render_path_rays(config, scene_dir: str):
+  """Rays [F,H,W,...] of an orbit at the test cameras' mean radius and height, facing the origin."""
+  meta = read_transforms(scene_dir, 'test')
+  factor = max(int(config.render_factor or config.factor), 1)
+  present = [p for p in (frame_path(scene_dir, f) for f in meta['frames']) if os.path.isfile(p)]
+  if not present:
+    raise base.DatasetNotFoundError(f'Blender render path: no test image of {scene_dir!r} exists to size the frames')
+  full_h, full_w = image_io.image_size(present[0])
+  height, width = full_h // factor, full_w // factor
+  pixtocam = cameras.focal_pixtocam(.5 * width / np.tan(.5 * float(meta['camera_angle_x'])), height, width)
+  poses = np.array([f['transform_matrix'] for f in meta['frames']], np.float64)[:, :3, :4]
+  path = cameras.orbit_path(poses, config.render_path_frames)
+  return raygen.stack_rays((raygen.pinhole_rays(p, pixtocam, height, width, config.near, config.far, True)
+                            for p in path), len(path))

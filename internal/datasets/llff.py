@@ -1,0 +1,104 @@
+"""LLFF loader: poses_bounds.npy + images_{factor}/, NDC rays, every llffhold-th image for test."""
+
+import os
+
+import numpy as np
+
+from internal.datasets import base, cameras, image_io, raygen
+
+IMAGE_EXTENSIONS = ('JPG', 'jpg', 'png')
+AXIS_FIX = np.array([[0., -1., 0., 0.], [1., 0., 0., 0.], [0., 0., 1., 0.], [0., 0., 0., 1.]])
+
+
+def image_folder(scene_dir: str, factor: int) -> tuple:
+  """(folder, extra factor): images_{factor}/ (images/ for 1), else a finer images_k/ to downsample by factor/k."""
+  for k in sorted((k for k in range(1, factor + 1) if factor % k == 0), reverse=True):
+    folder = os.path.join(scene_dir, f'images_{k}' if k > 1 else 'images')
+    if os.path.isdir(folder):
+      return folder, factor // k
+  found = [e for e in base.listing(scene_dir) if e.startswith('images')]
+  raise base.DatasetNotFoundError(f'LLFF: {os.path.join(scene_dir, f"images_{factor}")!r} does not exist '
+                                  f'(Config.factor = {factor}); image folders present: {found}')
+
+
+def image_files(folder: str) -> list:
+  """Sorted paths of the JPG/jpg/png files of folder."""
+  return [os.path.join(folder, f) for f in base.listing(folder) if f.endswith(IMAGE_EXTENSIONS)]
+
+
+def read_poses_bounds(scene_dir: str) -> np.ndarray:
+  """[N,17] rows of poses_bounds.npy (3x5 [R|t|hwf] row-major, then near, far)."""
+  path = base.require_file(os.path.join(scene_dir, 'poses_bounds.npy'), 'LLFF poses')
+  try:
+    data = np.load(path)
+  except (OSError, ValueError, EOFError) as err:
+    raise base.DatasetError(f'cannot read camera file {path!r} (expected a .npy array of shape [N, 17]): '
+                            f'{err}') from err
+  if data.ndim != 2 or data.shape[1] != 17 or not data.shape[0]:
+    raise base.DatasetError(f'{path!r} has shape {data.shape}; expected [N, 17] (3x5 pose + 2 bounds per image)')
+  return data.astype(np.float64)
+
+
+def process_poses(poses_bounds: np.ndarray) -> tuple:
+  """(c2w [N,3,4] OpenGL, recentered, scaled; bounds [N,2] scaled; focal of image 0 at full res)."""
+  poses = poses_bounds[:, :15].reshape(-1, 3, 5)
+  bounds = poses_bounds[:, 15:17]
+  c2w = poses[:, :, :4] @ AXIS_FIX
+  scale = 1. / (bounds.min() * .75)
+  c2w[:, :, 3] *= scale
+  return cameras.recenter_poses(c2w), bounds * scale, poses[0, 2, 4]
+
+
+def split_ids(split: str, n_images: int, llffhold: int, n_views: int) -> list:
+  """Test: i % llffhold == 0. Train: n_views of the rest, evenly spaced with round half to even."""
+  if llffhold < 1:
+    raise base.DatasetError(f'Config.llffhold = {llffhold}; expected a positive integer')
+  if split == 'test':
+    return [i for i in range(n_images) if i % llffhold == 0]
+  pool = [i for i in range(n_images) if i % llffhold]
+  if n_views == 0:
+    return pool
+  if n_views > len(pool):
+    raise base.DatasetError(f'Config.n_input_views = {n_views} exceeds the {len(pool)} LLFF training views '
+                            f'(pool {pool}); Config.n_input_views = 0 selects all of them')
+  return [pool[int(round(v))] for v in np.linspace(0, len(pool) - 1, n_views)]
+
+
+def scene_setup(scene_dir: str, factor: int) -> tuple:
+  """(image paths, extra downsampling factor, poses_bounds [N,17]); the counts must agree."""
+  folder, extra = image_folder(scene_dir, factor)
+  paths = image_files(folder)
+  poses_bounds = read_poses_bounds(scene_dir)
+  if len(paths) != len(poses_bounds):
+    raise base.DatasetError(f'LLFF: {len(paths)} images in {folder!r} but {len(poses_bounds)} poses in '
+                            f'{os.path.join(scene_dir, "poses_bounds.npy")!r}; expected one pose per image')
+  return paths, extra, poses_bounds
+
+
+def load_llff(split: str, config, scene_dir: str, name: str) -> base.Dataset:
+  """Loads one split of an LLFF scene (NDC rays, near 0, far 1)."""
+  factor = base.load_factor(config, split)
+  paths, extra, poses_bounds = scene_setup(scene_dir, factor)
+  c2w, _, focal = process_poses(poses_bounds)
+  ids = split_ids(split, len(paths), config.llffhold, config.n_input_views)
+  images = np.stack([image_io.load_rgb(paths[i], extra, config.downsample_mode) for i in ids])
+  height, width = images.shape[1:3]
+  pixtocam = cameras.focal_pixtocam(focal / factor, height, width)
+  rays = raygen.stack_rays((raygen.llff_rays(c2w[i], pixtocam, height, width, focal / factor) for i in ids),
+                           len(ids))
+  return base.Dataset(images=images, camtoworlds=c2w[ids].astype(np.float32),
+                      pixtocams=np.repeat(pixtocam[None], len(ids), 0).astype(np.float32), ids=list(ids),
+                      height=height, width=width, near=0., far=1., masks=None, rays=rays, split=split, name=name)
+
+
+def render_path_rays(config, scene_dir: str):
+  """Rays [F,H,W,...] (NDC) of the LLFF spiral path (Config.render_path_frames frames)."""
+  factor = max(int(config.render_factor or config.factor), 1)
+  paths, extra, poses_bounds = scene_setup(scene_dir, factor)
+  c2w, bounds, focal = process_poses(poses_bounds)
+  full_h, full_w = image_io.image_size(paths[0])
+  height, width = full_h // extra, full_w // extra
+  pixtocam = cameras.focal_pixtocam(focal / factor, height, width)
+  path = cameras.spiral_path_llff(c2w, bounds, config.render_path_frames)
+  return raygen.stack_rays((raygen.llff_rays(p, pixtocam, height, width, focal / factor) for p in path),
+                           len(path))

@@ -1,0 +1,105 @@
+"""Pinhole ray generation (pixel centres), DTU origin shift and LLFF NDC conversion, as numpy Rays."""
+
+import numpy as np
+
+from internal.rays import Rays
+
+OPENGL_FLIP = np.array([1., -1., -1.])  # OpenCV camera axes -> OpenGL (x right, y up, looking down -z).
+
+
+def camera_directions(pixtocam: np.ndarray, height: int, width: int, opengl: bool,
+                      offset: tuple = (.5, .5)) -> np.ndarray:
+  """[H,W,3] camera-frame directions through pixel (x, y) + offset (centres), |z| = 1 (+1 OpenCV, -1 OpenGL)."""
+  mat = np.asarray(pixtocam, np.float64) * (OPENGL_FLIP[:, None] if opengl else 1.)
+  x = (np.arange(width, dtype=np.float64) + offset[0])[None, :, None]
+  y = (np.arange(height, dtype=np.float64) + offset[1])[:, None, None]
+  return x * mat[:, 0] + y * mat[:, 1] + mat[:, 2]
+
+
+def world_directions(camtoworld: np.ndarray, cam_dirs: np.ndarray) -> np.ndarray:
+  """Rotates camera directions [H,W,3] into the world by c2w [3,4]."""
+  return mat_vec(np.asarray(camtoworld, np.float64)[:3, :3], cam_dirs)
+
+
+def mat_vec(matrix: np.ndarray, x: np.ndarray) -> np.ndarray:
+  """matrix [M,3] applied to every vector of x [...,3] -> [...,M] (x @ matrix.T, fast for tiny matrices)."""
+  return np.einsum('ij,...j->...i', matrix, x)
+
+
+def norm(x: np.ndarray) -> np.ndarray:
+  """Euclidean norm over the last axis of x [...,3] -> [...]."""
+  return np.sqrt(np.einsum('...i,...i->...', x, x))
+
+
+def row_radii(directions: np.ndarray) -> np.ndarray:
+  """[H,W,1] radii: distance between vertically adjacent directions (last row repeated) x 2/sqrt(12)."""
+  dx = norm(np.diff(directions, axis=0))
+  dx = np.concatenate([dx, dx[-1:]], axis=0)
+  return dx[..., None] * 2. / np.sqrt(12.)
+
+
+def shift_origins(origins: np.ndarray, directions: np.ndarray, plane_z: float) -> np.ndarray:
+  """Moves origins [...,3] along directions [...,3] onto the world plane z = plane_z."""
+  t = (plane_z - origins[..., 2:3]) / directions[..., 2:3]
+  return origins + t * directions
+
+
+def convert_to_ndc(origins: np.ndarray, directions: np.ndarray, focal: float, height: int, width: int,
+                   near: float = 1.) -> tuple:
+  """Forward-facing NDC: (origins [...,3] on z = -1, directions [...,3]) from world rays looking down -z."""
+  origins = shift_origins(origins, directions, -near)
+  ox, oy, oz = np.moveaxis(origins, -1, 0)
+  dx, dy, dz = np.moveaxis(directions, -1, 0)
+  ndc_o = np.stack([-2. * focal / width * ox / oz, -2. * focal / height * oy / oz, 1. + 2. * near / oz], -1)
+  ndc_far = np.stack([-2. * focal / width * dx / dz, -2. * focal / height * dy / dz, np.ones_like(dz)], -1)
+  return ndc_o, ndc_far - ndc_o
+
+
+def ndc_radii(ndc_origins: np.ndarray) -> np.ndarray:
+  """[H,W,1] radii from NDC origins [H,W,3]: mean of row and column neighbour distances x 2/sqrt(12)."""
+  dx = norm(np.diff(ndc_origins, axis=0))
+  dx = np.concatenate([dx, dx[-1:]], axis=0)
+  dy = norm(np.diff(ndc_origins, axis=1))
+  dy = np.concatenate([dy, dy[:, -1:]], axis=1)
+  return (.5 * (dx + dy))[..., None] * 2. / np.sqrt(12.)
+
+
+def pack_rays(origins, directions, viewdirs, radii, near: float, far: float) -> Rays:
+  """Rays of float32 arrays [...,3]/[...,1] with lossmult 1 and constant near/far."""
+  ones = np.ones(radii.shape, np.float32)
+  return Rays(origins.astype(np.float32), directions.astype(np.float32), viewdirs.astype(np.float32),
+              radii.astype(np.float32), ones, ones * np.float32(near), ones * np.float32(far))
+
+
+def pinhole_rays(camtoworld, pixtocam, height, width, near, far, opengl) -> Rays:
+  """Rays [H,W,...] of one camera: origins at its centre, unit viewdirs, row-neighbour radii."""
+  dirs = world_directions(camtoworld, camera_directions(pixtocam, height, width, opengl))
+  origins = np.broadcast_to(np.asarray(camtoworld, np.float64)[:3, 3], dirs.shape)
+  viewdirs = dirs / norm(dirs)[..., None]
+  return pack_rays(origins, dirs, viewdirs, row_radii(dirs), near, far)
+
+
+def dtu_rays(camtoworld, pixtocam, height, width, near, far, near_origin) -> Rays:
+  """DTU rays [H,W,...] (OpenCV camera), origins moved onto the world plane z = near_origin."""
+  rays = pinhole_rays(camtoworld, pixtocam, height, width, near, far, opengl=False)
+  origins = shift_origins(rays.origins.astype(np.float64), rays.directions.astype(np.float64), near_origin)
+  return rays._replace(origins=origins.astype(np.float32))
+
+
+def llff_rays(camtoworld, pixtocam, height, width, focal) -> Rays:
+  """LLFF NDC rays [H,W,...]: NDC origins/directions, NDC radii, world (unnormalised) viewdirs, near 0, far 1."""
+  dirs = world_directions(camtoworld, camera_directions(pixtocam, height, width, opengl=True))
+  origins = np.broadcast_to(np.asarray(camtoworld, np.float64)[:3, 3], dirs.shape)
+  ndc_o, ndc_d = convert_to_ndc(origins, dirs, focal, height, width)
+  return pack_rays(ndc_o, ndc_d, dirs, ndc_radii(ndc_o), 0., 1.)
+
+
+def stack_rays(rays_iter, count: int) -> Rays:
+  """Stacks count Rays [H,W,...] from an iterator into preallocated Rays [N,H,W,...]."""
+  out = None
+  for i, rays in enumerate(rays_iter):
+    if out is None:
+      out = Rays(*[np.empty((count,) + x.shape, np.float32) for x in rays])
+    for dst, src in zip(out, rays):
+      dst[i] = src
+  return out
