@@ -1,0 +1,56 @@
+"""Visualisation: turbo-coloured depth, grey opacity and PNG saving as released (truncation, not rounding)."""
+
+import os
+
+import matplotlib
+import numpy as np
+from PIL import Image
+
+DEPTH_PERCENTILES = (0.5, 99.5)
+
+
+def to_uint8(image) -> np.ndarray:
+  """[H, W, C] or [H, W] floats in [0, 1] -> uint8 by clip(nan_to_num(x), 0, 1) * 255, truncated."""
+  return (np.clip(np.nan_to_num(np.asarray(image, np.float64)), 0., 1.) * 255.).astype(np.uint8)
+
+
+def save_png(image, path: str) -> None:
+  """Writes a float [H, W, 3] or [H, W] image in [0, 1] to path as an 8-bit PNG."""
+  os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+  Image.fromarray(to_uint8(image)).save(path, format='PNG')
+
+
+def depth_range(depth) -> tuple:
+  """(lo, hi) of -log(depth [...]) at the 0.5 / 99.5 percentiles over its finite positive values."""
+  values = np.asarray(depth, np.float64)
+  values = values[np.isfinite(values) & (values > 0)]
+  if values.size == 0:
+    return 0., 1.
+  lo, hi = np.percentile(-np.log(values), DEPTH_PERCENTILES)
+  return float(lo), float(max(hi, lo + 1e-6))
+
+
+def colorize_depth(depth, value_range=None) -> np.ndarray:
+  """Depth [H, W] -> turbo RGB [H, W, 3] in [0, 1] of -log(depth) normalized to value_range (lo, hi).
+
+  value_range None uses depth_range(depth); near is red, far is blue. Non-positive depth maps to far.
+  """
+  lo, hi = depth_range(depth) if value_range is None else value_range
+  depth = np.asarray(depth, np.float64)
+  with np.errstate(divide='ignore', invalid='ignore'):
+    neg_log = -np.log(np.where(depth > 0, depth, np.inf))
+  scaled = np.clip(np.nan_to_num((neg_log - lo) / (hi - lo), nan=0., neginf=0., posinf=1.), 0., 1.)
+  return matplotlib.colormaps['turbo'](scaled)[..., :3]
+
+
+def colorize_opacity(acc) -> np.ndarray:
+  """Opacity [H, W] in [0, 1] -> grey RGB [H, W, 3]."""
+  acc = np.asarray(acc, np.float64)
+  return np.repeat(acc[..., None], 3, axis=-1)
+
+
+def visualize(rendering, depth_value_range=None) -> dict:
+  """Rendered outputs {'rgb','distance_mean','acc'} [H, W, ...] -> {'color','depth','opacity'} RGB images."""
+  return {'color': np.asarray(rendering['rgb']),
+          'depth': colorize_depth(rendering['distance_mean'], depth_value_range),
+          'opacity': colorize_opacity(rendering['acc'])}

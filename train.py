@@ -1,0 +1,206 @@
+"""Trains FreeNeRF / mip-NeRF from gin configs; with no arguments it runs the demo end to end.
+
+  python train.py --gin_configs=configs/freenerf/dtu3_freenerf.gin --gin_bindings="Config.dtu_scan = 'scan21'"
+  python train.py   # demo (configs/demo.gin): generate a scene, train, evaluate, render; prints the test PSNR
+
+Training resumes from the newest checkpoint of Config.checkpoint_dir, and refuses a directory holding a run with
+other settings. SIGINT / SIGTERM save a checkpoint and exit (status 128 + signal); rerun the command to resume.
+"""
+
+import contextlib
+import dataclasses
+import os
+import signal
+import sys
+import time
+
+import jax
+import numpy as np
+from jax import random
+import tensorboardX
+import tqdm
+
+import eval as eval_lib
+from internal import checkpoints
+from internal import datasets
+from internal import inference
+from internal import metrics
+from internal import run_dir as run_dir_lib
+from internal import sharding
+from internal import train_step as train_step_lib
+from internal import vis
+import render as render_lib
+
+PREVIEW_INDEX = 0  # The test view rendered every Config.train_render_every steps.
+
+
+@dataclasses.dataclass
+class TrainResult:
+  """What a call of `train` ends with; signum is the signal that stopped it early (else None)."""
+  model: object
+  state: train_step_lib.TrainState
+  run_dir: str
+  signum: object = None
+
+
+class StopFlag:
+  """A signal handler that only records the signal: the loop saves a checkpoint and stops at the next step."""
+
+  def __init__(self):
+    self.signum = None
+
+  def __call__(self, signum, frame):
+    self.signum = signum
+
+
+@contextlib.contextmanager
+def stop_on_signals():
+  """Installs a StopFlag for SIGINT and SIGTERM for the duration of the block; yields it."""
+  flag = StopFlag()
+  previous = {s: signal.signal(s, flag) for s in (signal.SIGINT, signal.SIGTERM)}
+  try:
+    yield flag
+  finally:
+    for s, handler in previous.items():
+      signal.signal(s, handler)
+
+
+class Progress:
+  """Per-step stats kept on device and fetched every Config.print_every steps: tqdm bar and tensorboard."""
+
+  def __init__(self, config, writer, first_step: int):
+    self.config, self.writer = config, writer
+    self.window = []
+    self.bar = tqdm.tqdm(total=config.max_steps, initial=first_step - 1, unit='step', dynamic_ncols=True)
+    self.tic = time.time()
+
+  def add(self, step: int, stats) -> None:
+    """Records a step's stats (no device sync)."""
+    self.window.append((step, stats))
+    self.bar.update(1)
+
+  def flush(self, step: int) -> None:
+    """Fetches the window's stats, checks gradients, logs window means and throughput, updates the bar."""
+    if not self.window:
+      return
+    host = jax.device_get(self.window)
+    for s, stats in host:
+      train_step_lib.check_stats(stats, s, self.config.nonfinite_grad_policy)
+    elapsed = max(time.time() - self.tic, 1e-9)
+    means = {k: float(np.mean([stats[k] for _, stats in host])) for k in host[-1][1]}
+    means['rays_per_sec'] = self.config.batch_size * len(host) / elapsed
+    means['steps_per_sec'] = len(host) / elapsed
+    for k, v in means.items():
+      self.writer.add_scalar(f'train/{k}', v, step)
+    self.bar.set_postfix(loss=f'{means["loss"]:.4f}', psnr=f'{means["psnr"]:.2f}',
+                         rays_per_s=f'{means["rays_per_sec"]:.0f}', refresh=False)
+    self.window, self.tic = [], time.time()
+
+  def close(self) -> None:
+    """Closes the progress bar."""
+    self.bar.close()
+
+
+def preview(config, model, state, step: int, test_set, writer) -> None:
+  """Renders one test view with the current parameters and logs its PSNR and images to tensorboard."""
+  render_fn = inference.make_render_fn(config, model, state.params, step)
+  rays = jax.tree.map(lambda x: x[PREVIEW_INDEX], test_set.rays)
+  rendering = inference.render_image(render_fn, rays, config.render_chunk_size)
+  writer.add_scalar('test/psnr', metrics.psnr(rendering['rgb'], test_set.images[PREVIEW_INDEX]), step)
+  for name, image in vis.visualize(rendering).items():
+    writer.add_image(f'test/{name}', vis.to_uint8(image), step, dataformats='HWC')
+
+
+def _example_rays(batcher):
+  """A few rays of the first batch, to initialize the model's shapes."""
+  return jax.tree.map(lambda x: x[:8], batcher(0)['rays'])
+
+
+def _check_batch(config, mesh) -> None:
+  """Raises ValueError naming Config.batch_size when it does not split evenly over the devices."""
+  if config.batch_size % mesh.size:
+    raise ValueError(f'Config.batch_size = {config.batch_size} must be a multiple of the number of devices '
+                     f'({mesh.size})')
+
+
+def train(config, stop_at_step: int = 0) -> TrainResult:
+  """Trains up to Config.max_steps (or stop_at_step, if smaller and > 0), resuming from the newest checkpoint.
+
+  The final state is saved whether the loop ends or a signal stops it.
+  """
+  run_dir = run_dir_lib.prepare_run_dir(config)
+  mesh = sharding.data_mesh()
+  _check_batch(config, mesh)
+  batcher = datasets.make_batcher(datasets.load_dataset('train', config), config)
+  init_key, train_key = random.split(random.PRNGKey(config.jax_rng_seed))
+  model, state = train_step_lib.create_train_state(config, init_key, _example_rays(batcher))
+  run_dir_lib.write_gin_config(run_dir)
+  mngr = checkpoints.manager(run_dir, config.checkpoint_keep)
+  restored = checkpoints.restore_latest(mngr, state)
+  state = sharding.replicate(restored if restored is not None else state, mesh)
+  last = min(config.max_steps, stop_at_step) if stop_at_step > 0 else config.max_steps
+  try:
+    with tensorboardX.SummaryWriter(os.path.join(run_dir, 'tensorboard')) as writer, stop_on_signals() as stop:
+      state = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last)
+    checkpoints.save(mngr, state)
+  finally:
+    mngr.wait_until_finished()
+    mngr.close()
+  return TrainResult(model, state, run_dir, stop.signum)
+
+
+def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: int):
+  """Steps from state.step + 1 to last (or until a signal); saves every Config.checkpoint_every steps."""
+  step_fn = train_step_lib.make_train_step(config, model)
+  first = int(state.step) + 1
+  progress = Progress(config, writer, first)
+  test_set = None
+  try:
+    for step in range(first, last + 1):
+      state, stats = step_fn(state, sharding.shard_batch(batcher(step), mesh), key)
+      progress.add(step, stats)
+      if step % config.print_every == 0 or step == last or stop.signum:
+        progress.flush(step)
+      if stop.signum:
+        break
+      if config.train_render_every > 0 and step % config.train_render_every == 0:
+        test_set = test_set if test_set is not None else datasets.load_dataset('test', config)
+        preview(config, model, state, step, test_set, writer)
+      if step % config.checkpoint_every == 0 and step < last:
+        checkpoints.save(mngr, state)
+  finally:
+    progress.close()
+  return state
+
+
+def run_demo(config) -> float:
+  """After training the demo: evaluates and renders (unless already done for this step); returns test PSNR."""
+  record = eval_lib.existing_record(config) or eval_lib.evaluate(config)
+  if not render_lib.existing_renders(config):
+    render_lib.render(config)
+  return record['means']['psnr']
+
+
+def main(argv=None) -> int:
+  """CLI entry point; returns the exit status."""
+  parser = run_dir_lib.flag_parser(__doc__.split('\n')[0])
+  parser.add_argument('--stop_at_step', type=int, default=0,
+                      help='save a checkpoint and exit after this step (resume later with the same command)')
+  args = parser.parse_args(argv)
+  demo = not args.gin_configs
+  config = run_dir_lib.config_from_flags(args)
+  result = train(config, args.stop_at_step)
+  step = int(result.state.step)
+  if result.signum is not None:
+    print(f'Stopped by signal {result.signum} at step {step}; checkpoint saved in {result.run_dir!r}. '
+          'Run the same command again to resume.')
+    return 128 + int(result.signum)
+  print(f'Trained to step {step}; run directory {result.run_dir!r}.')
+  if demo:
+    psnr = run_demo(config)
+    print(f'Demo test PSNR at step {step}: {psnr:.2f} dB (outputs in {result.run_dir!r}).')
+  return 0
+
+
+if __name__ == '__main__':
+  sys.exit(main())
