@@ -7,15 +7,9 @@ structure on our parameter tree so the two can be timed side by side.
 
 import jax
 import jax.numpy as jnp
-from jax import random
 
 from internal import encoding
 from internal import models
-
-
-def _dense(layer, x):
-  """x [..., I] @ kernel [I, O] + bias."""
-  return x @ layer['kernel'] + layer['bias']
 
 
 class ReleasedMLP(models.MLP):
@@ -23,34 +17,32 @@ class ReleasedMLP(models.MLP):
 
   def __call__(self, key, means, covs, viewdirs, mask_point, mask_view):
     """rgb [B, S, 3], density [B, S]; per-sample normals sown into 'intermediates'."""
-    params = self.variables['params']
-    batch_shape = means.shape[:-1]
-    num = means.reshape(-1, 3).shape[0]
-    mask_point = jnp.tile(jnp.ones(99) if mask_point is None else mask_point, (num, 1))
-    noise = 0. if key is None else self.density_noise * random.normal(key, ())
+    num = means.shape[0] * means.shape[1]
+    tile = lambda mask, length: jnp.tile(jnp.ones(length) if mask is None else mask, (num, 1))
+    noise = self._noise(key, ())  # The released single draw per batch.
 
     def density_one(mean, cov, mask):
-      x = encoding.integrated_pos_enc(mean, cov, self.min_deg_point, self.max_deg_point) * mask
-      inputs = x
+      """Released trunk on one sample: concatenated skip input, density and features."""
+      x = enc = encoding.integrated_pos_enc(mean, cov, self.min_deg_point, self.max_deg_point) * mask
       for i in range(self.net_depth):
-        x = self.net_activation(_dense(params[f'Dense_{i}'], x))
-        if i % self.skip_layer == 0 and i > 0:
-          x = jnp.concatenate([x, inputs], axis=-1)
-      raw = _dense(params[f'Dense_{self.net_depth}'], x)[0] + noise
+        x = self.net_activation(models.dense(self.layers[f'Dense_{i}'], x))
+        if self._skip_after(i):
+          x = jnp.concatenate([x, enc], axis=-1)
+      raw = models.dense(self.layers[f'Dense_{self.net_depth}'], x)[0] + noise
       return self.density_activation(raw + self.density_bias), x
 
     (density, x), grad = jax.vmap(jax.value_and_grad(density_one, has_aux=True))(
-        means.reshape(-1, 3), covs.reshape(-1, 3), mask_point)
+        means.reshape(-1, 3), covs.reshape(-1, 3), tile(mask_point, 99))
     self.sow('intermediates', 'normals', -grad / jnp.maximum(
         jnp.linalg.norm(grad, axis=-1, keepdims=True), 1e-7))
-    x = _dense(params[f'Dense_{self.net_depth + 1}'], x)
     view = encoding.pos_enc(viewdirs, 0, self.deg_view, append_identity=True)
-    view = jnp.broadcast_to(view[:, None], batch_shape + view.shape[-1:]).reshape(num, -1)
-    view = view * jnp.tile(jnp.ones(view.shape[-1]) if mask_view is None else mask_view, (num, 1))
-    x = self.net_activation(_dense(params[f'Dense_{self.net_depth + 2}'], jnp.concatenate([x, view], -1)))
-    rgb = self.rgb_activation(_dense(params[f'Dense_{self.net_depth + 3}'], x))
+    view = jnp.broadcast_to(view[:, None], means.shape[:-1] + view.shape[-1:]).reshape(num, -1)
+    x = models.dense(self.layers[f'Dense_{self.net_depth + 1}'], x)
+    x = jnp.concatenate([x, view * tile(mask_view, view.shape[-1])], axis=-1)
+    x = self.net_activation(models.dense(self.layers[f'Dense_{self.net_depth + 2}'], x))
+    rgb = self.rgb_activation(models.dense(self.layers[f'Dense_{self.net_depth + 3}'], x))
     rgb = rgb * (1 + 2 * self.rgb_padding) - self.rgb_padding
-    return rgb.reshape(batch_shape + (3,)), density.reshape(batch_shape)
+    return rgb.reshape(means.shape), density.reshape(means.shape[:-1])
 
 
 class ReleasedModel(models.MipNerfModel):

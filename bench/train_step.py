@@ -1,6 +1,6 @@
 """Train-step and rendering benchmark on this machine, paper model; all ratios measured in one run.
 
-Usage: python -m bench.train_step [--batch 256] [--repeats 5] [--render_rays 8192]
+Usage: python -m bench.train_step [--batch 256] [--repeats 5] [--render_rays 8192] [--render_repeats 3]
 
 Reports, side by side:
   1. FreeNeRF step (both regularizers on) / plain mip-NeRF step (both off);
@@ -49,14 +49,16 @@ def block(tree):
   return jax.block_until_ready(tree)
 
 
-def matmul_peak(repeats: int) -> float:
-  """Best GFLOP/s of a jit f32 [32768, 256] @ [256, 256] matmul (the MLP's shape)."""
-  a = random.normal(random.PRNGKey(0), (32768, 256))
-  b = random.normal(random.PRNGKey(1), (256, 256))
+MATMUL_SHAPE = (32768, 256, 256)  # [B*S, C] @ [C, C], the MLP's shape.
+
+
+def matmul_runner():
+  """Zero-arg callable: best time of 8 jit f32 matmuls of MATMUL_SHAPE (compiled here)."""
+  m, k, n = MATMUL_SHAPE
+  a, b = random.normal(random.PRNGKey(0), (m, k)), random.normal(random.PRNGKey(1), (k, n))
   f = jax.jit(lambda a, b: a @ b)
   block(f(a, b))
-  best = min(_timed(lambda: block(f(a, b))) for _ in range(repeats * 4))
-  return 2 * 32768 * 256 * 256 / best / 1e9
+  return lambda: min(_timed(lambda: block(f(a, b))) for _ in range(8))
 
 
 def _timed(fn) -> float:
@@ -65,28 +67,29 @@ def _timed(fn) -> float:
   return time.perf_counter() - start
 
 
-def build_step(model_cls, overrides, batch):
-  """(jitted step, state, flops per step) for the paper model under Config overrides."""
+def step_runner(model_cls, overrides, batch):
+  """(zero-arg callable returning one step's seconds, params, flops per step) for the paper model."""
   config = configs.Config(**PAPER_DTU3, **overrides)
   _, state = ts.create_train_state(config, random.PRNGKey(0), batch['rays'])
   step = ts.make_train_step(config, model_cls(white_background=False))
   key = random.PRNGKey(1)
-  flops = step.lower(state, batch, key).compile().cost_analysis()
-  flops = (flops[0] if isinstance(flops, list) else flops).get('flops', float('nan'))
-  state, _ = block(step(state, batch, key))
-  return step, state, flops
+  cost = step.lower(state, batch, key).compile().cost_analysis()
+  flops = (cost[0] if isinstance(cost, list) else cost).get('flops', float('nan'))
+  holder = list(block(step(state, batch, key)))
+
+  def run():
+    start = time.perf_counter()
+    holder[:] = block(step(holder[0], batch, key))
+    return time.perf_counter() - start
+  return run, holder, flops
 
 
-def time_steps(variants, batch, repeats: int):
-  """Median seconds per step of each variant, timed interleaved (A, B, C, A, B, C, ...)."""
-  key = random.PRNGKey(1)
-  times = {name: [] for name in variants}
+def interleaved_medians(runners, repeats: int):
+  """Median seconds of each zero-arg runner, run interleaved (A, B, C, A, B, C, ...) to share the noise."""
+  times = {name: [] for name in runners}
   for _ in range(repeats):
-    for name, (step, state, _) in variants.items():
-      start = time.perf_counter()
-      state, _ = block(step(state, batch, key))
-      times[name].append(time.perf_counter() - start)
-      variants[name] = (step, state, variants[name][2])
+    for name, run in runners.items():
+      times[name].append(run())
   return {name: statistics.median(t) for name, t in times.items()}
 
 
@@ -105,12 +108,11 @@ def released_render_fn(model, params, config, step):
   return render
 
 
-def render_rate(render_fn, num_rays: int, chunk: int, repeats: int) -> float:
-  """Best rays/s of rendering num_rays rays in chunks (compile excluded)."""
+def render_runner(render_fn, num_rays: int, chunk: int):
+  """Zero-arg callable returning the seconds to render num_rays rays in chunks (compiled here)."""
   rays = dtu_like_rays(num_rays, seed=2)
   block(render_fn(rays_lib.map_rays(lambda x: x[:chunk], rays)))
-  return num_rays / min(_timed(lambda: inference.render_image(render_fn, rays, chunk))
-                        for _ in range(repeats))
+  return lambda: _timed(lambda: inference.render_image(render_fn, rays, chunk))
 
 
 def main():
@@ -119,25 +121,28 @@ def main():
   parser.add_argument('--repeats', type=int, default=5)
   parser.add_argument('--render_rays', type=int, default=8192)
   parser.add_argument('--chunk', type=int, default=4096)
+  parser.add_argument('--render_repeats', type=int, default=3)
   args = parser.parse_args()
   gin.parse_config(['MLP.density_noise = 1.0'])
   batch = {'rays': dtu_like_rays(args.batch),
            'rgb': jnp.asarray(np.random.default_rng(1).uniform(size=(args.batch, 3)), jnp.float32)}
-  peak = matmul_peak(args.repeats)
-  variants = {
-      'freenerf': build_step(MipNerfModel, FREENERF, batch),
-      'mipnerf': build_step(MipNerfModel, {}, batch),
-      'released_freenerf': build_step(released_equivalent.ReleasedModel, FREENERF, batch),
-  }
-  flops = variants['freenerf'][2]
-  times = time_steps(variants, batch, args.repeats)
+  steps = {name: step_runner(model_cls, overrides, batch) for name, model_cls, overrides in (
+      ('freenerf', MipNerfModel, FREENERF), ('mipnerf', MipNerfModel, {}),
+      ('released_freenerf', released_equivalent.ReleasedModel, FREENERF))}
+  runners = {name: run for name, (run, _, _) in steps.items()}
+  times = interleaved_medians(dict(runners, matmul=matmul_runner()), args.repeats)
+  flops = steps['freenerf'][2]
+  peak = 2 * np.prod(MATMUL_SHAPE) / times.pop('matmul') / 1e9
   config = configs.Config(**PAPER_DTU3, **FREENERF)
-  params = variants['freenerf'][1].params
-  ours = render_rate(inference.make_render_fn(config, MipNerfModel(white_background=False), params,
-                                             config.max_steps), args.render_rays, args.chunk, 2)
-  released = render_rate(released_render_fn(released_equivalent.ReleasedModel(white_background=False),
-                                            params, config, config.max_steps),
-                         args.render_rays, args.chunk, 2)
+  params = steps['freenerf'][1][0].params
+  renders = interleaved_medians({
+      'ours': render_runner(inference.make_render_fn(
+          config, MipNerfModel(white_background=False), params, config.max_steps),
+          args.render_rays, args.chunk),
+      'released_equivalent_with_normals': render_runner(released_render_fn(
+          released_equivalent.ReleasedModel(white_background=False), params, config, config.max_steps),
+          args.render_rays, args.chunk)}, args.render_repeats)
+  rays_per_s = {name: args.render_rays / seconds for name, seconds in renders.items()}
   achieved = flops / times['freenerf'] / 1e9
   report = {
       'devices': str(jax.devices()), 'batch': args.batch, 'step_seconds': times,
@@ -145,8 +150,8 @@ def main():
       'ours_over_released_equivalent': times['freenerf'] / times['released_freenerf'],
       'step_gflop': flops / 1e9, 'achieved_gflops': achieved, 'matmul_peak_gflops': peak,
       'fraction_of_peak': achieved / peak,
-      'render_rays_per_s': {'ours': ours, 'released_equivalent_with_normals': released},
-      'render_speedup': ours / released,
+      'render_rays_per_s': rays_per_s,
+      'render_speedup': rays_per_s['ours'] / rays_per_s['released_equivalent_with_normals'],
   }
   print(json.dumps(report, indent=2))
 

@@ -18,9 +18,26 @@ gin.config.external_configurable(nn.softplus, name='softplus', module='flax.nn')
 gin.config.external_configurable(nn.sigmoid, name='sigmoid', module='flax.nn')
 
 
+def _dense_init(in_dim: int, out_dim: int):
+  """Initializer of one dense layer's {'kernel' [in, out] (Glorot uniform), 'bias' [out] (zeros)}."""
+  def init(key):
+    return {'kernel': jax.nn.initializers.glorot_uniform()(key, (in_dim, out_dim)),
+            'bias': jnp.zeros((out_dim,))}
+  return init
+
+
+def dense(layer, *parts):
+  """Dense layer {'kernel', 'bias'} of the concatenation of parts [..., d_i], never materialized."""
+  out, start = layer['bias'], 0
+  for part in parts:
+    out = out + part @ layer['kernel'][start:start + part.shape[-1]]
+    start += part.shape[-1]
+  return out
+
+
 @gin.configurable
 class MLP(nn.Module):
-  """The shared NeRF MLP; it runs on flattened [N, C] samples for speed."""
+  """The shared NeRF MLP, as pure functions of its Dense_i parameters (released names and shapes)."""
   net_depth: int = 8
   net_width: int = 256
   net_depth_viewdirs: int = 1
@@ -39,53 +56,85 @@ class MLP(nn.Module):
   use_viewdirs: bool = True
 
   def setup(self):
-    dense = lambda width, i: nn.Dense(
-        width, kernel_init=jax.nn.initializers.glorot_uniform(), name=f'Dense_{i}')
-    self.trunk = [dense(self.net_width, i) for i in range(self.net_depth)]
-    self.density_layer = dense(1, self.net_depth)
-    self.bottleneck_layer = dense(self.net_width, self.net_depth + 1)
-    self.view_layers = [dense(self.net_width_viewdirs, self.net_depth + 2 + i)
-                        for i in range(self.net_depth_viewdirs)]
-    self.rgb_layer = dense(3, self.net_depth + 2 + self.net_depth_viewdirs)
+    self.layers = {name: self.param(name, _dense_init(i, o)) for name, i, o in self.layer_shapes()}
+
+  def _skip_after(self, i: int) -> bool:
+    return i % self.skip_layer == 0 and i > 0
+
+  def layer_shapes(self):
+    """(name, inputs, outputs) of every dense layer, named Dense_0.. in the released order."""
+    point_dim = 3 * (1 + 2 * (self.max_deg_point - self.min_deg_point))
+    shapes, width = [], point_dim
+    for i in range(self.net_depth):
+      shapes.append((f'Dense_{i}', width, self.net_width))
+      width = self.net_width + (point_dim if self._skip_after(i) else 0)
+    heads = [(width, 1)]
+    if self.use_viewdirs:
+      heads.append((width, self.net_width))
+      width = self.net_width + 3 * (1 + 2 * self.deg_view)
+      for _ in range(self.net_depth_viewdirs):
+        heads.append((width, self.net_width_viewdirs))
+        width = self.net_width_viewdirs
+    heads.append((width, 3))
+    return shapes + [(f'Dense_{self.net_depth + k}', i, o) for k, (i, o) in enumerate(heads)]
+
+  def _density(self, means, covs, mask_point, noise):
+    """Density [N] and trunk features (parts [N, ...]) of Gaussians [N, 3]; noise [N] or a scalar."""
+    enc = encoding.integrated_pos_enc(means, covs, self.min_deg_point, self.max_deg_point)
+    if mask_point is not None:
+      enc = enc * mask_point
+    x = (enc,)
+    for i in range(self.net_depth):
+      x = (self.net_activation(dense(self.layers[f'Dense_{i}'], *x)),)
+      if self._skip_after(i):
+        x += (enc,)  # The skip connection re-uses the masked encoding.
+    raw_density = dense(self.layers[f'Dense_{self.net_depth}'], *x)[:, 0] + noise
+    return self.density_activation(raw_density + self.density_bias), x
+
+  def _colour(self, features, view, num_samples: int):
+    """rgb [B*S, 3] from trunk features (parts [B*S, ...]) and encoded view directions [B, V]."""
+    names = iter(f'Dense_{i}' for i in range(self.net_depth + 1, 2 * self.net_depth + 4))
+    if self.use_viewdirs:
+      bottleneck = dense(self.layers[next(names)], *features)
+      layer = self.layers[next(names)]
+      # [bottleneck, view] @ kernel, with the view term computed once per ray, not per sample.
+      width = bottleneck.shape[-1]
+      per_sample = bottleneck @ layer['kernel'][:width]
+      per_ray = view @ layer['kernel'][width:] + layer['bias']
+      x = per_sample.reshape((-1, num_samples) + per_sample.shape[1:]) + per_ray[:, None]
+      features = (self.net_activation(x.reshape(per_sample.shape)),)
+      for _ in range(self.net_depth_viewdirs - 1):
+        features = (self.net_activation(dense(self.layers[next(names)], *features)),)
+    rgb = self.rgb_activation(dense(self.layers[next(names)], *features))
+    return rgb * (1 + 2 * self.rgb_padding) - self.rgb_padding
+
+  def _noise(self, key, shape):
+    """Training density noise [shape] (or one shared scalar); 0 at eval or when disabled."""
+    if key is None or self.density_noise <= 0:
+      return jnp.zeros(shape)
+    draw = random.normal(key, () if self.density_noise_shared else shape)
+    return jnp.broadcast_to(self.density_noise * draw, shape)
 
   def predict_density(self, key, means, covs, mask_point):
-    """Density [...] and trunk features [N, W] from Gaussians means, covs [..., 3]."""
-    x = encoding.integrated_pos_enc(
-        means.reshape(-1, 3), covs.reshape(-1, 3), self.min_deg_point, self.max_deg_point)
-    if mask_point is not None:
-      x = x * mask_point
-    inputs = x
-    for i, layer in enumerate(self.trunk):
-      x = self.net_activation(layer(x))
-      if i % self.skip_layer == 0 and i > 0:
-        x = jnp.concatenate([x, inputs], axis=-1)
-    raw_density = self.density_layer(x)[:, 0]
-    if key is not None and self.density_noise > 0:
-      shape = () if self.density_noise_shared else raw_density.shape
-      raw_density = raw_density + self.density_noise * random.normal(key, shape)
-    density = self.density_activation(raw_density + self.density_bias)
-    return density.reshape(means.shape[:-1]), x
+    """Density [...] of Gaussians means, covs [..., 3]."""
+    flat = means.reshape(-1, 3)
+    density, _ = self._density(flat, covs.reshape(-1, 3), mask_point, self._noise(key, flat.shape[:1]))
+    return density.reshape(means.shape[:-1])
 
   def __call__(self, key, means, covs, viewdirs, mask_point, mask_view):
     """rgb [B, S, 3] and density [B, S] for Gaussians [B, S, 3] seen along viewdirs [B, 3]."""
-    density, x = self.predict_density(key, means, covs, mask_point)
-    if self.use_viewdirs:
-      x = self.bottleneck_layer(x)
-      view = encoding.pos_enc(viewdirs, 0, self.deg_view, append_identity=True)
-      if mask_view is not None:
-        view = view * mask_view
-      view = jnp.broadcast_to(view[:, None, :], means.shape[:-1] + view.shape[-1:])
-      x = jnp.concatenate([x, view.reshape(-1, view.shape[-1])], axis=-1)
-      for layer in self.view_layers:
-        x = self.net_activation(layer(x))
-    rgb = self.rgb_activation(self.rgb_layer(x))
-    rgb = rgb * (1 + 2 * self.rgb_padding) - self.rgb_padding
-    return rgb.reshape(means.shape), density
+    view = encoding.pos_enc(viewdirs, 0, self.deg_view, append_identity=True)
+    if mask_view is not None:
+      view = view * mask_view
+    flat = means.reshape(-1, 3)
+    density, features = self._density(flat, covs.reshape(-1, 3), mask_point,
+                                      self._noise(key, flat.shape[:1]))
+    rgb = self._colour(features, view, means.shape[-2])
+    return rgb.reshape(means.shape), density.reshape(means.shape[:-1])
 
   def normals(self, means, covs, mask_point):
     """Unit normals [..., 3] = -grad(density)/|grad| at Gaussians [..., 3] (no noise)."""
-    (grad,) = nn.grad(lambda mlp, m: mlp.predict_density(None, m, covs, mask_point)[0].sum(),
-                   self, means)
+    grad = jax.grad(lambda m: self.predict_density(None, m, covs, mask_point).sum())(means)
     norm = jnp.sqrt(jnp.maximum(jnp.sum(grad**2, axis=-1, keepdims=True),
                                 jnp.finfo(jnp.float32).eps))
     return -grad / norm

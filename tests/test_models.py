@@ -8,6 +8,7 @@ import pytest
 from jax import random
 
 from conftest import random_rays
+from internal import encoding
 from internal import freq_mask
 from internal import models
 
@@ -48,7 +49,7 @@ def _noise_shift(bindings):
   means = random.normal(random.PRNGKey(0), (2, 16, 3))
   covs = jnp.full((2, 16, 3), 1e-3)
   params = mlp.init(random.PRNGKey(1), None, means, covs, None, method=models.MLP.predict_density)
-  density = lambda key: mlp.apply(params, key, means, covs, None, method=models.MLP.predict_density)[0]
+  density = lambda key: mlp.apply(params, key, means, covs, None, method=models.MLP.predict_density)
   raw = lambda d: np.log(np.expm1(np.asarray(d, np.float64)))  # Inverse softplus.
   return raw(density(random.PRNGKey(3))) - raw(density(None))
 
@@ -96,7 +97,7 @@ def test_normals_match_gradient_of_applied_density():
   means = random.normal(random.PRNGKey(5), (2, 4, 3))
   covs = jnp.full((2, 4, 3), 1e-4)
   normals = np.asarray(mlp.apply(params, means, covs, None, method=models.MLP.normals))
-  density = lambda m: mlp.apply(params, None, m, covs, None, method=models.MLP.predict_density)[0].sum()
+  density = lambda m: mlp.apply(params, None, m, covs, None, method=models.MLP.predict_density).sum()
   grad = np.asarray(jax.grad(density)(means))
   np.testing.assert_allclose(normals, -grad / np.linalg.norm(grad, axis=-1, keepdims=True), atol=1e-5)
 
@@ -104,3 +105,39 @@ def test_normals_match_gradient_of_applied_density():
 def test_unknown_ray_shape_is_a_clear_error():
   with pytest.raises(ValueError, match='ray_shape'):
     _tiny(["MipNerfModel.ray_shape = 'sphere'"])
+
+
+def test_mlp_matches_concatenating_reference():
+  # The split dense layers and the per-ray view term equal the textbook concatenated MLP.
+  model, variables = _tiny()
+  layers = variables['params']['mlp']
+  rng = np.random.default_rng(0)
+  means, covs = rng.normal(size=(2, 3, 8, 3)).astype(np.float32) * [[[[1.]]], [[[1e-2]]]]
+  viewdirs = rng.normal(size=(3, 3)).astype(np.float32)
+  rgb, density = models.MLP().apply({'params': layers}, None, means, covs, viewdirs, None, None)
+  x = enc = encoding.integrated_pos_enc(means, covs, 0, 16)
+  dense = lambda i, x: x @ layers[f'Dense_{i}']['kernel'] + layers[f'Dense_{i}']['bias']
+  x = jax.nn.relu(dense(1, jax.nn.relu(dense(0, x))))  # net_depth 2: no skip.
+  np.testing.assert_allclose(density, jax.nn.softplus(dense(2, x)[..., 0] - 1.), rtol=1e-5, atol=1e-6)
+  view = jnp.broadcast_to(encoding.pos_enc(viewdirs, 0, 4)[:, None], (3, 8, 27))
+  x = jax.nn.relu(dense(4, jnp.concatenate([dense(3, x), view], axis=-1)))
+  np.testing.assert_allclose(rgb, jax.nn.sigmoid(dense(5, x)) * 1.002 - 0.001, rtol=1e-5, atol=1e-6)
+
+
+def test_skip_connection_reuses_masked_encoding():
+  gin.parse_config(TINY + ['MLP.net_depth = 3', 'MLP.skip_layer = 1'])
+  mlp = models.MLP()
+  means = np.random.default_rng(1).normal(size=(4, 3)).astype(np.float32)
+  covs = np.full((4, 3), 1e-2, np.float32)
+  params = mlp.init(random.PRNGKey(0), None, means, covs, None, method=models.MLP.predict_density)
+  layers = params['params']
+  assert layers['Dense_2']['kernel'].shape == (16 + 99, 16)
+  mask = freq_mask.fixed_ratio_mask(99, 3 / 99)
+  enc = encoding.integrated_pos_enc(means, covs, 0, 16) * mask
+  dense = lambda i, x: x @ layers[f'Dense_{i}']['kernel'] + layers[f'Dense_{i}']['bias']
+  # skip_layer 1: the (masked) encoding is appended after layers 1 and 2.
+  x = jax.nn.relu(dense(1, jax.nn.relu(dense(0, enc))))
+  x = jax.nn.relu(dense(2, jnp.concatenate([x, enc], -1)))
+  expected = jax.nn.softplus(dense(3, jnp.concatenate([x, enc], -1))[:, 0] - 1.)
+  np.testing.assert_allclose(mlp.apply(params, None, means, covs, mask, method=models.MLP.predict_density),
+                             expected, rtol=1e-5, atol=1e-6)
