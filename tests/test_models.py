@@ -115,7 +115,7 @@ def test_mlp_matches_concatenating_reference():
   means, covs = rng.normal(size=(2, 3, 8, 3)).astype(np.float32) * [[[[1.]]], [[[1e-2]]]]
   viewdirs = rng.normal(size=(3, 3)).astype(np.float32)
   rgb, density = models.MLP().apply({'params': layers}, None, means, covs, viewdirs, None, None)
-  x = enc = encoding.integrated_pos_enc(means, covs, 0, 16)
+  x = encoding.integrated_pos_enc(means, covs, 0, 16)
   dense = lambda i, x: x @ layers[f'Dense_{i}']['kernel'] + layers[f'Dense_{i}']['bias']
   x = jax.nn.relu(dense(1, jax.nn.relu(dense(0, x))))  # net_depth 2: no skip.
   np.testing.assert_allclose(density, jax.nn.softplus(dense(2, x)[..., 0] - 1.), rtol=1e-5, atol=1e-6)
