@@ -104,14 +104,14 @@ def released_render_fn(model, params, config, step):
   mask_point, mask_view = ts.masks_at(config, jnp.asarray(step))
 
   @jax.jit
-  def render(chunk_rays):
+  def render(params, chunk_rays):
     (renderings, _), state = model.apply({'params': params}, None, chunk_rays, mask_point, mask_view,
                                          config.resample_padding_final, compute_extras=True,
                                          mutable=['intermediates'])
     normals = state['intermediates']['mlp']['normals'][-1]
     out = {k: renderings[-1][k] for k in inference.OUTPUT_KEYS}
     return dict(out, normals=normals.reshape(chunk_rays.origins.shape[0], -1))
-  return render
+  return functools.partial(render, params)  # Parameters as an argument, as in make_render_fn.
 
 
 def render_runner(render_fn, num_rays: int, chunk: int):

@@ -19,12 +19,13 @@ def make_render_fn(config, model, params, step: int, compute_normals: bool = Fal
   keys = OUTPUT_KEYS + (('normals',) if compute_normals else ())
 
   @jax.jit
-  def render(chunk):
+  def render(params, chunk):
     renderings, _ = model.apply({'params': params}, None, chunk, mask_point, mask_view, padding,
                                 compute_normals=compute_normals)
     return {k: renderings[-1][k] for k in keys}
 
-  return render
+  # Parameters are an argument, not constants folded into the compiled program.
+  return functools.partial(render, params)
 
 
 def render_image(render_fn, rays, chunk_size: int):
