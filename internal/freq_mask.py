@@ -8,25 +8,36 @@ from internal import encoding
 _LOW, _HIGH = 1e-8, 1. - 1e-8
 
 
-def _ramp_mask(group, num_groups, step, end):
-  """Opens feature groups (group [L] int) left to right: clip(ptr - group, 0, 1) -> f32 [L]."""
+def _ramp_mask(group, num, den, step, end):
+  """Opens feature groups (group [L] int) left to right, ptr = num/den * t/T + 1 -> f32 [L].
+
+  The pointer is split exactly in integers, num*t = (den*T) * (ptr - 1) with integer part n and
+  remainder r; the open group gets r / (den*T), the float32 rounding of the exact fraction. The cap
+  ptr <= num/den (an integer group count) needs no code: when it applies every group is <= n.
+  """
   if end == 0:
     return jnp.ones(group.shape, jnp.float32)
-  t = jnp.asarray(step, jnp.float32)
-  ptr = jnp.minimum(num_groups * t / end + 1., float(num_groups))
-  mask = jnp.clip(jnp.clip(ptr - jnp.asarray(group, jnp.float32), 0., 1.), _LOW, _HIGH)
+  if num * end >= 2**31 or den * end >= 2**24:
+    raise ValueError(f'Config.freq_reg_end = {end} is too large for the exact mask pointer '
+                     f'(needs {num} * T < 2**31 and {den} * T < 2**24)')
+  t = jnp.clip(jnp.asarray(step, jnp.int32), 0, end)
+  n, r = jnp.divmod(num * t, den * end)
+  frac = r.astype(jnp.float32) / jnp.float32(den * end)
+  group = jnp.asarray(group, jnp.int32)
+  mask = jnp.where(group <= n, 1., jnp.where(group == n + 1, frac, 0.))
+  mask = jnp.clip(mask, _LOW, _HIGH)
   return jnp.where(t >= end, jnp.ones_like(mask), mask)
 
 
 def released_mask(length, step, end):
   """Released mask: chunks of 3 features open left to right; f32 [length]."""
-  return _ramp_mask(np.arange(length) // 3, length / 3, step, end)
+  return _ramp_mask(np.arange(length) // 3, length, 3, step, end)
 
 
 def paper_mask(num_degrees, step, end, num_coords=3):
   """Paper-style mask: identity, then sin and cos of each degree together; f32 [C*(1+2*D)]."""
   _, degree, _ = encoding.feature_layout(num_degrees, num_coords, append_identity=True)
-  return _ramp_mask(degree + 1, num_degrees + 1, step, end)
+  return _ramp_mask(degree + 1, num_degrees + 1, 1, step, end)
 
 
 def fixed_ratio_mask(length, ratio):

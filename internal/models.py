@@ -149,6 +149,7 @@ class MipNerfModel(nn.Module):
   ray_shape: str = 'cone'
   disable_integration: bool = False
   white_background: bool = True
+  pdf_padding: str = 'released'  # 'released' | 'even': see docs/numerics.md.
 
   def setup(self):
     self.mlp = MLP()
@@ -166,7 +167,8 @@ class MipNerfModel(nn.Module):
         weights = history[-1]['weights']
         if self.stop_level_grad:
           weights = jax.lax.stop_gradient(weights)
-        t_vals = sampling.resample_t_vals(sample_key, t_vals, weights, resample_padding)
+        t_vals = sampling.resample_t_vals(sample_key, t_vals, weights, resample_padding,
+                                           self.pdf_padding)
       means, covs = gaussians.cast_rays(t_vals, rays.origins, rays.directions, rays.radii,
                                         self.ray_shape)
       if self.disable_integration:

@@ -4,7 +4,8 @@ import jax
 import jax.numpy as jnp
 
 _EPS = float(jnp.finfo(jnp.float32).eps)
-_WEIGHT_EPS = 1e-5
+_EVEN_EPS = 1e-5  # mip-NeRF's target weight sum for the 'even' padding rule.
+PDF_PADDINGS = ('released', 'even')
 
 
 def stratified_t_vals(key, near, far, num_samples):
@@ -46,23 +47,32 @@ def _sample_u(key, shape, num_samples):
     return jnp.broadcast_to(jnp.linspace(0., 1. - _EPS, num_samples), shape + (num_samples,))
   step = 1. / num_samples
   jitter = jax.random.uniform(key, shape + (num_samples,), maxval=step - _EPS)
-  return jnp.arange(num_samples) * step + jitter
+  return jnp.minimum(jnp.arange(num_samples) * step + jitter, 1. - _EPS)
 
 
-def sample_pdf(key, bins, weights, num_samples):
-  """Inverse-CDF samples of the piecewise-constant pdf (bins [B,S+1], weights [B,S]) -> [B,n]."""
+def pad_weights(weights, rule='released'):
+  """Weights [B,S] padded so that all-zero rows give a uniform pdf (docs/numerics.md) -> [B,S]."""
   weight_sum = jnp.sum(weights, axis=-1, keepdims=True)
-  pad = jnp.maximum(0., _WEIGHT_EPS - weight_sum)
-  weights = weights + pad / weights.shape[-1]
-  cdf = jnp.minimum(1., jnp.cumsum(weights[..., :-1], axis=-1) / (weight_sum + pad))
+  if rule == 'released':  # Below float32 eps, the whole deficit is added to every bin.
+    return weights + jnp.maximum(0., _EPS - weight_sum)
+  if rule == 'even':  # Below 1e-5, the deficit is spread evenly over the bins (sum becomes 1e-5).
+    return weights + jnp.maximum(0., _EVEN_EPS - weight_sum) / weights.shape[-1]
+  raise ValueError(f'MipNerfModel.pdf_padding = {rule!r}; expected one of {list(PDF_PADDINGS)}')
+
+
+def sample_pdf(key, bins, weights, num_samples, padding='released'):
+  """Inverse-CDF samples of the piecewise-constant pdf (bins [B,S+1], weights [B,S]) -> [B,n]."""
+  weights = pad_weights(weights, padding)
+  pdf = weights / jnp.sum(weights, axis=-1, keepdims=True)
+  cdf = jnp.minimum(1., jnp.cumsum(pdf[..., :-1], axis=-1))
   zeros, ones = jnp.zeros_like(cdf[..., :1]), jnp.ones_like(cdf[..., :1])
   cdf = jnp.concatenate([zeros, cdf, ones], axis=-1)
   u = _sample_u(key, bins.shape[:-1], num_samples)
   return invert_cdf(u, cdf, bins)
 
 
-def resample_t_vals(key, t_vals, weights, padding):
+def resample_t_vals(key, t_vals, weights, padding, pdf_padding='released'):
   """New sorted endpoints [B,S+1] drawn from blurred weights [B,S] over t_vals [B,S+1]; no gradient."""
   blurred = blur_weights(weights, padding)
-  new_t = sample_pdf(key, t_vals, blurred, t_vals.shape[-1])
+  new_t = sample_pdf(key, t_vals, blurred, t_vals.shape[-1], pdf_padding)
   return jax.lax.stop_gradient(jnp.sort(new_t, axis=-1))

@@ -1,8 +1,7 @@
 """Volume rendering of per-sample colours and densities along rays (mip-NeRF quadrature)."""
 
+import jax
 import jax.numpy as jnp
-
-from internal import sampling
 
 PERCENTILES = (5., 25., 50., 75., 95.)
 
@@ -23,13 +22,18 @@ def _safe_div(num, den):
 
 
 def weighted_percentiles(weights, t_vals, percentiles):
-  """Percentiles [B,P] of the step pdf (weights [B,S] over t_vals [B,S+1]); t_last when weights are 0."""
-  acc = jnp.sum(weights, axis=-1, keepdims=True)
-  cdf = jnp.minimum(1., _safe_div(jnp.cumsum(weights, axis=-1), acc))
-  cdf = jnp.concatenate([jnp.zeros_like(acc), cdf], axis=-1)
-  u = jnp.broadcast_to(jnp.asarray(percentiles, jnp.float32) / 100., acc.shape[:-1] + (len(percentiles),))
-  values = sampling.invert_cdf(u, cdf, t_vals)
-  return jnp.where(acc > 0, values, t_vals[..., -1:])
+  """Percentiles [B,P]: levels p*acc interpolated in the cumulative weights [B,S] against the midpoints.
+
+  This is the released weighted percentile (docs/numerics.md): at acc = 0 every cumulative weight is 0
+  and the result is the second-to-last midpoint.
+  """
+  t_mids = 0.5 * (t_vals[..., :-1] + t_vals[..., 1:])
+  cum = jnp.cumsum(weights, axis=-1)
+  levels = jnp.asarray(percentiles, jnp.float32) / 100. * cum[..., -1:]
+  batch = weights.shape[:-1]
+  flat = jax.vmap(jnp.interp)(levels.reshape(-1, len(percentiles)), cum.reshape(-1, cum.shape[-1]),
+                           t_mids.reshape(-1, t_mids.shape[-1]))
+  return flat.reshape(batch + (len(percentiles),))
 
 
 def volumetric_rendering(rgb, density, t_vals, directions, white_background, compute_extras=False):
@@ -41,7 +45,8 @@ def volumetric_rendering(rgb, density, t_vals, directions, white_background, com
     comp_rgb = comp_rgb + (1. - acc[..., None])
   t_mids = 0.5 * (t_vals[..., :-1] + t_vals[..., 1:])
   mean = _safe_div(jnp.sum(weights * t_mids, axis=-1), acc)
-  distance_mean = jnp.clip(jnp.where(acc > 0, mean, jnp.inf), t_vals[..., 0], t_vals[..., -1])
+  # Where acc = 0 the released code's nan_to_num gives 0, which the clip turns into near.
+  distance_mean = jnp.clip(mean, t_vals[..., 0], t_vals[..., -1])
   percentiles = weighted_percentiles(weights, t_vals, PERCENTILES)
   out = {'rgb': comp_rgb, 'acc': acc, 'weights': weights, 'distance_mean': distance_mean,
          'distance_median': percentiles[..., PERCENTILES.index(50.)]}

@@ -180,7 +180,19 @@ def test_row_radii_uses_row_neighbours():
   dirs[:, :, 0] = np.arange(2)[None, :] * 10.   # Column steps of 10 must not matter.
   dirs[:, :, 1] = np.array([0., 1., 3.])[:, None]
   radii = raygen.row_radii(dirs)[..., 0]
-  np.testing.assert_allclose(radii, np.array([[1, 1], [2, 2], [2, 2]]) * 2. / np.sqrt(12.))
+  # Row distances [1, 2]; the last row repeats the second-to-last distance (1) as released.
+  np.testing.assert_allclose(radii, np.array([[1, 1], [2, 2], [1, 1]]) * 2. / np.sqrt(12.))
+
+
+def test_ndc_radii_pad_with_second_to_last_distance():
+  origins = np.zeros((3, 4, 3))
+  origins[..., 0] = np.array([0., 1., 3., 7.])[None, :]  # column distances 1, 2, 4
+  origins[..., 1] = np.array([0., 2., 5.])[:, None]      # row distances 2, 3
+  dx = np.array([2., 3., 2.])[:, None]
+  dy = np.array([1., 2., 4., 2.])[None, :]
+  np.testing.assert_allclose(raygen.ndc_radii(origins)[..., 0], .5 * (dx + dy) * 2. / np.sqrt(12.))
+  assert raygen.row_radii(np.zeros((2, 1, 3)) + [[[0., 0., 0.]], [[0., 3., 0.]]]).ravel().tolist() == \
+      [3. * 2. / np.sqrt(12.)] * 2  # A single distance is repeated.
 
 
 def test_dtu_rays_shifted_onto_plane_on_the_same_line():

@@ -75,6 +75,20 @@ def test_fern_ids_shapes_and_ndc(fern):
   np.testing.assert_array_equal(test.images[1], read_png(DATA / 'llff/fern/images_8/image008.png'))
 
 
+def test_fern_last_column_radii_released(fern):
+  """The last column repeats the second-to-last column distance, not the last (about 4e-4 apart, which
+  moves the radii, a mean of row and column distances, by about 2e-4)."""
+  _, test = fern
+  o = test.rays.origins[0].astype(np.float64)
+  dx = np.linalg.norm(np.diff(o, axis=0), axis=-1)
+  dx = np.concatenate([dx, dx[-2:-1]], 0)
+  dy = np.linalg.norm(np.diff(o, axis=1), axis=-1)
+  released = .5 * (dx[:, -1] + dy[:, -2]) * 2. / np.sqrt(12.)
+  former = .5 * (dx[:, -1] + dy[:, -1]) * 2. / np.sqrt(12.)
+  np.testing.assert_allclose(test.rays.radii[0, :, -1, 0], released, rtol=2e-5)
+  assert np.max(np.abs(former / released - 1.)) > 1.5e-4
+
+
 def test_fern_rays_through_one_point(fern):
   """Project a point into every camera of poses_bounds.npy; the loaders' rays there meet in one point."""
   train, test = fern

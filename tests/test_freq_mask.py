@@ -52,8 +52,25 @@ def test_released_worked_example(ratio, length, expected):
 def test_released_matches_literal_reference():
   for length in (99, 27):
     for step in range(0, 1100, 7):
-      np.testing.assert_allclose(freq_mask.released_mask(length, step, END),
-                                 _reference_released(length, step, END), rtol=0, atol=4e-6)
+      np.testing.assert_array_equal(freq_mask.released_mask(length, step, END),
+                                    _reference_released(length, step, END).astype(np.float32))
+
+
+def test_released_pointer_is_exact():
+  """L = 99, T = 62791, t = 59127: ptr - 1 = 33 t / T = 31 + 4670 / 62791 exactly; group 32 (features
+  96..98) gets the float32 rounding of 4670 / 62791 = 0.0743737 (a float32 pointer gave 0.0743713)."""
+  mask = np.asarray(freq_mask.released_mask(99, 59127, 62791))
+  ptr = 99 / 3 * 59127 / 62791 + 1  # The released formula in float64.
+  np.testing.assert_array_equal(mask[96:], np.float32(ptr - int(ptr)))
+  assert mask[96] == np.float32(4670 / 62791) and abs(mask[96] - 0.0743737) < 5e-8
+  np.testing.assert_array_equal(mask[:96], 1.)
+  traced = jax.jit(lambda s: freq_mask.released_mask(99, s, 62791))(jnp.int32(59127))
+  np.testing.assert_array_equal(traced, mask)
+
+
+def test_pointer_bound_checked():
+  with pytest.raises(ValueError, match='Config.freq_reg_end'):
+    freq_mask.released_mask(99, 0, 2**25)
 
 
 def test_released_ends():

@@ -134,3 +134,34 @@ def test_invert_cdf_hand_example():
   bins = jnp.array([[0., 1., 2., 3., 4.]])
   u = jnp.array([[0., 0.25, 0.5, 0.75, 0.999]])
   np.testing.assert_allclose(sampling.invert_cdf(u, cdf, bins), [[1., 1.5, 2., 2.5, 2.998]], atol=1e-6)
+
+
+def test_pdf_padding_issue_case():
+  """32 bins over [0, 4], weight 1e-6 in bin 9 only, resample padding 0: the two padding rules."""
+  t = jnp.linspace(0., 4., 33)[None]
+  weights = jnp.zeros((1, 32)).at[0, 9].set(1e-6)
+  u = np.linspace(0., 1. - np.finfo(np.float32).eps, 33)
+  # Blur: 0.5e-6, 1e-6, 0.5e-6 in bins 8..10 (sum 2e-6 > float32 eps: no released padding), so the
+  # released cdf rises 0 -> .25 -> .75 -> 1 over t = 1, 1.125, 1.25, 1.375.
+  released = np.asarray(resample_t_vals(None, t, weights, 0.))[0]
+  np.testing.assert_allclose(released, np.interp(u, [0., .25, .75, 1.], [1., 1.125, 1.25, 1.375]), atol=1e-6)
+  assert released[0] == 1. and released[-1] <= 1.375
+  # 'even' (the former rule): sum 2e-6 < 1e-5, so every bin gets 8e-6 / 32 and samples span [0, 4].
+  blurred = np.zeros(32)
+  blurred[8:11] = [.5e-6, 1e-6, .5e-6]
+  padded = blurred + 8e-6 / 32
+  cdf = np.r_[0., np.cumsum(padded)[:-1] / padded.sum(), 1.]
+  even = np.asarray(sampling.resample_t_vals(None, t, weights, 0., 'even'))[0]
+  np.testing.assert_allclose(even, np.interp(u, cdf, np.linspace(0., 4., 33)), atol=1e-5)
+  np.testing.assert_allclose(even[-2], 3.84375, atol=1e-5)
+
+
+def test_released_padding_below_float32_eps():
+  """Released rule: a sum below eps gets eps - sum added to every bin; zero rows become uniform."""
+  eps = np.finfo(np.float32).eps
+  w = jnp.array([[0., 4e-8, 0., 0.], [0., 0., 0., 0.], [0., 1e-6, 0., 0.]])
+  np.testing.assert_allclose(sampling.pad_weights(w), [[eps - 4e-8] * 4 + np.array([0., 4e-8, 0., 0.]),
+                                                       [eps] * 4, [0., 1e-6, 0., 0.]], rtol=1e-6)
+  np.testing.assert_allclose(sampling.pad_weights(w[1:2], 'even'), [[2.5e-6] * 4], rtol=1e-6)
+  with pytest.raises(ValueError, match='MipNerfModel.pdf_padding'):
+    sampling.pad_weights(w, 'uniform')

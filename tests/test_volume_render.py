@@ -82,9 +82,10 @@ def test_constant_density_closed_form(sigma, near, far, d_scale):
   # Continuous expected depth of the truncated exponential, within the quadrature error.
   continuous = near + 1. / k - length * np.exp(-k * length) / acc
   np.testing.assert_allclose(out['distance_mean'], [continuous], rtol=1e-4)
-  # Continuous median: the depth where the truncated exponential's CDF reaches 1/2.
+  # Continuous median: the depth where the truncated exponential's CDF reaches 1/2. The released rule
+  # puts the cumulative weight of interval i at its midpoint, not its end: half an interval earlier.
   median = near - np.log(1. - 0.5 * acc) / k
-  np.testing.assert_allclose(out['distance_median'], [median], rtol=2e-4)
+  np.testing.assert_allclose(out['distance_median'], [median - 0.5 * delta], rtol=2e-4)
 
 
 def test_median_and_percentiles_hand_example():
@@ -97,10 +98,12 @@ def test_median_and_percentiles_hand_example():
   density = jnp.asarray(-np.log1p(-np.minimum(alpha, 1. - 1e-7)), jnp.float32)
   out = render(jnp.zeros((2, 4, 3)), density, t_vals, directions, False, True)
   np.testing.assert_allclose(out['weights'], weights, atol=2e-6)
-  # CDF at endpoints: [0, .1, .3, .7, 1] -> median 2 + (0.5 - 0.3) / 0.4 = 2.5; [0, 0, .5, 1, 1] -> 2.
-  np.testing.assert_allclose(out['distance_median'], [2.5, 2.], atol=1e-4)
-  p = [0.5, 1. + 0.15 / 0.2, 2.5, 3. + 0.05 / 0.3, 3. + 0.25 / 0.3]
-  np.testing.assert_allclose(out['distance_percentiles'], [p, [1.1, 1.5, 2., 2.5, 2.9]], atol=1e-4)
+  # Released rule: cumulative weights [.1, .3, .7, 1] and [0, .5, 1, 1] against the midpoints
+  # [.5, 1.5, 2.5, 3.5]: medians 1.5 + (.5 - .3) / .4 = 2 and 1.5. Inverting the step CDF at the
+  # interval ends (the former rule) gave 2.5 and 2, half an interval later.
+  np.testing.assert_allclose(out['distance_median'], [2., 1.5], atol=1e-4)
+  p = [0.5, 0.5 + 0.15 / 0.2, 2., 2.5 + 0.05 / 0.3, 2.5 + 0.25 / 0.3]
+  np.testing.assert_allclose(out['distance_percentiles'], [p, [.6, 1., 1.5, 2., 2.4]], atol=1e-4)
   mids = np.array([0.5, 1.5, 2.5, 3.5])
   mean = (weights * mids).sum(-1)
   std = np.sqrt((weights * (mids - mean[:, None])**2).sum(-1))
@@ -134,8 +137,10 @@ def test_extreme_density_finite_values_and_gradients(density_value, white_backgr
   assert all(np.all(np.isfinite(v)) for v in out.values())
   if density_value == 0.:
     np.testing.assert_array_equal(out['acc'], np.zeros(3))
-    np.testing.assert_array_equal(out['distance_mean'], t_vals[:, -1])  # nan -> far
-    np.testing.assert_array_equal(out['distance_median'], t_vals[:, -1])
+    # Released: 0/0 -> 0, clipped to near (the former rule gave far); every cumulative weight is 0,
+    # so the percentile interpolation returns the second-to-last midpoint.
+    np.testing.assert_array_equal(out['distance_mean'], t_vals[:, 0])
+    np.testing.assert_allclose(out['distance_median'], 0.5 * (t_vals[:, -3] + t_vals[:, -2]), rtol=1e-6)
     np.testing.assert_allclose(out['rgb'], np.full((3, 3), float(white_background)))
   else:
     np.testing.assert_allclose(out['acc'], np.ones(3))

@@ -31,11 +31,17 @@ def norm(x: np.ndarray) -> np.ndarray:
   return np.sqrt(np.einsum('...i,...i->...', x, x))
 
 
+def neighbour_distances(x: np.ndarray, axis: int) -> np.ndarray:
+  """Distances [H,W] between neighbours of x [H,W,3] along axis; the last entry repeats the
+  second-to-last distance as in the released code (the only one when the axis has length 2)."""
+  d = norm(np.diff(x, axis=axis))
+  pad = np.take(d, [max(d.shape[axis] - 2, 0)], axis=axis)
+  return np.concatenate([d, pad], axis=axis)
+
+
 def row_radii(directions: np.ndarray) -> np.ndarray:
-  """[H,W,1] radii: distance between vertically adjacent directions (last row repeated) x 2/sqrt(12)."""
-  dx = norm(np.diff(directions, axis=0))
-  dx = np.concatenate([dx, dx[-1:]], axis=0)
-  return dx[..., None] * 2. / np.sqrt(12.)
+  """[H,W,1] radii: distance between vertically adjacent directions x 2/sqrt(12)."""
+  return neighbour_distances(directions, 0)[..., None] * 2. / np.sqrt(12.)
 
 
 def shift_origins(origins: np.ndarray, directions: np.ndarray, plane_z: float) -> np.ndarray:
@@ -57,10 +63,7 @@ def convert_to_ndc(origins: np.ndarray, directions: np.ndarray, focal: float, he
 
 def ndc_radii(ndc_origins: np.ndarray) -> np.ndarray:
   """[H,W,1] radii from NDC origins [H,W,3]: mean of row and column neighbour distances x 2/sqrt(12)."""
-  dx = norm(np.diff(ndc_origins, axis=0))
-  dx = np.concatenate([dx, dx[-1:]], axis=0)
-  dy = norm(np.diff(ndc_origins, axis=1))
-  dy = np.concatenate([dy, dy[:, -1:]], axis=1)
+  dx, dy = neighbour_distances(ndc_origins, 0), neighbour_distances(ndc_origins, 1)
   return (.5 * (dx + dy))[..., None] * 2. / np.sqrt(12.)
 
 
