@@ -19,6 +19,7 @@ import jax
 
 from internal import checkpoints
 from internal import datasets
+from internal.datasets import packed
 from internal import inference
 from internal import lpips
 from internal import metrics
@@ -45,10 +46,13 @@ def dataset_and_scene(config) -> tuple:
   A generated scene is filed under the layout it is written in (blender for the object rig, llff for the
   forward rig) as scene 'generated_<rig>', which tools.tables shows but never averages.
   """
-  if config.dataset_loader == 'generated':
+  loader = config.dataset_loader
+  if loader == 'packed':  # Filed like the scene it was packed from (its settings are checked on load).
+    loader = packed.source_loader(config.data_dir)
+  if loader == 'generated':
     return ('blender' if config.generated_rig == 'object' else 'llff'), f'generated_{config.generated_rig}'
   scene = {'dtu': config.dtu_scan, 'llff': config.llff_scan, 'blender': config.blender_scene}
-  return config.dataset_loader, scene[config.dataset_loader]
+  return loader, scene[loader]
 
 
 def load_lpips_fn(config):

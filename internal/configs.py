@@ -6,7 +6,7 @@ from typing import Optional, Sequence
 
 import gin
 
-DATASET_LOADERS = ('dtu', 'llff', 'blender', 'generated')
+DATASET_LOADERS = ('dtu', 'llff', 'blender', 'generated', 'packed')
 
 
 @gin.configurable()
@@ -28,7 +28,7 @@ class Config:
 
   # Data.
   dataset_loader: str = 'generated'     # One of DATASET_LOADERS.
-  data_dir: str = 'out/generated_scene'
+  data_dir: str = 'out/generated_scene'  # 'packed': the .npz written by tools.pack_scene.
   dtu_scan: str = 'scan8'
   llff_scan: str = 'fern'
   blender_scene: str = 'lego'

@@ -4,9 +4,9 @@ import dataclasses
 
 import numpy as np
 
-from internal.datasets import base, blender, dtu, llff, synthetic
+from internal.datasets import base, blender, dtu, llff, packed, synthetic
 
-LOADERS = ('dtu', 'llff', 'blender', 'generated')
+LOADERS = ('dtu', 'llff', 'blender', 'generated', 'packed')
 
 
 def load_generated(split: str, config) -> base.Dataset:
@@ -28,6 +28,8 @@ def load_dataset(split: str, config) -> base.Dataset:
   """Loads split ('train' | 'test') of the scene Config selects, as a Dataset."""
   base.check_split(split)
   base.check_choice('dataset_loader', config.dataset_loader, LOADERS)
+  if config.dataset_loader == 'packed':
+    return packed.load_packed(split, config)
   if config.dataset_loader == 'dtu':
     return dtu.load_dtu(split, config)
   if config.dataset_loader == 'llff':
@@ -43,6 +45,8 @@ def load_dataset(split: str, config) -> base.Dataset:
 def render_path_rays(config):
   """Rays [F,H,W,...] of the scene's render path (spiral for LLFF/DTU, orbit for object-centric scenes)."""
   base.check_choice('dataset_loader', config.dataset_loader, LOADERS)
+  if config.dataset_loader == 'packed':
+    return packed.render_path_rays(config)
   if config.dataset_loader == 'dtu':
     return dtu.render_path_rays(config)
   if config.dataset_loader == 'llff':

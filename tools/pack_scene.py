@@ -1,0 +1,47 @@
+"""Packs one scene (both splits, cameras, DTU masks, render-path cameras) into a single compressed .npz.
+
+Usage: python -m tools.pack_scene --gin_configs=configs/freenerf/dtu3_freenerf.gin \\
+         --gin_bindings="Config.data_dir = '/data/dtu'" "Config.dtu_scan = 'scan24'" --out scan24.npz
+
+The flags are those of train.py; the scene is loaded with them, packed, read back and compared with what
+the loader returned (rays bitwise, images/masks exactly) before the file is kept. Train or evaluate on it
+with Config.dataset_loader = 'packed' and Config.data_dir = '<file>.npz'; the settings that shaped the data
+(factor, n_input_views, split settings, ...) must stay as they were. See internal/datasets/packed.py.
+"""
+
+import dataclasses
+import os
+import sys
+
+from internal import run_dir
+from internal.datasets import base, load_dataset, packed
+
+
+def pack(config, out: str) -> dict:
+  """Writes the pack of Config's scene to out after checking it loads back equal; returns {split: Dataset}."""
+  datasets = {split: load_dataset(split, config) for split in base.SPLITS}
+  packed.write_pack(out, packed.pack_arrays(config, datasets))
+  reloaded = dataclasses.replace(config, dataset_loader='packed', data_dir=out)
+  for split, data in datasets.items():
+    diff = packed.datasets_equal(packed.load_packed(split, reloaded), data)
+    if diff:
+      os.remove(out)
+      raise RuntimeError(f'packed {split} split differs from the loaded one in {diff}; nothing written')
+  return datasets
+
+
+def main(argv=None) -> int:
+  parser = run_dir.flag_parser(__doc__.splitlines()[0])
+  parser.add_argument('--out', required=True, metavar='FILE.npz', help='the pack to write')
+  args = parser.parse_args(argv)
+  if not args.out.endswith('.npz'):
+    parser.error(f'--out {args.out!r}: expected a file name ending in .npz')
+  config = run_dir.config_from_flags(args)
+  datasets = pack(config, args.out)
+  views = ', '.join(f'{split} {len(d.ids)} views {d.height}x{d.width}' for split, d in datasets.items())
+  print(f'{args.out}: {os.path.getsize(args.out) / 2**20:.2f} MiB ({config.dataset_loader}, {views})')
+  return 0
+
+
+if __name__ == '__main__':
+  sys.exit(main())
