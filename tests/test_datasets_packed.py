@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+import eval as eval_lib
 from conftest import SHARED_DATA
 from internal.configs import Config
 from internal.datasets import DatasetError, DatasetNotFoundError, load_dataset, packed, render_path_rays
@@ -117,3 +118,10 @@ def test_real_scene_packed_equals_unpacked(tmp_path, name, config):
   with np.load(tmp_path / f'{name}.npz') as f:
     n_cameras = 49 if name == 'dtu_scan24' else 20
     assert f['cameras/camtoworlds'].shape == (n_cameras, 3, 4) and f['cameras/pixtocams'].shape == (n_cameras, 3, 3)
+
+
+def test_eval_files_a_pack_under_its_source(tmp_path):
+  config = generated_config(tmp_path, 'object')
+  pack_scene.pack(config, str(tmp_path / 'scene.npz'))
+  reloaded = dataclasses.replace(config, dataset_loader='packed', data_dir=str(tmp_path / 'scene.npz'))
+  assert eval_lib.dataset_and_scene(reloaded) == eval_lib.dataset_and_scene(config) == ('blender', 'generated_object')
