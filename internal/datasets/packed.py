@@ -31,7 +31,7 @@ FIELDS = ('images', 'masks', 'depths', 'object_masks')
 
 def _jsonable(value):
   """Tuples as lists, numpy scalars as Python numbers (JSON round trip)."""
-  return json.loads(json.dumps(value, default=lambda x: x.item() if hasattr(x, 'item') else list(x)))
+  return json.loads(json.dumps(value, default=lambda x: x.tolist()))
 
 
 def settings(config, source: str) -> dict:
@@ -98,8 +98,8 @@ def _dtu_record(config, datasets: dict) -> dict:
   if not paths:
     raise base.DatasetNotFoundError(f'DTU render path: no training image found in {scan_dir!r} to size the frames')
   full_h, full_w = image_io.image_size(paths[0])
-  record['arrays'].update({'cameras/camtoworlds': poses,
-                           'cameras/pixtocams': dtu.normalized_cameras(projections, base.load_factor(config, 'train'))[0],
+  train_pixtocams = dtu.normalized_cameras(projections, base.load_factor(config, 'train'))[0]
+  record['arrays'].update({'cameras/camtoworlds': poses, 'cameras/pixtocams': train_pixtocams,
                            'render/source': poses, 'render/pixtocam': pixtocams[test_ids].mean(0)})
   record['render'] = {'height': full_h // factor, 'width': full_w // factor}
   return record
@@ -187,7 +187,8 @@ def pack_arrays(config, datasets: dict) -> dict:
         arrays.update(encode(f'{split}/{field}', getattr(data, field)))
     splits[split] = {'ids': list(map(int, data.ids)), 'height': data.height, 'width': data.width,
                      'near': float(data.near), 'far': float(data.far), 'name': data.name}
-  meta = {'version': VERSION, 'source_loader': source, 'settings': settings(config, source), 'ray_kind': record['ray_kind'], 'path_kind': record['path_kind'],
+  meta = {'version': VERSION, 'source_loader': source, 'settings': settings(config, source),
+          'ray_kind': record['ray_kind'], 'path_kind': record['path_kind'],
           'ray_params': {'near': float(config.near), 'far': float(config.far),
                          'near_origin': float(config.near_origin)},
           'render': {**record['render'], 'factor': render_factor(config)}, 'splits': splits}
