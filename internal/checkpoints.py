@@ -4,6 +4,7 @@ import os
 
 import jax
 from jax import random
+import numpy as np
 import orbax.checkpoint as ocp
 
 from internal import train_step
@@ -27,11 +28,24 @@ def reader(run_dir: str) -> ocp.CheckpointManager:
   return ocp.CheckpointManager(os.path.abspath(os.path.join(run_dir, CHECKPOINT_SUBDIR)), options=options)
 
 
+def nonfinite_leaves(tree) -> list:
+  """Key paths of the leaves of tree holding NaN or Inf (fetched to the host)."""
+  return [jax.tree_util.keystr(path) for path, x in jax.tree_util.tree_leaves_with_path(jax.device_get(tree))
+          if not np.all(np.isfinite(x))]
+
+
 def save(mngr: ocp.CheckpointManager, state) -> bool:
-  """Starts an async save of TrainState at its step unless that step is already saved; True if started."""
+  """Starts an async save of TrainState at its step unless that step is already saved; True if started.
+
+  Raises NonFiniteError, writing nothing, when a value of the state is not finite.
+  """
   step = int(state.step)
   if step in mngr.all_steps():
     return False
+  bad = nonfinite_leaves(state)
+  if bad:
+    raise train_step.NonFiniteError(f'step {step}: refusing to save a checkpoint with non-finite values in '
+                                    f'{", ".join(bad[:3])}{" ..." if len(bad) > 3 else ""}')
   return mngr.save(step, args=ocp.args.StandardSave(state))
 
 
