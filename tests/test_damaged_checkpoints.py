@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from conftest import random_rays
 import eval as eval_lib
 from internal import checkpoints
 from internal import train_step
@@ -50,13 +51,9 @@ def _copy(run, tmp_path, how='truncate', steps=(6,)):
 
 
 def _template(scene, run):
+  """A TrainState at step 0 of the run's config, to restore into."""
   return train_step.create_train_state(tiny_config(scene, run, *BINDINGS), jax.random.PRNGKey(0),
-                                       jax.tree.map(lambda x: x[:8], _rays()))[1]
-
-
-def _rays():
-  from conftest import random_rays  # pylint: disable=import-outside-toplevel
-  return random_rays(0, 8)
+                                       random_rays(0, 8))[1]
 
 
 @pytest.mark.parametrize('how', ['truncate', 'delete', 'empty'])

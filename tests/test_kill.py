@@ -1,6 +1,7 @@
 """kill -9 at random moments (many during checkpoint saves), restart, repeat: the result equals a straight run."""
 
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -12,7 +13,8 @@ import numpy as np
 from internal import checkpoints
 from internal import datasets
 from internal import train_step
-from test_checkpoints import DEMO, JAX_CACHE, ROOT, TINY, _leaves, _read_stderr, scene_dir, tiny_config  # pylint: disable=unused-import
+from test_checkpoints import (  # pylint: disable=unused-import  (scene_dir: fixture)
+    DEMO, JAX_CACHE, ROOT, TINY, _leaves, _read_stderr, scene_dir, tiny_config)
 import train
 
 STEPS, KILLS = 40, 10
@@ -22,7 +24,7 @@ BINDINGS = (f'Config.max_steps = {STEPS}', 'Config.checkpoint_every = 1', 'Confi
 
 def _progress(chunks) -> list:
   """Every 'k/STEPS' step count of the progress output so far."""
-  return [int(k) for k in __import__('re').findall(rf'(\d+)/{STEPS}\b', ''.join(chunks))]
+  return [int(k) for k in re.findall(rf'(\d+)/{STEPS}\b', ''.join(chunks))]
 
 
 def _start(cmd, env):
