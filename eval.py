@@ -99,15 +99,15 @@ def write_csv(per_image: list, path: str) -> None:
 def evaluate(config) -> dict:
   """Renders and scores the test views of the run's newest checkpoint; returns the metrics.json record."""
   run_dir = run_dir_lib.check_run_dir(config)
-  step = checkpoints.latest_step(run_dir)
+  test_set = datasets.load_dataset('test', config)
+  positions = select_positions(config, len(test_set.ids))
+  model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], test_set.rays))
+  step = int(state.step)  # The newest intact checkpoint's.
   out_dir = output_dir(run_dir, step)
   metrics_path = os.path.join(out_dir, tables.METRICS_FILENAME)
   if os.path.exists(metrics_path) and not config.overwrite:
     raise FileExistsError(f'{metrics_path!r} exists (step {step} was evaluated already); set '
                           'Config.overwrite = True to evaluate again and replace it')
-  test_set = datasets.load_dataset('test', config)
-  positions = select_positions(config, len(test_set.ids))
-  model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], test_set.rays))
   render_fn = inference.make_render_fn(config, model, state.params, step)
   lpips_fn, lpips_reason = load_lpips_fn(config)
   os.makedirs(out_dir, exist_ok=True)

@@ -60,13 +60,13 @@ def write_video(frames, path: str) -> None:
 def render(config) -> str:
   """Renders every frame of the path; returns the output folder (refuses to replace one unless Config.overwrite)."""
   run_dir = run_dir_lib.check_run_dir(config)
-  step = checkpoints.latest_step(run_dir)
+  path_rays = datasets.render_path_rays(config)
+  model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], path_rays))
+  step = int(state.step)  # The newest intact checkpoint's.
   out_dir = output_dir(run_dir, step)
   if os.path.isdir(out_dir) and os.listdir(out_dir) and not config.overwrite:
     raise FileExistsError(f'{out_dir!r} holds renders of step {step} already; set Config.overwrite = True to '
                           'replace them')
-  path_rays = datasets.render_path_rays(config)
-  model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], path_rays))
   render_fn = inference.make_render_fn(config, model, state.params, step)
   os.makedirs(out_dir, exist_ok=True)
   frames = {'color': [], 'depth': [], 'opacity': []}
@@ -79,7 +79,7 @@ def render(config) -> str:
     for name, image in vis.visualize(rendering, depth_range).items():
       vis.save_png(image, os.path.join(out_dir, f'{name}_{f:03d}.png'))
       frames[name].append(vis.to_uint8(image))
-  print(f'{num_frames} frames in {out_dir!r}')
+  print(f'{num_frames} frames of step {step} in {out_dir!r}')
   if can_write_video():
     scene = eval_lib.dataset_and_scene(config)[1]
     for name, images in frames.items():

@@ -41,6 +41,7 @@ class TrainResult:
   state: train_step_lib.TrainState
   run_dir: str
   signum: object = None
+  skipped: int = 0  # Updates skipped for non-finite values in this call.
 
 
 class StopFlag:
@@ -73,27 +74,37 @@ class Progress:
     self.window = []
     self.bar = tqdm.tqdm(total=config.max_steps, initial=first_step - 1, unit='step', dynamic_ncols=True)
     self.tic = time.time()
+    self.skips = train_step_lib.SkipCounter(config.nonfinite_grad_policy, config.max_skipped_steps)
 
   def add(self, step: int, stats) -> None:
-    """Records a step's stats (no device sync)."""
+    """Records a step's stats; under policy 'raise' it waits for the step to check it (no overlap of steps)."""
+    if self.config.nonfinite_grad_policy == 'raise':
+      self.skips.record(jax.device_get(stats), step)
     self.window.append((step, stats))
     self.bar.update(1)
 
   def flush(self, step: int) -> None:
-    """Fetches the window's stats, checks gradients, logs window means and throughput, updates the bar."""
+    """Fetches the window's stats, counts skipped updates, logs window means and throughput, updates the bar."""
     if not self.window:
       return
     host = jax.device_get(self.window)
-    for s, stats in host:
-      train_step_lib.check_stats(stats, s, self.config.nonfinite_grad_policy)
+    if self.config.nonfinite_grad_policy != 'raise':
+      for s, stats in host:
+        self.skips.record(stats, s)
+    skipped = [(s, stats) for s, stats in host if stats['skipped']]
+    if skipped:
+      window = f'step {step}' if host[0][0] == step else f'steps {host[0][0]}-{step}'
+      tqdm.tqdm.write(f'{window}: {len(skipped)} update(s) skipped (step {skipped[-1][0]}: '
+                      f'non-finite {train_step_lib.skip_reason(skipped[-1][1])}); {self.skips.total} in all')
     elapsed = max(time.time() - self.tic, 1e-9)
     means = {k: float(np.mean([stats[k] for _, stats in host])) for k in host[-1][1]}
     means['rays_per_sec'] = self.config.batch_size * len(host) / elapsed
     means['steps_per_sec'] = len(host) / elapsed
     for k, v in means.items():
       self.writer.add_scalar(f'train/{k}', v, step)
+    self.writer.add_scalar('train/skipped_steps', self.skips.total, step)
     self.bar.set_postfix(loss=f'{means["loss"]:.4f}', psnr=f'{means["psnr"]:.2f}',
-                         rays_per_s=f'{means["rays_per_sec"]:.0f}', refresh=False)
+                         rays_per_s=f'{means["rays_per_sec"]:.0f}', skipped=self.skips.total, refresh=False)
     self.window, self.tic = [], time.time()
 
   def close(self) -> None:
@@ -141,16 +152,19 @@ def train(config, stop_at_step: int = 0) -> TrainResult:
   last = min(config.max_steps, stop_at_step) if stop_at_step > 0 else config.max_steps
   try:
     with tensorboardX.SummaryWriter(os.path.join(run_dir, 'tensorboard')) as writer, stop_on_signals() as stop:
-      state = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last)
+      state, skipped = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last)
     checkpoints.save(mngr, state)
   finally:
     mngr.wait_until_finished()
     mngr.close()
-  return TrainResult(model, state, run_dir, stop.signum)
+  return TrainResult(model, state, run_dir, stop.signum, skipped)
 
 
 def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: int):
-  """Steps from state.step + 1 to last (or until a signal); saves every Config.checkpoint_every steps."""
+  """Steps from state.step + 1 to last (or until a signal); saves every Config.checkpoint_every steps.
+
+  Returns (state, number of skipped updates). The stats are fetched and checked before every save.
+  """
   step_fn = train_step_lib.make_train_step(config, model)
   first = int(state.step) + 1
   progress = Progress(config, writer, first)
@@ -167,10 +181,11 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
         test_set = test_set if test_set is not None else datasets.load_dataset('test', config)
         preview(config, model, state, step, test_set, writer)
       if step % config.checkpoint_every == 0 and step < last:
+        progress.flush(step)
         checkpoints.save(mngr, state)
   finally:
     progress.close()
-  return state
+  return state, progress.skips.total
 
 
 def run_demo(config) -> float:
@@ -196,6 +211,9 @@ def main(argv=None) -> int:
           'Run the same command again to resume.')
     return 128 + int(result.signum)
   print(f'Trained to step {step}; run directory {result.run_dir!r}.')
+  if result.skipped:
+    print(f'{result.skipped} update(s) were skipped for non-finite values (see the log above and '
+          'train/skipped_steps in tensorboard).')
   if demo:
     psnr = run_demo(config)
     print(f'Demo test PSNR at step {step}: {psnr:.2f} dB (outputs in {result.run_dir!r}).')

@@ -1,23 +1,39 @@
-"""Orbax checkpoints of the TrainState in <run dir>/checkpoints/<step>/ (async saves, keep-N, read-only loads)."""
+"""Orbax checkpoints of the TrainState in <run dir>/checkpoints/<step>/ (async saves, keep-N, read-only loads).
 
+A damaged step folder (missing metadata, deleted or truncated data, e.g. from a crash during a save) is reported
+in one line and the newest intact checkpoint is used instead; training moves the damaged folder aside to
+checkpoints/damaged_<step>_<time> (kept for the user, ignored by orbax) so that later saves are not confused by it.
+"""
+
+import json
 import os
+import sys
+import time
 
 import jax
 from jax import random
+import numpy as np
 import orbax.checkpoint as ocp
+import tensorstore
+
 
 from internal import train_step
 
 CHECKPOINT_SUBDIR = 'checkpoints'
+ITEM = 'default'  # The folder orbax writes a single StandardSave item to.
 
 
 class NoCheckpointError(FileNotFoundError):
   """A run directory holds no checkpoint to evaluate or render."""
 
 
+class NoIntactCheckpointError(NoCheckpointError):
+  """Every checkpoint of a run directory is damaged."""
+
+
 def manager(run_dir: str, keep: int) -> ocp.CheckpointManager:
   """An orbax CheckpointManager on <run_dir>/checkpoints keeping the newest `keep` steps (async saves)."""
-  options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True)
+  options = ocp.CheckpointManagerOptions(max_to_keep=max(keep, 1), create=True, cleanup_tmp_directories=True)
   return ocp.CheckpointManager(os.path.abspath(os.path.join(run_dir, CHECKPOINT_SUBDIR)), options=options)
 
 
@@ -27,11 +43,24 @@ def reader(run_dir: str) -> ocp.CheckpointManager:
   return ocp.CheckpointManager(os.path.abspath(os.path.join(run_dir, CHECKPOINT_SUBDIR)), options=options)
 
 
+def nonfinite_leaves(tree) -> list:
+  """Key paths of the leaves of tree holding NaN or Inf (fetched to the host)."""
+  return [jax.tree_util.keystr(path) for path, x in jax.tree_util.tree_leaves_with_path(jax.device_get(tree))
+          if not np.all(np.isfinite(x))]
+
+
 def save(mngr: ocp.CheckpointManager, state) -> bool:
-  """Starts an async save of TrainState at its step unless that step is already saved; True if started."""
+  """Starts an async save of TrainState at its step unless that step is already saved; True if started.
+
+  Raises NonFiniteError, writing nothing, when a value of the state is not finite.
+  """
   step = int(state.step)
   if step in mngr.all_steps():
     return False
+  bad = nonfinite_leaves(state)
+  if bad:
+    raise train_step.NonFiniteError(f'step {step}: refusing to save a checkpoint with non-finite values in '
+                                    f'{", ".join(bad[:3])}{" ..." if len(bad) > 3 else ""}')
   return mngr.save(step, args=ocp.args.StandardSave(state))
 
 
@@ -41,33 +70,96 @@ def _restore(mngr: ocp.CheckpointManager, step: int, template):
   return mngr.restore(step, args=ocp.args.StandardRestore(abstract))
 
 
+def damage(step_dir: str):
+  """Why the checkpoint in step_dir is unreadable (missing metadata, missing or truncated data), or None.
+
+  Reading every stored value up front turns damage into one clear reason instead of orbax's asynchronous errors.
+  """
+  item = os.path.join(step_dir, ITEM)
+  try:
+    for path in (os.path.join(step_dir, '_CHECKPOINT_METADATA'), os.path.join(item, '_METADATA')):
+      with open(path) as f:
+        json.load(f)
+    store = tensorstore.KvStore.open({'driver': 'ocdbt', 'base': f'file://{os.path.abspath(item)}/'}).result()
+    for key in store.list().result():
+      if not store.read(key).result().value:
+        return f'no data for {key.decode()}'
+  except (OSError, ValueError) as e:
+    return str(e).split('\n')[0]
+  return None
+
+
+def _newest_intact(mngr: ocp.CheckpointManager, template):
+  """(step, TrainState, [(step, reason) of newer damaged steps]) of the newest restorable checkpoint.
+
+  (None, None, []) when there is no checkpoint; NoIntactCheckpointError naming the folder when all are damaged.
+  """
+  damaged = []
+  for step in sorted(mngr.all_steps(), reverse=True):
+    reason = damage(os.path.join(mngr.directory, str(step)))
+    if reason is None:
+      try:
+        return step, _restore(mngr, step, template), damaged
+      except Exception as e:  # pylint: disable=broad-except  (orbax and tensorstore raise bare Exceptions)
+        reason = str(e).split('\n')[0]
+    damaged.append((step, reason))
+  if damaged:
+    raise NoIntactCheckpointError(f'no intact checkpoint in {os.fspath(mngr.directory)!r}: ' + '; '.join(
+        f'step {step}: {reason}' for step, reason in damaged))
+  return None, None, []
+
+
+def _report(folder: str, step: int, reason: str, action: str) -> None:
+  """One line on stderr about a damaged checkpoint."""
+  print(f'checkpoint step {step} in {folder!r} is damaged ({reason}); {action}', file=sys.stderr)
+
+
 def restore_latest(mngr: ocp.CheckpointManager, template):
-  """The newest saved TrainState shaped like template, or None when there is none."""
-  step = mngr.latest_step()
-  return None if step is None else _restore(mngr, step, template)
+  """The newest intact TrainState shaped like template (None when there is none), for training.
+
+  Newer damaged step folders are moved aside to damaged_<step>_<time> and reported.
+  """
+  step, state, damaged = _newest_intact(mngr, template)
+  for bad, reason in damaged:
+    folder = os.path.join(os.fspath(mngr.directory), str(bad))
+    aside = os.path.join(os.fspath(mngr.directory), f'damaged_{bad}_{time.strftime("%Y%m%d-%H%M%S")}')
+    os.rename(folder, aside)
+    _report(folder, bad, reason, f'moved it to {aside!r}; resuming from step {step}')
+  if damaged:
+    mngr.reload()
+  return state
 
 
 def load_latest(run_dir: str, template):
-  """The newest TrainState of run_dir shaped like template; NoCheckpointError naming the folder if none."""
-  step = latest_step(run_dir)
+  """The newest intact TrainState of run_dir shaped like template (damaged newer ones are reported, left as is).
+
+  NoCheckpointError naming the folder if there is none.
+  """
+  latest_step(run_dir)  # Names the folder when it holds no checkpoint at all.
   mngr = reader(run_dir)
   try:
-    return _restore(mngr, step, template)
+    step, state, damaged = _newest_intact(mngr, template)
   finally:
     mngr.close()
+  for bad, reason in damaged:
+    _report(os.path.join(run_dir, CHECKPOINT_SUBDIR, str(bad)), bad, reason, f'using step {step}')
+  return state
 
 
 def latest_step(run_dir: str) -> int:
-  """The newest checkpointed step of run_dir; NoCheckpointError naming the folder if there is none."""
+  """The newest step of run_dir whose checkpoint looks intact; NoCheckpointError naming the folder if none."""
   folder = os.path.join(run_dir, CHECKPOINT_SUBDIR)
-  step = None
+  steps = []
   if os.path.isdir(folder):
     mngr = reader(run_dir)
-    step = mngr.latest_step()
+    steps = mngr.all_steps()
     mngr.close()
-  if step is None:
+  if not steps:
     raise NoCheckpointError(f'no checkpoint in {folder!r}; train first with the same --gin_configs')
-  return step
+  intact = [step for step in steps if damage(os.path.join(folder, str(step))) is None]
+  if not intact:
+    raise NoIntactCheckpointError(f'no intact checkpoint in {folder!r} (steps {sorted(steps)} are all damaged)')
+  return max(intact)
 
 
 def restore_model(config, run_dir: str, example_rays):

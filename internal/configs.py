@@ -65,7 +65,8 @@ class Config:
   grad_max_norm: float = 0.             # 0 = no global-norm clipping.
   grad_max_val: float = 0.              # 0 = no clipping by value.
   adam_eps: float = 1e-8
-  nonfinite_grad_policy: str = 'skip'   # 'skip' the update or 'raise' on NaN/Inf gradients.
+  nonfinite_grad_policy: str = 'skip'   # 'skip' the update or 'raise' on a non-finite loss/gradient/lr/update.
+  max_skipped_steps: int = 100          # Stop the run after this many consecutive skipped updates.
   coarse_loss_mult: float = 0.1
   weight_decay_mult: float = 0.
   resample_padding_init: float = 0.01
@@ -130,6 +131,8 @@ def validate(config: Config) -> None:
   for name in ('n_input_views', 'freq_reg_end', 'occ_reg_range', 'occ_wb_range', 'lr_delay_steps'):
     if getattr(config, name) < 0:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected >= 0')
+  if config.max_skipped_steps < 1:
+    raise ValueError(f'Config.max_skipped_steps = {config.max_skipped_steps}; expected >= 1')
   if not 0. <= config.max_vis_freq_ratio <= 1.:
     raise ValueError(f'Config.max_vis_freq_ratio = {config.max_vis_freq_ratio}; expected in [0, 1]')
   if config.far <= config.near:

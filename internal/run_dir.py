@@ -24,7 +24,7 @@ NOT_FINGERPRINTED = (
     'expname', 'project', 'checkpoint_dir', 'overwrite', 'checkpoint_every', 'checkpoint_keep', 'print_every',
     'train_render_every', 'render_chunk_size', 'data_dir', 'dtu_mask_path', 'allow_missing_test_views',
     'render_factor', 'render_path_frames', 'eval_test_ids', 'eval_factor', 'lpips_weights_path',
-    'lpips_input_range', 'compute_lpips')
+    'lpips_input_range', 'compute_lpips', 'max_skipped_steps')
 MODULE_NOT_FINGERPRINTED = ('parent', 'name')  # flax bookkeeping fields of MLP and MipNerfModel.
 MODEL_NOT_FINGERPRINTED = MODULE_NOT_FINGERPRINTED + ('white_background',)  # Set from Config.white_background.
 UNSET = '<unset>'

@@ -25,8 +25,13 @@ class TrainState:
   opt_state: Any
 
 
-class NonFiniteGradientError(FloatingPointError):
-  """A step produced NaN/Inf gradients under Config.nonfinite_grad_policy = 'raise'."""
+class NonFiniteError(FloatingPointError):
+  """A step's loss, gradients, learning rate or update was not finite (policy 'raise' or too many skips)."""
+
+
+# What the guard checks, as (stats flag, words for the error message).
+GUARD_CHECKS = (('loss_finite', 'loss'), ('grads_finite', 'gradients'), ('lr_valid', 'learning rate'),
+                ('update_finite', 'new parameters / optimizer state'))
 
 
 def create_train_state(config, key, example_rays):
@@ -86,14 +91,18 @@ def make_train_step(config, model):
   def train_step(state, batch, key):
     step = state.step + 1
     grad_fn = jax.value_and_grad(functools.partial(compute_loss, config, model), has_aux=True)
-    (_, stats), grads = grad_fn(state.params, batch, random.fold_in(key, step), step)
-    finite = optim.all_finite(grads)
+    (loss, stats), grads = grad_fn(state.params, batch, random.fold_in(key, step), step)
+    stats.update(loss_finite=jnp.isfinite(loss), grads_finite=optim.all_finite(grads))
     grads, clip_stats = optim.clip_gradients(grads, config.grad_max_val, config.grad_max_norm)
     lr = schedule.config_learning_rate(config, step)
     updates, opt_state = adam.update(grads, state.opt_state, state.params)
     params = optax.apply_updates(state.params, jax.tree.map(lambda u: -lr * u, updates))
-    keep = lambda new, old: jax.tree.map(lambda n, o: jnp.where(finite, n, o), new, old)
-    stats.update(clip_stats, lr=lr, grads_finite=finite)
+    stats.update(lr_valid=jnp.isfinite(lr) & (lr > 0), update_finite=optim.all_finite((params, opt_state)))
+    ok = jnp.all(jnp.array([stats[flag] for flag, _ in GUARD_CHECKS]))
+    # A skipped step still advances state.step: the batch and key of step t depend on t only, so a resumed
+    # run replays exactly the same steps, skipped ones included.
+    keep = lambda new, old: jax.tree.map(lambda n, o: jnp.where(ok, n, o), new, old)
+    stats.update(clip_stats, lr=lr, skipped=~ok)
     new_state = TrainState(step=step, params=keep(params, state.params),
                            opt_state=keep(opt_state, state.opt_state))
     return new_state, stats
@@ -101,9 +110,31 @@ def make_train_step(config, model):
   return jax.jit(train_step, donate_argnums=(0,))
 
 
-def check_stats(stats, step: int, policy: str) -> None:
-  """Raises NonFiniteGradientError under policy 'raise' when the step's gradients were not finite."""
-  if policy == 'raise' and not bool(stats['grads_finite']):
-    raise NonFiniteGradientError(
-        f'step {step}: gradients contain NaN/Inf (update skipped, parameters unchanged); '
-        "set Config.nonfinite_grad_policy = 'skip' to continue past such steps")
+def skip_reason(stats) -> str:
+  """Which guarded values of a step's (host) stats were not finite, in words."""
+  return ', '.join(words for flag, words in GUARD_CHECKS if not bool(stats[flag]))
+
+
+class SkipCounter:
+  """Host-side count of skipped updates (all and consecutive); raises NonFiniteError as Config asks."""
+
+  def __init__(self, policy: str, max_skipped_steps: int):
+    self.policy, self.max_skipped_steps = policy, max_skipped_steps
+    self.total = self.streak = 0
+
+  def record(self, stats, step: int) -> None:
+    """Counts step's (host) stats; NonFiniteError under policy 'raise' or after max_skipped_steps in a row."""
+    if not bool(stats['skipped']):
+      self.streak = 0
+      return
+    self.total += 1
+    self.streak += 1
+    if self.policy == 'raise':
+      raise NonFiniteError(
+          f'step {step}: non-finite {skip_reason(stats)} (update skipped, parameters unchanged); '
+          "set Config.nonfinite_grad_policy = 'skip' to continue past such steps")
+    if self.streak >= self.max_skipped_steps:
+      raise NonFiniteError(
+          f'steps {step - self.streak + 1}-{step}: {self.streak} consecutive updates skipped (last: non-finite '
+          f'{skip_reason(stats)}), Config.max_skipped_steps = {self.max_skipped_steps}; the run cannot make '
+          'progress: check the data and the learning-rate settings')

@@ -134,8 +134,8 @@ def test_dtu_eval_reports_full_and_object_metrics(tmp_path):
 def test_nonfinite_gradients_raise_under_the_raise_policy(tmp_path, scene_dir):  # pylint: disable=redefined-outer-name
   config = tiny_config(scene_dir, tmp_path / 'run', 'Config.max_steps = 3',
                        "Config.nonfinite_grad_policy = 'raise'")
-  with pytest.raises(train_step.NonFiniteGradientError, match='step 2'):
-    train.train(dataclasses.replace(config, lr_init=float('nan')))  # NaN parameters after step 1.
+  with pytest.raises(train_step.NonFiniteError, match='^step 1: non-finite learning rate'):
+    train.train(dataclasses.replace(config, lr_init=float('nan')))  # Caught at step 1, before any update.
 
 
 def test_png_truncates_as_released_and_depth_is_turbo_near_red(tmp_path):

@@ -7,12 +7,14 @@ import textwrap
 
 import gin
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax import random
 
 from conftest import random_rays
 from internal import configs
+from internal import losses
 from internal import schedule
 from internal import train_step as ts
 
@@ -71,20 +73,50 @@ def test_clipping_bounds_the_update_gradient():
   assert float(stats['grad_norm_clipped']) <= 0.1 + 1e-6
 
 
-@pytest.mark.parametrize('policy', ['skip', 'raise'])
-def test_nonfinite_gradient_never_writes_nan_parameters(policy):
-  config, model, state, batch = _setup(nonfinite_grad_policy=policy)
-  batch['rgb'][0, 0] = np.nan
-  before = jax.tree.map(np.asarray, state.params)
-  _, state, stats = _run(config, model, state, batch, 2)
-  assert not bool(stats['grads_finite'])
-  for a, b in zip(jax.tree.leaves(state.params), jax.tree.leaves(before)):
-    np.testing.assert_array_equal(np.asarray(a), b)
-  if policy == 'raise':
-    with pytest.raises(ts.NonFiniteGradientError, match='nonfinite_grad_policy'):
-      ts.check_stats(stats, 2, policy)
+UPDATE = 'new parameters / optimizer state'
+
+
+def _nan_gradients(data_loss):
+  """data_loss plus 0 * sqrt(|x - x|): the same finite loss, NaN gradients (0 * inf)."""
+  return lambda rgb, *args: data_loss(rgb, *args) + 0. * jnp.sum(jnp.sqrt(jnp.abs(rgb - jax.lax.stop_gradient(rgb))))
+
+
+@pytest.mark.parametrize('cause, flags', [
+    ('data', ('loss', 'gradients', UPDATE)), ('gradients', ('gradients', UPDATE)),
+    ('nan_lr', ('learning rate', UPDATE)), ('negative_lr', ('learning rate',))])
+def test_guard_skips_the_update_and_names_the_cause(cause, flags, monkeypatch):
+  config, model, state, batch = _setup()
+  if cause == 'data':
+    batch['rgb'][0, 0] = np.nan
+  elif cause == 'gradients':
+    monkeypatch.setattr(losses, 'data_loss', _nan_gradients(losses.data_loss))
   else:
-    ts.check_stats(stats, 2, policy)
+    lr = {'nan_lr': np.nan, 'negative_lr': -1e-3}[cause]
+    monkeypatch.setattr(schedule, 'config_learning_rate', lambda config, step: jnp.float32(lr))
+  before = jax.tree.map(np.asarray, state)
+  _, after, stats = _run(config, model, state, batch, 2)
+  assert int(after.step) == 2 and bool(stats['skipped'])
+  assert ts.skip_reason(jax.device_get(stats)) == ', '.join(flags)
+  for a, b in zip(jax.tree.leaves((after.params, after.opt_state)), jax.tree.leaves((before.params, before.opt_state))):
+    np.testing.assert_array_equal(np.asarray(a), b)
+
+
+def test_skip_counter_counts_and_stops_after_max_consecutive_skips():
+  stats = lambda skipped: {'skipped': skipped, 'loss_finite': True, 'grads_finite': True, 'lr_valid': not skipped,
+                           'update_finite': True}
+  counter = ts.SkipCounter('skip', 3)
+  for step, skipped in enumerate([1, 1, 0, 1, 1, 0, 1], start=1):
+    counter.record(stats(skipped), step)
+  assert (counter.total, counter.streak) == (5, 1)
+  counter.record(stats(1), 8)
+  with pytest.raises(ts.NonFiniteError, match=r'^steps 7-9: 3 consecutive updates skipped \(last: non-finite '
+                     r'learning rate\), Config.max_skipped_steps = 3;'):
+    counter.record(stats(1), 9)
+  raising = ts.SkipCounter('raise', 100)
+  raising.record(stats(0), 1)
+  with pytest.raises(ts.NonFiniteError, match=r"^step 2: non-finite learning rate .*nonfinite_grad_policy = 'skip'"):
+    raising.record(stats(1), 2)
+  assert issubclass(ts.NonFiniteError, FloatingPointError)
 
 
 @pytest.mark.parametrize('overrides', [
