@@ -18,6 +18,7 @@ import sys
 import jax
 
 from internal import checkpoints
+from internal import cli
 from internal import datasets
 from internal import inference
 from internal import lpips
@@ -137,4 +138,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == '__main__':
-  sys.exit(main())
+  sys.exit(cli.run(main))

@@ -22,6 +22,7 @@ import tqdm
 
 import eval as eval_lib
 from internal import checkpoints
+from internal import cli
 from internal import datasets
 from internal import inference
 from internal import metrics
@@ -71,7 +72,7 @@ class Progress:
   def __init__(self, config, writer, first_step: int):
     self.config, self.writer = config, writer
     self.window = []
-    self.bar = tqdm.tqdm(total=config.max_steps, initial=first_step - 1, unit='step', dynamic_ncols=True)
+    self.bar = tqdm.tqdm(total=config.max_steps, initial=first_step - 1, unit='step', **cli.progress_kwargs())
     self.tic = time.time()
 
   def add(self, step: int, stats) -> None:
@@ -203,4 +204,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == '__main__':
-  sys.exit(main())
+  sys.exit(cli.run(main))

@@ -10,6 +10,7 @@ import dataclasses
 import json
 import os
 import shutil
+import sys
 
 import gin
 
@@ -124,9 +125,29 @@ def write_gin_config(run_dir: str) -> None:
     f.write(gin.operative_config_str())
 
 
+MULTI_VALUE_FLAGS = ('--gin_configs', '--gin_bindings')
+
+
+def split_flag_values(argv):
+  """argv with '--gin_bindings=A' split into '--gin_bindings', 'A', so that values after it join it."""
+  out = []
+  for arg in argv:
+    name, sep, value = arg.partition('=')
+    out.extend([name, value] if sep and name in MULTI_VALUE_FLAGS else [arg])
+  return out
+
+
+class FlagParser(argparse.ArgumentParser):
+  """An ArgumentParser that accepts `--flag=A B` for the multi-value flags (argparse alone takes only A)."""
+
+  def parse_known_args(self, args=None, namespace=None):
+    args = sys.argv[1:] if args is None else args
+    return super().parse_known_args(split_flag_values(args), namespace)
+
+
 def flag_parser(description: str) -> argparse.ArgumentParser:
   """An argument parser with --gin_configs / --gin_bindings, each repeatable and taking one or more values."""
-  parser = argparse.ArgumentParser(description=description)
+  parser = FlagParser(description=description)
   parser.add_argument('--gin_configs', action='extend', nargs='+', default=[], metavar='FILE',
                       help='gin config files, applied in order')
   parser.add_argument('--gin_bindings', action='extend', nargs='+', default=[], metavar='BINDING',
