@@ -43,8 +43,8 @@ def test_a_second_training_is_refused_naming_the_holder_and_the_lock_is_released
   with run_dir_lib.open_run(config) as run_dir:
     holder = json.loads(lock.read_text())
     assert holder['pid'] == os.getpid() and holder['host'] == socket.gethostname()
-    with pytest.raises(run_dir_lib.RunDirError,
-                       match=rf"being trained by process {os.getpid()} on host .*started {re.escape(holder['started'])}"):
+    started = re.escape(holder['started'])
+    with pytest.raises(run_dir_lib.RunDirError, match=rf'being trained by process {os.getpid()} on host .*{started}'):
       with run_dir_lib.open_run(config):
         pass
     assert lock.exists() and run_dir == str(tmp_path / 'run')

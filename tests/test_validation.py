@@ -10,7 +10,8 @@ import pytest
 from internal import configs
 from internal.datasets import DatasetError, dtu, load_dataset
 from test_datasets_dtu_layouts import config as dtu_config, synthetic_projections, write_idr
-from test_datasets_errors import blender, blender_root, llff, llff_root, noise, save_png  # pylint: disable=unused-import
+from test_datasets_errors import (blender, blender_root, llff, llff_root,  # pylint: disable=unused-import
+                                  noise, save_png)
 
 
 def _load(*bindings):
