@@ -9,7 +9,6 @@ dropped: the test runs in the installed environment.
 
 import json
 import os
-import pathlib
 import re
 import shutil
 import subprocess
