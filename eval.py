@@ -11,13 +11,17 @@ recorded as "complete": false. A finished evaluation is never replaced unless Co
 """
 
 import csv
+import io
 import json
 import os
 import sys
+import warnings
 
 import jax
 
+from internal import atomic
 from internal import checkpoints
+from internal import cli
 from internal import datasets
 from internal.datasets import packed
 from internal import inference
@@ -65,6 +69,17 @@ def load_lpips_fn(config):
     return None, str(e)
 
 
+def check_eval_inputs(config) -> None:
+  """Before training: loads the test split once (images, DTU masks) so that a missing file raises now, not
+  after training; warns when LPIPS will be reported as null."""
+  datasets.load_dataset('test', config)
+  if config.compute_lpips:
+    _, reason = load_lpips_fn(config)
+    if reason:
+      warnings.warn(f'LPIPS will be null in metrics.json: {reason} (Config.compute_lpips = False silences this)',
+                    stacklevel=2)
+
+
 def select_positions(config, num_views: int) -> list:
   """Positions of the test views to evaluate: Config.eval_test_ids (checked) or all."""
   if config.eval_test_ids is None:
@@ -90,10 +105,11 @@ def save_images(rendering, out_dir: str, view_id: int) -> None:
 
 def write_csv(per_image: list, path: str) -> None:
   """One row per evaluated view: id and every metric (empty when unavailable)."""
-  with open(path, 'w', newline='') as f:
-    writer = csv.DictWriter(f, fieldnames=list(per_image[0]))
-    writer.writeheader()
-    writer.writerows({k: ('' if v is None else v) for k, v in row.items()} for row in per_image)
+  text = io.StringIO()
+  writer = csv.DictWriter(text, fieldnames=list(per_image[0]))
+  writer.writeheader()
+  writer.writerows({k: ('' if v is None else v) for k, v in row.items()} for row in per_image)
+  atomic.write_text(path, text.getvalue())
 
 
 def evaluate(config) -> dict:
@@ -141,4 +157,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == '__main__':
-  sys.exit(main())
+  sys.exit(cli.run(main))

@@ -20,6 +20,7 @@ import tqdm
 
 import eval as eval_lib
 from internal import checkpoints
+from internal import cli
 from internal import datasets
 from internal import inference
 from internal import run_dir as run_dir_lib
@@ -72,7 +73,7 @@ def render(config) -> str:
   frames = {'color': [], 'depth': [], 'opacity': []}
   depth_range = None
   num_frames = path_rays.origins.shape[0]
-  for f in tqdm.trange(num_frames, unit='frame', dynamic_ncols=True):
+  for f in tqdm.trange(num_frames, unit='frame', **cli.progress_kwargs()):
     rendering = inference.render_image(render_fn, jax.tree.map(lambda x, f=f: x[f], path_rays),
                                        config.render_chunk_size)
     depth_range = depth_range or vis.depth_range(rendering['distance_mean'])
@@ -97,4 +98,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == '__main__':
-  sys.exit(main())
+  sys.exit(cli.run(main))

@@ -22,6 +22,7 @@ import tqdm
 
 import eval as eval_lib
 from internal import checkpoints
+from internal import cli
 from internal import datasets
 from internal import inference
 from internal import metrics
@@ -72,7 +73,7 @@ class Progress:
   def __init__(self, config, writer, first_step: int):
     self.config, self.writer = config, writer
     self.window = []
-    self.bar = tqdm.tqdm(total=config.max_steps, initial=first_step - 1, unit='step', dynamic_ncols=True)
+    self.bar = tqdm.tqdm(total=config.max_steps, initial=first_step - 1, unit='step', **cli.progress_kwargs())
     self.tic = time.time()
     self.skips = train_step_lib.SkipCounter(config.nonfinite_grad_policy, config.max_skipped_steps)
 
@@ -137,15 +138,22 @@ def _check_batch(config, mesh) -> None:
 def train(config, stop_at_step: int = 0) -> TrainResult:
   """Trains up to Config.max_steps (or stop_at_step, if smaller and > 0), resuming from the newest checkpoint.
 
-  The final state is saved whether the loop ends or a signal stops it.
+  The run directory is locked against a second training meanwhile. The final state is saved whether the loop
+  ends or a signal stops it.
   """
-  run_dir = run_dir_lib.prepare_run_dir(config)
+  with run_dir_lib.open_run(config) as run_dir:
+    return _train_in(config, run_dir, stop_at_step)
+
+
+def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
+  """train() inside the locked run directory; the settings are recorded once data and model are ready."""
   mesh = sharding.data_mesh()
   _check_batch(config, mesh)
   batcher = datasets.make_batcher(datasets.load_dataset('train', config), config)
+  eval_lib.check_eval_inputs(config)
   init_key, train_key = random.split(random.PRNGKey(config.jax_rng_seed))
   model, state = train_step_lib.create_train_state(config, init_key, _example_rays(batcher))
-  run_dir_lib.write_gin_config(run_dir)
+  run_dir_lib.record_settings(run_dir, config)
   mngr = checkpoints.manager(run_dir, config.checkpoint_keep)
   restored = checkpoints.restore_latest(mngr, state)
   state = sharding.replicate(restored if restored is not None else state, mesh)
@@ -221,4 +229,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == '__main__':
-  sys.exit(main())
+  sys.exit(cli.run(main))

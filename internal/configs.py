@@ -1,10 +1,14 @@
 """The experiment configuration: one gin-configurable dataclass with RegNeRF's field names."""
 
 import dataclasses
+import math
 import os
+import warnings
 from typing import Optional, Sequence
 
 import gin
+
+from internal import models
 
 DATASET_LOADERS = ('dtu', 'llff', 'blender', 'generated', 'packed')
 
@@ -97,7 +101,11 @@ def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ())
   for path in gin_configs:
     if not os.path.isfile(path):
       raise FileNotFoundError(f'gin config {path!r} does not exist')
-  gin.parse_config_files_and_bindings(list(gin_configs), list(gin_bindings), skip_unknown=False)
+  try:
+    gin.parse_config_files_and_bindings(list(gin_configs), list(gin_bindings), skip_unknown=False)
+  except SyntaxError as err:  # gin reports a malformed value as a SyntaxError; it is a bad setting.
+    raise ValueError(f'cannot parse the gin configs {list(gin_configs)} / bindings {list(gin_bindings)}: '
+                     f'{err}') from err
 
 
 def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> Config:
@@ -125,7 +133,9 @@ def validate(config: Config) -> None:
   _choice(config, 'nonfinite_grad_policy', ('skip', 'raise'))
   _choice(config, 'lpips_input_range', ('released', 'official'))
   _choice(config, 'generated_rig', ('object', 'forward'))
-  for name in ('max_steps', 'batch_size', 'render_chunk_size', 'checkpoint_every'):
+  _check_types(config)
+  for name in ('max_steps', 'batch_size', 'render_chunk_size', 'checkpoint_every', 'checkpoint_keep',
+               'print_every'):
     if getattr(config, name) < 1:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected a positive integer')
   for name in ('n_input_views', 'freq_reg_end', 'occ_reg_range', 'occ_wb_range', 'lr_delay_steps'):
@@ -137,3 +147,48 @@ def validate(config: Config) -> None:
     raise ValueError(f'Config.max_vis_freq_ratio = {config.max_vis_freq_ratio}; expected in [0, 1]')
   if config.far <= config.near:
     raise ValueError(f'Config.far = {config.far} must exceed Config.near = {config.near}')
+  for name in ('near', 'far', 'lr_init', 'lr_final'):
+    if not math.isfinite(getattr(config, name)):
+      raise ValueError(f'Config.{name} = {getattr(config, name)}; expected a finite number')
+  for name in ('lr_init', 'lr_final'):
+    if getattr(config, name) <= 0.:
+      raise ValueError(f'Config.{name} = {getattr(config, name)}; expected > 0 (the learning rate decays '
+                       'log-linearly from lr_init to lr_final)')
+  if needs_positive_near(config) and config.near <= 0.:
+    raise ValueError(f'Config.near = {config.near}; expected > 0 for {config.dataset_loader!r} scenes, whose rays '
+                     'start in world space (only LLFF-style NDC rays start at 0)')
+  _warn_on_unused_regularizer(config)
+
+
+def needs_positive_near(config: Config) -> bool:
+  """True for world-space rays (DTU, Blender, the generated object rig); LLFF's NDC rays ignore Config.near."""
+  return config.dataset_loader in ('dtu', 'blender') or (
+      config.dataset_loader == 'generated' and config.generated_rig == 'object')
+
+
+def _check_types(config: Config) -> None:
+  """Raises a ValueError naming the setting when a number, flag or name has another type (e.g. near = 'a')."""
+  for field in dataclasses.fields(config):
+    value, default = getattr(config, field.name), field.default
+    if isinstance(default, bool):
+      ok, expected = isinstance(value, bool), 'True or False'
+    elif isinstance(default, (int, float)):
+      ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+      ok, expected = ok and (isinstance(value, int) or isinstance(default, float)), type(default).__name__
+    elif isinstance(default, str):
+      ok, expected = isinstance(value, str), 'a string'
+    else:
+      continue
+    if not ok:
+      raise ValueError(f'Config.{field.name} = {value!r}; expected {expected}')
+
+
+def _warn_on_unused_regularizer(config: Config) -> None:
+  """Warns about regularizer settings that are legal but cannot act as written."""
+  if config.freq_reg and config.freq_reg_end > config.max_steps:
+    warnings.warn(f'Config.freq_reg_end = {config.freq_reg_end} exceeds Config.max_steps = {config.max_steps}: '
+                  'the frequency mask never fully opens during training', stacklevel=3)
+  num_samples = models.MipNerfModel().num_samples
+  if config.occ_reg_loss_mult > 0 and config.occ_reg_range > num_samples:
+    warnings.warn(f'Config.occ_reg_range = {config.occ_reg_range} exceeds MipNerfModel.num_samples = '
+                  f'{num_samples}: the occlusion loss covers every sample of the ray', stacklevel=3)

@@ -6,19 +6,25 @@ A run directory holds `config.json` (the settings that change training, compared
 """
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import os
 import shutil
+import socket
+import sys
+import time
 
 import gin
 
+from internal import atomic
 from internal import configs
 from internal import models
 
 DEMO_CONFIG = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'configs', 'demo.gin')
 FINGERPRINT_FILE = 'config.json'
 GIN_FILE = 'config.gin'
+LOCK_FILE = 'train.lock'  # Held by the training process: {'pid', 'host', 'started'}.
 # Config fields that do not change what training computes: they may differ between a run and its resumption.
 NOT_FINGERPRINTED = (
     'expname', 'project', 'checkpoint_dir', 'overwrite', 'checkpoint_every', 'checkpoint_keep', 'print_every',
@@ -72,23 +78,53 @@ def differences(stored: dict, config) -> str:
 
 
 def read_fingerprint(run_dir: str):
-  """The stored fingerprint of run_dir, or None when it holds none."""
+  """The stored fingerprint of run_dir, or None when it holds none; RunDirError when it is unreadable."""
   path = os.path.join(run_dir, FINGERPRINT_FILE)
   if not os.path.isfile(path):
     return None
-  with open(path) as f:
-    return json.load(f)
+  try:
+    with open(path) as f:
+      stored = json.load(f)
+  except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+    stored = err
+  if not isinstance(stored, dict):
+    raise RunDirError(f'{path!r} is empty or corrupt ({stored}); expected the JSON settings of the run. Set '
+                      'Config.overwrite = True to delete that run and start over, or choose another '
+                      'Config.checkpoint_dir')
+  return stored
+
+
+def _foreign_entries(run_dir: str) -> list:
+  """Entries of run_dir other than the training lock (what makes a folder without config.json foreign)."""
+  return [e for e in os.listdir(run_dir) if e != LOCK_FILE] if os.path.isdir(run_dir) else []
+
+
+def _clear(run_dir: str) -> None:
+  """Deletes everything in run_dir except the training lock."""
+  for entry in _foreign_entries(run_dir):
+    path = os.path.join(run_dir, entry)
+    if os.path.isdir(path) and not os.path.islink(path):
+      shutil.rmtree(path)
+    else:
+      os.remove(path)
 
 
 def prepare_run_dir(config) -> str:
   """Creates or re-opens Config.checkpoint_dir for training; refuses to touch a different run.
 
-  Same settings: resume. Different settings: RunDirError unless Config.overwrite, which deletes that run.
-  A non-empty directory that is not a run directory is never touched.
+  Same settings: resume. Different settings (or an unreadable config.json): RunDirError unless
+  Config.overwrite, which deletes that run. A non-empty directory that is not a run directory is never touched.
+  The settings are recorded later, by record_settings, once the run has started.
   """
   run_dir = config.checkpoint_dir
-  stored = read_fingerprint(run_dir)
-  if stored is None and os.path.isdir(run_dir) and os.listdir(run_dir):
+  try:
+    stored = read_fingerprint(run_dir)
+  except RunDirError:
+    if not config.overwrite:
+      raise
+    _clear(run_dir)
+    stored = None
+  if stored is None and _foreign_entries(run_dir):
     raise RunDirError(f'Config.checkpoint_dir {run_dir!r} is not empty and holds no run ({FINGERPRINT_FILE} '
                       'is missing); choose another Config.checkpoint_dir')
   diff = '' if stored is None else differences(stored, config)
@@ -97,11 +133,86 @@ def prepare_run_dir(config) -> str:
       raise RunDirError(
           f'Config.checkpoint_dir {run_dir!r} holds a run with different settings ({diff}); choose another '
           'Config.checkpoint_dir, or set Config.overwrite = True to delete that run and start over')
-    shutil.rmtree(run_dir)
+    _clear(run_dir)
   os.makedirs(run_dir, exist_ok=True)
-  with open(os.path.join(run_dir, FINGERPRINT_FILE), 'w') as f:
-    json.dump(fingerprint(config), f, indent=1, sort_keys=True)
   return run_dir
+
+
+def record_settings(run_dir: str, config) -> None:
+  """Writes config.json (once: the run's settings) and config.gin (the operative gin config), atomically."""
+  path = os.path.join(run_dir, FINGERPRINT_FILE)
+  if not os.path.isfile(path):
+    atomic.write_text(path, json.dumps(fingerprint(config), indent=1, sort_keys=True))
+  atomic.write_text(os.path.join(run_dir, GIN_FILE), gin.operative_config_str())
+
+
+def _read_lock(path: str):
+  """The holder recorded in a lock file ({'pid', 'host', 'started'}), None if it vanished, {} if unreadable."""
+  try:
+    with open(path) as f:
+      holder = json.load(f)
+  except FileNotFoundError:
+    return None
+  except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+    return {}
+  return holder if isinstance(holder, dict) else {}
+
+
+def _is_stale(holder: dict) -> bool:
+  """True when the holder ran on this host and its process is gone."""
+  if holder.get('host') != socket.gethostname() or not isinstance(holder.get('pid'), int):
+    return False
+  try:
+    os.kill(holder['pid'], 0)
+  except ProcessLookupError:
+    return True
+  except PermissionError:  # Alive, under another user.
+    return False
+  return False
+
+
+def _acquire(path: str, holder: dict) -> None:
+  """Creates the lock file holding holder (complete before it appears); takes over a stale one once."""
+  for attempt in range(2):
+    tmp = f'{path}.{os.getpid()}.tmp'
+    atomic.write_text(tmp, json.dumps(holder))
+    try:
+      os.link(tmp, path)  # Fails if the lock exists; a hard link makes it appear with its content.
+      return
+    except FileExistsError:
+      current = _read_lock(path)
+    finally:
+      os.unlink(tmp)
+    if current is None or (attempt == 0 and _is_stale(current)):
+      with contextlib.suppress(FileNotFoundError):
+        os.remove(path)
+      continue
+    who = (f"process {current.get('pid')} on host {current.get('host')!r}, started {current.get('started')}"
+           if current else 'an unreadable lock')
+    raise RunDirError(f'Config.checkpoint_dir {os.path.dirname(path)!r} is being trained by {who} ({path!r}); '
+                      'wait for it to finish, or delete the lock file if that process is gone')
+  raise RunDirError(f'could not take the training lock {path!r}; another process is taking it at the same time')
+
+
+@contextlib.contextmanager
+def open_run(config):
+  """prepare_run_dir under an exclusive lock file (<run>/train.lock) held until the block ends; yields run_dir.
+
+  A second training of the same directory gets a RunDirError naming the holder; the lock of a killed process
+  (pid gone on this host) is taken over.
+  """
+  run_dir = config.checkpoint_dir
+  if read_fingerprint(run_dir) is None and _foreign_entries(run_dir):
+    prepare_run_dir(config)  # Raises: never put a lock into a foreign folder.
+  os.makedirs(run_dir, exist_ok=True)
+  path = os.path.join(run_dir, LOCK_FILE)
+  holder = {'pid': os.getpid(), 'host': socket.gethostname(), 'started': time.strftime('%Y-%m-%d %H:%M:%S %z')}
+  _acquire(path, holder)
+  try:
+    yield prepare_run_dir(config)
+  finally:
+    if _read_lock(path) == holder:
+      os.remove(path)
 
 
 def check_run_dir(config) -> str:
@@ -118,15 +229,29 @@ def check_run_dir(config) -> str:
   return run_dir
 
 
-def write_gin_config(run_dir: str) -> None:
-  """Writes the operative gin config (every value used so far) to <run_dir>/config.gin."""
-  with open(os.path.join(run_dir, GIN_FILE), 'w') as f:
-    f.write(gin.operative_config_str())
+MULTI_VALUE_FLAGS = ('--gin_configs', '--gin_bindings')
+
+
+def split_flag_values(argv):
+  """argv with '--gin_bindings=A' split into '--gin_bindings', 'A', so that values after it join it."""
+  out = []
+  for arg in argv:
+    name, sep, value = arg.partition('=')
+    out.extend([name, value] if sep and name in MULTI_VALUE_FLAGS else [arg])
+  return out
+
+
+class FlagParser(argparse.ArgumentParser):
+  """An ArgumentParser that accepts `--flag=A B` for the multi-value flags (argparse alone takes only A)."""
+
+  def parse_known_args(self, args=None, namespace=None):
+    args = sys.argv[1:] if args is None else args
+    return super().parse_known_args(split_flag_values(args), namespace)
 
 
 def flag_parser(description: str) -> argparse.ArgumentParser:
   """An argument parser with --gin_configs / --gin_bindings, each repeatable and taking one or more values."""
-  parser = argparse.ArgumentParser(description=description)
+  parser = FlagParser(description=description)
   parser.add_argument('--gin_configs', action='extend', nargs='+', default=[], metavar='FILE',
                       help='gin config files, applied in order')
   parser.add_argument('--gin_bindings', action='extend', nargs='+', default=[], metavar='BINDING',

@@ -53,6 +53,7 @@ def _leaves(state):
 
 def test_identical_settings_reopen_the_run_and_bookkeeping_may_change(tmp_path):
   first = run_dir_lib.prepare_run_dir(tiny_config('s', tmp_path / 'run'))
+  run_dir_lib.record_settings(first, tiny_config('s', tmp_path / 'run'))
   again = run_dir_lib.prepare_run_dir(tiny_config('elsewhere', tmp_path / 'run', 'Config.print_every = 7',
                                                    'Config.checkpoint_every = 3', "Config.expname = 'x'"))
   assert first == again and os.path.isfile(os.path.join(first, run_dir_lib.FINGERPRINT_FILE))
@@ -60,7 +61,7 @@ def test_identical_settings_reopen_the_run_and_bookkeeping_may_change(tmp_path):
 
 def test_refuses_a_run_directory_with_other_settings(tmp_path):
   run = tmp_path / 'run'
-  run_dir_lib.prepare_run_dir(tiny_config('s', run))
+  run_dir_lib.record_settings(run_dir_lib.prepare_run_dir(tiny_config('s', run)), tiny_config('s', run))
   (run / 'marker').write_text('from the first run')
   with pytest.raises(run_dir_lib.RunDirError, match=r"run'.*Config\.max_steps: 800 -> 900.*Config\.overwrite"):
     run_dir_lib.prepare_run_dir(tiny_config('s', run, 'Config.max_steps = 900'))
@@ -68,6 +69,7 @@ def test_refuses_a_run_directory_with_other_settings(tmp_path):
     run_dir_lib.prepare_run_dir(tiny_config('s', run, 'MLP.net_width = 48'))
   assert (run / 'marker').exists()
   run_dir_lib.prepare_run_dir(tiny_config('s', run, 'Config.max_steps = 900', 'Config.overwrite = True'))
+  run_dir_lib.record_settings(str(run), tiny_config('s', run, 'Config.max_steps = 900'))
   assert not (run / 'marker').exists()
   assert run_dir_lib.read_fingerprint(str(run))['Config.max_steps'] == 900
 
@@ -80,7 +82,8 @@ def test_refuses_a_foreign_non_empty_directory_even_with_overwrite(tmp_path):
 
 
 def test_eval_side_check_names_the_differences(tmp_path):
-  run_dir_lib.prepare_run_dir(tiny_config('s', tmp_path / 'run'))
+  run_dir_lib.record_settings(run_dir_lib.prepare_run_dir(tiny_config('s', tmp_path / 'run')),
+                              tiny_config('s', tmp_path / 'run'))
   with pytest.raises(run_dir_lib.RunDirError, match='Config.freq_reg_end: 720 -> 0'):
     run_dir_lib.check_run_dir(tiny_config('s', tmp_path / 'run', 'Config.freq_reg_end = 0'))
   with pytest.raises(run_dir_lib.RunDirError, match='holds no run'):

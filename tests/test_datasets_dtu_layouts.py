@@ -145,10 +145,12 @@ def test_idrmasks_mask_subfolder_for_idr_scans(tmp_path):
   write_regnerf(tmp_path, 'scan40', projs, mask_subdir='mask')
   data = load_dataset('test', config(tmp_path / 'Rectified', 'scan40', dtu_mask_path=str(tmp_path / 'idrmasks')))
   assert data.masks.shape == (25, 12, 16, 3)
-  write_regnerf(tmp_path / 'flat', 'scan40', projs)
-  with pytest.raises(DatasetError, match=r'scan40/mask/001\.png'):
-    load_dataset('test', config(tmp_path / 'flat' / 'Rectified', 'scan40',
-                                dtu_mask_path=str(tmp_path / 'flat' / 'idrmasks')))
+  write_regnerf(tmp_path / 'flat', 'scan40', projs)  # Without the mask/ subfolder: found as well.
+  flat = load_dataset('test', config(tmp_path / 'flat' / 'Rectified', 'scan40',
+                                     dtu_mask_path=str(tmp_path / 'flat' / 'idrmasks')))
+  np.testing.assert_array_equal(flat.masks, data.masks)
+  with pytest.raises(DatasetError, match=r"any of \[.*scan40/mask', .*scan40'\]"):
+    load_dataset('test', config(tmp_path / 'flat' / 'Rectified', 'scan40', dtu_mask_path=str(tmp_path)))
 
 
 def test_idr_layout_with_idrmasks_and_images_folder(tmp_path):

@@ -26,6 +26,7 @@ import pathlib
 import sys
 from typing import Dict, List, Optional, Sequence, Tuple
 
+from internal import atomic
 from internal.metrics import FULL_METRICS, MASKED_METRICS
 
 METRICS_FILENAME = 'metrics.json'
@@ -77,7 +78,7 @@ def make_record(dataset: str, scene: str, n_input_views: int, method: str, step:
 def write_record(path, record: dict) -> None:
   """Writes a record as JSON (after checking it)."""
   check_record(record, str(path))
-  pathlib.Path(path).write_text(json.dumps(record, indent=1))
+  atomic.write_text(path, json.dumps(record, indent=1))
 
 
 def read_record(path) -> dict:

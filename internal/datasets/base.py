@@ -93,6 +93,15 @@ def present_test_ids(ids: Sequence[int], paths: Sequence[str], allow_missing: bo
   return [i for i, p in zip(ids, paths) if os.path.isfile(p)]
 
 
+def check_finite(values: np.ndarray, path: str, what: str) -> None:
+  """Raises DatasetError naming the file when values (e.g. camera poses or bounds) hold NaN or Inf."""
+  values = np.asarray(values, np.float64)
+  if not np.isfinite(values).all():
+    bad = np.argwhere(~np.isfinite(values.reshape(len(values), -1)))[:, 0] if values.ndim else [0]
+    raise DatasetError(f'{path!r}: {what} of entries {sorted(set(int(i) for i in bad))[:10]} are not finite '
+                       '(NaN or Inf); expected finite numbers')
+
+
 def load_factor(config, split: str) -> int:
   """Total integer downsampling factor (>= 1): Config.factor, times Config.eval_factor for the test split."""
   factor = max(int(config.factor), 1)

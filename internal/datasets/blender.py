@@ -22,6 +22,8 @@ def read_transforms(scene_dir: str, split: str) -> dict:
     for frame in meta['frames']:
       if np.shape(frame['transform_matrix']) != (4, 4):
         raise ValueError(f'frame {frame.get("file_path")} has a transform_matrix that is not 4x4')
+      if not np.isfinite(np.asarray(frame['transform_matrix'], np.float64)).all():
+        raise ValueError(f'frame {frame.get("file_path")} has a transform_matrix with NaN or Inf')
   except (OSError, ValueError, KeyError, TypeError) as err:
     raise base.DatasetError(f'cannot read camera file {path!r} (expected JSON with camera_angle_x and frames of '
                             f'file_path + 4x4 transform_matrix): {err!r}') from err
@@ -62,8 +64,8 @@ def load_blender(split: str, config, scene_dir: str, name: str, mode: str, test_
     ids = base.present_test_ids(ids, paths, config.allow_missing_test_views)
     paths = [frame_path(scene_dir, meta['frames'][i]) for i in ids]
   factor = base.load_factor(config, split)
-  images = np.stack([composite(image_io.load_rgba(p, factor, config.downsample_mode), config.white_background)
-                     for p in paths])
+  images = image_io.load_stack(paths, lambda p: composite(image_io.load_rgba(p, factor, config.downsample_mode),
+                                                         config.white_background))
   height, width = images.shape[1:3]
   focal = .5 * width / np.tan(.5 * float(meta['camera_angle_x']))
   pixtocam = cameras.focal_pixtocam(focal, height, width)

@@ -66,6 +66,7 @@ def read_projection_txt(path: str) -> np.ndarray:
     raise base.DatasetError(f'cannot read camera file {path!r} (expected a 3x4 matrix of numbers): {err}') from err
   if proj.shape != (3, 4):
     raise base.DatasetError(f'camera file {path!r} holds shape {proj.shape}; expected a 3x4 projection matrix')
+  base.check_finite(proj[None], path, 'the projection matrix')
   return proj
 
 
@@ -87,6 +88,7 @@ def idr_projections(scan_dir: str, n_cameras: int) -> np.ndarray:
                             f'world_mat_{n_cameras - 1}, each 4x4 = K[R|t]): {err}') from err
   if not mats or any(m.shape not in ((4, 4), (3, 4)) for m in mats):
     raise base.DatasetError(f'camera file {path!r}: expected world_mat_i arrays of shape 4x4 or 3x4')
+  base.check_finite(np.stack(mats[:count]), path, 'world_mat')
   return np.stack([m[:3, :4] for m in mats])
 
 
@@ -120,27 +122,43 @@ def image_paths(scan_dir: str, layout: str, ids, light: int) -> list:
   return [os.path.join(scan_dir, name) for name in names]
 
 
+def mask_folders(mask_path: str, scan: str) -> list:
+  """Candidate mask folders of a scan under Config.dtu_mask_path, most likely first.
+
+  idrmasks keeps <path>/scanN/NNN.png (scans 40, 55, 63, 110, 114: <path>/scanN/mask/NNN.png); a folder of
+  IDR/NeuS scans keeps <path>/<scan>/mask/NNN.png.
+  """
+  number = scan_number(scan)
+  names = [f'scan{number}'] + ([scan] if scan != f'scan{number}' else [])
+  subdirs = ('mask', '') if number in IDR_MASK_SCANS else ('', 'mask')
+  return [os.path.join(mask_path, name, sub) if sub else os.path.join(mask_path, name)
+          for name in names for sub in subdirs]
+
+
 def mask_paths(config, scan_dir: str, layout: str, ids) -> list:
-  """Mask path per view id: idrmasks layout under Config.dtu_mask_path, else the IDR scan's own mask/."""
+  """Mask path per view id: the scan's own mask/ (empty Config.dtu_mask_path, IDR layout), else the first
+  candidate folder under Config.dtu_mask_path that holds every mask (a missing one raises listing the folders)."""
   if not config.dtu_mask_path:
     if layout != 'idr':
       raise base.DatasetError('Config.dtu_mask_path is empty; DTU (RegNeRF layout) test views need the idrmasks '
                               'folder (<dtu_mask_path>/scanN/NNN.png)')
     return [os.path.join(scan_dir, 'mask', f'{i:03d}.png') for i in ids]
-  number = scan_number(config.dtu_scan)
-  folder = os.path.join(config.dtu_mask_path, f'scan{number}')
-  if not os.path.isdir(folder) and os.path.isdir(os.path.join(config.dtu_mask_path, config.dtu_scan)):
-    folder = os.path.join(config.dtu_mask_path, config.dtu_scan)
-  if number in IDR_MASK_SCANS:
-    folder = os.path.join(folder, 'mask')
-  return [os.path.join(folder, f'{i:03d}.png') for i in ids]
+  folders = mask_folders(config.dtu_mask_path, config.dtu_scan)
+  for folder in folders:
+    paths = [os.path.join(folder, f'{i:03d}.png') for i in ids]
+    if all(os.path.isfile(p) for p in paths):
+      return paths
+  raise base.DatasetNotFoundError(
+      f'DTU masks of test views {list(ids)} (NNN.png) are not all present in any of {folders} '
+      f'(Config.dtu_mask_path = {config.dtu_mask_path!r}, Config.dtu_scan = {config.dtu_scan!r}); set '
+      "Config.dtu_mask_path to the idrmasks folder, or to '' to use the IDR scan's own mask/ folder")
 
 
 def load_masks(paths, factor: int, mode: str) -> np.ndarray:
   """[N,H,W,3] f32 binarised (== 255) and downsampled masks; a missing file raises naming it."""
   for path in paths:
-    base.require_file(path, 'DTU mask of a test view (set Config.dtu_mask_path or provide <scan>/mask/)')
-  return np.stack([image_io.load_binary_mask(p, factor, mode) for p in paths])
+    base.require_file(path, "DTU mask of a test view (Config.dtu_mask_path = '' reads the IDR scan's mask/)")
+  return image_io.load_stack(paths, lambda p: image_io.load_binary_mask(p, factor, mode))
 
 
 def normalized_cameras(projections: np.ndarray, factor: int) -> tuple:
@@ -182,7 +200,7 @@ def load_dtu(split: str, config) -> base.Dataset:
   masks = None
   if split == 'test':
     masks = load_masks(mask_paths(config, scan_dir, layout, ids), factor, config.downsample_mode)
-  images = np.stack([image_io.load_rgb(p, factor, config.downsample_mode) for p in paths])
+  images = image_io.load_stack(paths, lambda p: image_io.load_rgb(p, factor, config.downsample_mode))
   height, width = images.shape[1:3]
   rays = raygen.stack_rays((raygen.dtu_rays(poses[i], pixtocams[i], height, width, config.near, config.far,
                                             config.near_origin) for i in ids), len(ids))

@@ -89,6 +89,19 @@ def load_binary_mask(path: str, factor: int, mode: str) -> np.ndarray:
   return downsample((read_image(path, 'RGB') == 255).astype(np.float32), factor, mode)
 
 
+def load_stack(paths, load_fn) -> np.ndarray:
+  """[N,...] stack of load_fn(path) over paths; an image whose size differs from the first raises naming both."""
+  images = []
+  for path in paths:
+    image = load_fn(path)
+    if images and image.shape[:2] != images[0].shape[:2]:
+      raise DatasetError(f'image {path!r} is {image.shape[0]}x{image.shape[1]} after loading; expected '
+                         f'{images[0].shape[0]}x{images[0].shape[1]} like {paths[0]!r} (every image of a split '
+                         'must have the same size)')
+    images.append(image)
+  return np.stack(images)
+
+
 def write_png(path: str, img: np.ndarray) -> None:
   """Writes f32 [H,W,C] in [0,1] (C in 1,3,4) or uint8 as an 8-bit PNG."""
   if img.dtype != np.uint8:

@@ -36,6 +36,10 @@ def read_poses_bounds(scene_dir: str) -> np.ndarray:
                             f'{err}') from err
   if data.ndim != 2 or data.shape[1] != 17 or not data.shape[0]:
     raise base.DatasetError(f'{path!r} has shape {data.shape}; expected [N, 17] (3x5 pose + 2 bounds per image)')
+  base.check_finite(data, path, 'the poses or bounds')
+  if (data[:, 15:17] <= 0).any():
+    raise base.DatasetError(f'{path!r}: the near/far bounds (columns 15, 16) must be positive; found minimum '
+                            f'{data[:, 15:17].min()}')
   return data.astype(np.float64)
 
 
@@ -81,7 +85,8 @@ def load_llff(split: str, config, scene_dir: str, name: str) -> base.Dataset:
   paths, extra, poses_bounds = scene_setup(scene_dir, factor)
   c2w, _, focal = process_poses(poses_bounds)
   ids = split_ids(split, len(paths), config.llffhold, config.n_input_views)
-  images = np.stack([image_io.load_rgb(paths[i], extra, config.downsample_mode) for i in ids])
+  images = image_io.load_stack([paths[i] for i in ids],
+                               lambda p: image_io.load_rgb(p, extra, config.downsample_mode))
   height, width = images.shape[1:3]
   pixtocam = cameras.focal_pixtocam(focal / factor, height, width)
   rays = raygen.stack_rays((raygen.llff_rays(c2w[i], pixtocam, height, width, focal / factor) for i in ids),

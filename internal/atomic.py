@@ -1,0 +1,23 @@
+"""Atomic file writes: a reader (or a crash) sees the old content or the new one, never a partial file."""
+
+import contextlib
+import os
+import tempfile
+
+
+def write_text(path, text: str) -> None:
+  """Writes text to path through a temporary file in the same folder, fsync and os.replace."""
+  path = os.fspath(path)
+  fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path) or '.', prefix=f'.{os.path.basename(path)}.',
+                             suffix='.tmp')
+  try:
+    with os.fdopen(fd, 'w', newline='') as f:
+      f.write(text)
+      f.flush()
+      os.fsync(f.fileno())
+    os.chmod(tmp, 0o644)  # mkstemp creates 0600; metadata files are as readable as any other output.
+    os.replace(tmp, path)
+  except BaseException:
+    with contextlib.suppress(FileNotFoundError):
+      os.unlink(tmp)
+    raise

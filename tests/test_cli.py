@@ -1,0 +1,83 @@
+"""The scripts' command line: every form of the multi-value flags, user errors as one line with status 2."""
+
+import io
+import subprocess
+import sys
+
+import pytest
+import tqdm
+
+from internal import checkpoints
+from internal import cli
+from internal import run_dir
+from test_checkpoints import DEMO, ROOT
+
+
+@pytest.mark.parametrize('argv', [
+    ['--gin_bindings', 'A = 1', 'B = 2', '--gin_configs', 'x.gin', 'y.gin'],          # Space-separated.
+    ['--gin_bindings=A = 1', '--gin_bindings=B = 2', '--gin_configs=x.gin', '--gin_configs=y.gin'],  # Repeated.
+    ['--gin_bindings=A = 1', 'B = 2', '--gin_configs=x.gin', 'y.gin'],                # `--flag="A" "B"`.
+    ['--gin_configs', 'x.gin', '--gin_bindings=A = 1', '--gin_configs=y.gin', '--gin_bindings', 'B = 2'],
+])
+def test_every_form_of_the_multi_value_flags(argv):
+  args = run_dir.flag_parser('test').parse_args(argv)
+  assert args.gin_configs == ['x.gin', 'y.gin'] and args.gin_bindings == ['A = 1', 'B = 2']
+
+
+def test_other_flags_keep_their_equals_form():
+  parser = run_dir.flag_parser('test')
+  parser.add_argument('--stop_at_step', type=int, default=0)
+  args = parser.parse_args(['--stop_at_step=5', '--gin_bindings=Config.near = 1.'])
+  assert args.stop_at_step == 5 and args.gin_bindings == ['Config.near = 1.']
+
+
+def _raising(err):
+  def main():
+    raise err
+  return main
+
+
+@pytest.mark.parametrize('err', [
+    ValueError('Config.near = 0.0; expected > 0\n  In bindings string line 1'),
+    FileNotFoundError('no data'), FileExistsError('done already'), run_dir.RunDirError('other settings'),
+    checkpoints.NoCheckpointError('no checkpoint')])
+def test_user_errors_print_one_line_and_exit_2(err, capsys, monkeypatch):
+  monkeypatch.delenv(cli.DEBUG_ENV, raising=False)
+  assert cli.run(_raising(err)) == cli.USAGE_ERROR_STATUS == 2
+  out, errout = capsys.readouterr()
+  assert out == '' and errout.count('\n') == 1 and errout.startswith(f'error: {str(err).splitlines()[0]}')
+  monkeypatch.setenv(cli.DEBUG_ENV, '1')
+  with pytest.raises(type(err)):
+    cli.run(_raising(err))
+
+
+def test_bugs_keep_their_traceback(monkeypatch):
+  monkeypatch.delenv(cli.DEBUG_ENV, raising=False)
+  with pytest.raises(KeyError):
+    cli.run(_raising(KeyError('a bug')))
+  assert cli.run(lambda: 0) == 0
+
+
+def test_one_line_joins_multi_line_messages():
+  assert cli.one_line(ValueError("No configurable 'Foo'.\n  In bindings string line 1\n    Foo.x = 1")) == (
+      "No configurable 'Foo'. In bindings string line 1 Foo.x = 1")
+
+
+def test_progress_off_a_terminal_writes_whole_lines():
+  stream = io.StringIO()
+  bar = tqdm.tqdm(total=3, unit='step', **cli.progress_kwargs(stream))
+  for _ in range(3):
+    bar.update(1)
+  bar.close()
+  text = stream.getvalue()
+  assert '\r' not in text and text.endswith('\n') and '3/3' in text.splitlines()[-1]
+
+
+def test_a_non_utf8_path_is_a_one_line_error_not_a_crash(tmp_path):
+  binding = b"Config.checkpoint_dir = '" + bytes(tmp_path) + b"/run\xff'"
+  proc = subprocess.run([sys.executable.encode(), b'train.py', b'--gin_configs', DEMO.encode(),
+                         b'--gin_bindings', binding, b'Config.max_steps = 1'], cwd=ROOT, capture_output=True,
+                        timeout=120, check=False)
+  err = proc.stderr.decode('utf-8')
+  assert proc.returncode == 2 and err.count('\n') == 1 and err.startswith('error: cannot parse the gin'), err
+  assert '\\udcff' in err and 'lost sys.stderr' not in err

@@ -1,0 +1,110 @@
+"""Every ```bash block of README.md runs as written (with tiny settings), so that the README cannot drift.
+
+Each block runs in bash in a copy of the repository, with one scene per loop (the README's scene-list variables)
+and a `python` on PATH that appends tiny model and data bindings to train.py / eval.py / render.py (the shared
+scenes instead of data/, 2 steps, a small model, low resolution) and turns `python -m pytest` into a collection
+run (the suite is not run inside itself). `python3 -m venv`, `. .venv/bin/activate` and `pip install` steps are
+dropped: the test runs in the installed environment.
+"""
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from conftest import SHARED_DATA
+from test_checkpoints import JAX_CACHE, ROOT
+
+README = ROOT / 'README.md'
+BLOCKS = re.findall(r'^```bash\n(.*?)^```', README.read_text(), re.S | re.M)
+INSTALL_STEP = re.compile(r'^(python3 -m venv .*|\. \.venv/bin/activate|pip install .*)$')
+LOOP_VARIABLES = {'DTU_SCANS': 'scan8', 'LLFF_SCENES': 'fern', 'BLENDER_SCENES': 'lego', 'VIEWS': '3',
+                  'METHODS': 'mipnerf', 'T_VALUES': '4395'}
+TINY = ['MLP.net_depth = 2', 'MLP.net_width = 16', 'MLP.net_width_viewdirs = 16', 'MipNerfModel.num_samples = 8',
+        'Config.max_steps = 2', 'Config.batch_size = 64', 'Config.print_every = 1', 'Config.train_render_every = 0',
+        'Config.render_path_frames = 2', 'Config.eval_test_ids = [0]', 'Config.compute_lpips = False',
+        'Config.allow_missing_test_views = True', 'Config.generated_size = (16, 20)']
+# Per dataset (recognised in the gin config's name): the shared scene and a low resolution.
+DATA = {
+    'dtu': [f"Config.data_dir = '{SHARED_DATA / 'dtu'}'", "Config.dtu_scan = 'dtu_scan24'",
+            f"Config.dtu_mask_path = '{SHARED_DATA / 'dtu'}'", 'Config.factor = 16', 'Config.render_factor = 16'],
+    'llff': [f"Config.data_dir = '{SHARED_DATA / 'llff'}'", "Config.llff_scan = 'fern'", 'Config.factor = 32',
+             'Config.render_factor = 32'],
+    'blender': [f"Config.data_dir = '{SHARED_DATA / 'blender'}'", "Config.blender_scene = 'lego'",
+                'Config.factor = 16', 'Config.render_factor = 16'],
+}
+SHARED_SCENES = {'dtu': SHARED_DATA / 'dtu' / 'dtu_scan24', 'llff': SHARED_DATA / 'llff' / 'fern',
+                 'blender': SHARED_DATA / 'blender' / 'lego'}
+SHIM = '''#!{python}
+"""README test shim: runs the real interpreter with tiny bindings appended; logs each call and its status."""
+import json, subprocess, sys
+args = sys.argv[1:]
+if args and args[0] in ('train.py', 'eval.py', 'render.py'):
+  configs = ' '.join(a for a in args if 'configs/' in a)
+  args += ['--gin_bindings'] + {tiny!r} + [x for name, extra in {data!r}.items() if name in configs for x in extra]
+elif args[:2] == ['-m', 'pytest']:
+  args += ['--collect-only']
+status = subprocess.call([{python!r}] + args)
+with open({log!r}, 'a') as f:
+  f.write(json.dumps({{'argv': sys.argv[1:], 'status': status}}) + '\\n')
+sys.exit(status)
+'''
+
+
+def runnable(block: str) -> str:
+  """The block without its install steps (`a && b` chains keep their other steps)."""
+  lines = []
+  for line in block.splitlines():
+    steps = [s for s in line.split(' && ') if not INSTALL_STEP.match(s.strip())]
+    lines.append(' && '.join(steps))
+  return '\n'.join(lines) + '\n'
+
+
+def called(block: str) -> set:
+  """The scripts / modules a block runs with python ('train.py', 'tools.tables', 'pytest', ...)."""
+  return set(re.findall(r'\bpython (?:-m )?([\w./]+)', block))
+
+
+@pytest.fixture(scope='module')
+def sandbox(tmp_path_factory):
+  """(repository copy, PATH with the shim first, call log)."""
+  root = tmp_path_factory.mktemp('readme')
+  repo = root / 'repo'
+  shutil.copytree(ROOT, repo, ignore=shutil.ignore_patterns('.git', 'out', 'data', '.venv', '__pycache__',
+                                                          '.pytest_cache'))
+  log = root / 'calls.jsonl'
+  (root / 'bin').mkdir()
+  for name in ('python', 'python3'):
+    shim = root / 'bin' / name
+    shim.write_text(SHIM.format(python=sys.executable, tiny=TINY, data=DATA, log=str(log)))
+    shim.chmod(0o755)
+  return repo, f"{root / 'bin'}{os.pathsep}{os.environ['PATH']}", log
+
+
+def test_the_readme_has_its_command_blocks():
+  assert len(BLOCKS) >= 5
+  assert {'train.py', 'eval.py', 'render.py', 'tools.tables', 'pytest'} <= set().union(*map(called, BLOCKS))
+
+
+@pytest.mark.parametrize('index', range(len(BLOCKS)))
+def test_readme_block_runs_as_written(index, sandbox):
+  block = BLOCKS[index]
+  missing = [str(path) for name, path in SHARED_SCENES.items() if re.search(rf'\b{name}', block) and
+             not path.is_dir()]
+  if missing:
+    pytest.skip(f'README block {index} needs shared scenes that are absent: {missing}')
+  repo, path, log = sandbox
+  log.write_text('')
+  env = dict(os.environ, PATH=path, JAX_COMPILATION_CACHE_DIR=JAX_CACHE,
+             JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS='0', **LOOP_VARIABLES)
+  proc = subprocess.run(['bash', '-e', '-c', runnable(block)], cwd=repo, env=env, capture_output=True, text=True,
+                        timeout=600, check=False)
+  calls = [json.loads(line) for line in log.read_text().splitlines()]
+  report = f'block {index}:\n{block}\nstdout:\n{proc.stdout[-3000:]}\nstderr:\n{proc.stderr[-3000:]}'
+  assert proc.returncode == 0 and all(c['status'] == 0 for c in calls), report
+  ran = {c['argv'][1] if c['argv'][0] == '-m' else c['argv'][0] for c in calls}
+  assert ran == called(block), report

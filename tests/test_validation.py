@@ -1,0 +1,100 @@
+"""Bad values are refused before any work: Config ranges and types, non-finite cameras, mixed image sizes."""
+
+import json
+import os
+
+import gin
+import numpy as np
+import pytest
+
+from internal import configs
+from internal.datasets import DatasetError, dtu, load_dataset
+from test_datasets_dtu_layouts import config as dtu_config, synthetic_projections, write_idr
+from test_datasets_errors import (blender, blender_root, llff, llff_root,  # pylint: disable=unused-import
+                                  noise, save_png)
+
+
+def _load(*bindings):
+  gin.clear_config()
+  return configs.load_config([], list(bindings))
+
+
+@pytest.mark.parametrize('binding, message', [
+    ('Config.lr_init = 0.', r'Config.lr_init = 0.0; expected > 0'),
+    ('Config.lr_init = -1e-3', r'Config.lr_init = -0.001; expected > 0'),
+    ('Config.lr_final = 0.', r'Config.lr_final = 0.0; expected > 0'),
+    ("Config.lr_init = float('nan')", 'Unable to parse|Config.lr_init'),
+    ('Config.print_every = 0', r'Config.print_every = 0; expected a positive integer'),
+    ('Config.checkpoint_every = 0', r'Config.checkpoint_every = 0; expected a positive integer'),
+    ('Config.checkpoint_keep = 0', r'Config.checkpoint_keep = 0; expected a positive integer'),
+    ('Config.near = 0.', r"Config.near = 0.0; expected > 0 for 'generated'"),
+    ("Config.near = 'a'", r"Config.near = 'a'; expected float"),
+    ('Config.max_steps = 1e5', r'Config.max_steps = 100000.0; expected int'),
+    ('Config.nope = 1', "doesn't have a parameter named 'nope'"),
+    ('Config.near = ', 'cannot parse the gin'),
+])
+def test_bad_settings_raise_value_errors_naming_them(binding, message):
+  with pytest.raises(ValueError, match=message):
+    _load(binding)
+
+
+def test_non_finite_near_is_refused():
+  with pytest.raises(ValueError, match='Config.near = nan; expected a finite number'):
+    configs.validate(configs.Config(near=float('nan')))
+
+
+def test_near_zero_stays_accepted_for_ndc_scenes():
+  assert _load("Config.dataset_loader = 'llff'", 'Config.near = 0.', 'Config.far = 1.').near == 0.
+  assert _load("Config.generated_rig = 'forward'", 'Config.near = 0.').near == 0.
+  with pytest.raises(ValueError, match="'dtu' scenes"):
+    _load("Config.dataset_loader = 'dtu'", 'Config.near = 0.')
+
+
+def test_regularizers_that_cannot_act_warn():
+  with pytest.warns(UserWarning, match='Config.freq_reg_end = 900 exceeds Config.max_steps = 800'):
+    _load('Config.freq_reg = True', 'Config.freq_reg_end = 900', 'Config.max_steps = 800')
+  with pytest.warns(UserWarning, match='Config.occ_reg_range = 20 exceeds MipNerfModel.num_samples = 16'):
+    _load('Config.occ_reg_loss_mult = 0.01', 'Config.occ_reg_range = 20', 'MipNerfModel.num_samples = 16')
+
+
+def test_nan_in_llff_poses_or_bounds_names_the_file(llff_root):
+  path = llff_root / 'toy' / 'poses_bounds.npy'
+  data = np.load(path)
+  data[3, 16] = np.nan
+  np.save(path, data)
+  with pytest.raises(DatasetError, match=r"poses_bounds\.npy'.*entries \[3\] are not finite"):
+    load_dataset('train', llff(llff_root, n_input_views=3))
+
+
+def test_nan_in_blender_pose_names_the_file(blender_root):
+  path = blender_root / 'toy' / 'transforms_train.json'
+  meta = json.loads(path.read_text())
+  meta['frames'][1]['transform_matrix'][0][3] = float('nan')
+  path.write_text(json.dumps(meta))
+  with pytest.raises(DatasetError, match=r"transforms_train\.json.*r_1 has a transform_matrix with NaN"):
+    load_dataset('train', blender(blender_root))
+
+
+def test_nan_in_dtu_cameras_names_the_file(tmp_path):
+  projs = synthetic_projections()
+  projs[7, 1, 2] = np.inf
+  write_idr(tmp_path, 'scan24', projs)
+  with pytest.raises(DatasetError, match=r"cameras_sphere\.npz'.*world_mat of entries \[7\] are not finite"):
+    load_dataset('train', dtu_config(tmp_path, 'scan24'))
+
+
+def test_image_of_another_size_names_the_file_and_the_expected_size(llff_root):
+  save_png(str(llff_root / 'toy' / 'images_8' / 'img05.png'), noise(5, (7, 8, 3)))
+  with pytest.raises(DatasetError, match=r"img05\.png' is 7x8 after loading; expected 6x8 like .*img01\.png"):
+    load_dataset('train', llff(llff_root, n_input_views=3))
+
+
+def test_dtu_mask_path_may_be_a_folder_of_idr_scans(tmp_path):
+  write_idr(tmp_path, 'scan24', synthetic_projections())
+  own = load_dataset('test', dtu_config(tmp_path, 'scan24'))
+  via_path = load_dataset('test', dtu_config(tmp_path, 'scan24', dtu_mask_path=str(tmp_path)))
+  np.testing.assert_array_equal(own.masks, via_path.masks)
+  assert dtu.mask_folders('m', 'dtu_scan24') == ['m/scan24', 'm/scan24/mask', 'm/dtu_scan24', 'm/dtu_scan24/mask']
+  os.remove(tmp_path / 'scan24' / 'mask' / '001.png')
+  with pytest.raises(DatasetError, match=r"not all present in any of \[.*scan24', .*scan24/mask'\]"):
+    load_dataset('test', dtu_config(tmp_path, 'scan24', dtu_mask_path=str(tmp_path)))
