@@ -2,7 +2,9 @@
 
 A user error (a bad setting, a missing or malformed data file, a run directory that must not be touched, an
 output that exists) prints `error: <message>` on stderr and exits with USAGE_ERROR_STATUS, the status argparse
-uses for bad flags. Anything else is a bug and keeps its traceback (exit status 1). FREENERF_DEBUG=1 in the
+uses for bad flags. A run stopped for non-finite values (Config.max_skipped_steps consecutive skipped updates,
+or one under Config.nonfinite_grad_policy = 'raise') prints one line too and exits with NONFINITE_STATUS.
+Anything else is a bug and keeps its traceback (exit status 1). FREENERF_DEBUG=1 in the
 environment shows the traceback of user errors too.
 """
 
@@ -11,8 +13,10 @@ import sys
 
 from internal import checkpoints
 from internal import run_dir
+from internal import train_step
 
 USAGE_ERROR_STATUS = 2
+NONFINITE_STATUS = 3
 DEBUG_ENV = 'FREENERF_DEBUG'
 # ValueError covers Config validation, gin's unknown bindings and the loaders' DatasetError; FileNotFoundError
 # covers missing data and NoCheckpointError; FileExistsError is an evaluation or rendering that exists already.
@@ -33,15 +37,15 @@ def one_line(err: BaseException) -> str:
 
 
 def run(main) -> int:
-  """Calls main() -> exit status; a user error prints one line on stderr and gives USAGE_ERROR_STATUS."""
+  """Calls main() -> exit status; a user error prints one line on stderr (status 2, or 3 for non-finite values)."""
   robust_streams()
   try:
     return main()
-  except USER_ERRORS as err:
+  except (*USER_ERRORS, train_step.NonFiniteError) as err:
     if os.environ.get(DEBUG_ENV, '') not in ('', '0'):
       raise
     print(f'error: {one_line(err)}', file=sys.stderr)
-    return USAGE_ERROR_STATUS
+    return NONFINITE_STATUS if isinstance(err, train_step.NonFiniteError) else USAGE_ERROR_STATUS
 
 
 class LineFile:

@@ -10,6 +10,7 @@ import tqdm
 from internal import checkpoints
 from internal import cli
 from internal import run_dir
+from internal import train_step
 from test_checkpoints import DEMO, ROOT
 
 
@@ -49,6 +50,13 @@ def test_user_errors_print_one_line_and_exit_2(err, capsys, monkeypatch):
   monkeypatch.setenv(cli.DEBUG_ENV, '1')
   with pytest.raises(type(err)):
     cli.run(_raising(err))
+
+
+def test_a_run_stopped_for_non_finite_values_prints_one_line_and_exits_3(capsys, monkeypatch):
+  monkeypatch.delenv(cli.DEBUG_ENV, raising=False)
+  err = train_step.NonFiniteError('steps 3-6: 4 consecutive updates skipped')
+  assert cli.run(_raising(err)) == cli.NONFINITE_STATUS == 3
+  assert capsys.readouterr().err == f'error: {err}\n'
 
 
 def test_bugs_keep_their_traceback(monkeypatch):
