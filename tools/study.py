@@ -113,10 +113,12 @@ def run_cell(path: str) -> dict:
 
 
 def _subprocess_cell(path: str, env: Dict[str, str]) -> int:
-  """Runs one cell in a fresh python process, output to <cell>/log.txt; returns its exit status."""
+  """Runs one cell in a fresh python process (same working directory: relative paths of the study file
+  resolve as in-process), output to <cell>/log.txt; returns its exit status."""
   with open(os.path.join(path, LOG_FILE), 'a') as log:
-    return subprocess.call([sys.executable, '-m', 'tools.study', '--run-cell', path], cwd=REPO,
-                           stdout=log, stderr=subprocess.STDOUT, env={**os.environ, **env})
+    python_path = os.pathsep.join([REPO] + [p for p in [os.environ.get('PYTHONPATH')] if p])
+    return subprocess.call([sys.executable, '-m', 'tools.study', '--run-cell', path], stdout=log,
+                           stderr=subprocess.STDOUT, env={**os.environ, 'PYTHONPATH': python_path, **env})
 
 
 def _worker_envs(jobs: int, gpus: Optional[str]) -> List[Dict[str, str]]:

@@ -252,9 +252,10 @@ def parse(text: str, path: str) -> Study:
   axis_names = [a.name for a in axes]
   if len(set(axis_names)) < len(axis_names):
     r.fail('axis', f'axis names {axis_names} repeat')
-  reserved = set(axis_names) & {'out', 'data_root', 'study', 'method', 'scene'}
+  reserved = set(axis_names) & ({'out', 'data_root', 'study', 'method', 'scene', 'cell', 'status', 'step',
+                                  'complete'} | set(RECORDED_X))
   if reserved:
-    r.fail('axis', f'names {sorted(reserved)} are reserved template fields')
+    r.fail('axis', f'names {sorted(reserved)} are reserved (template fields or results.csv columns)')
   plot_table = r.get(data, 'plot', '', dict, {})
   r.unknown(plot_table, ('x', 'metrics', 'pareto'), 'plot')
   plot = Plot(r.strings(plot_table, 'x', 'plot') or tuple(axis_names[:1]),
