@@ -23,6 +23,7 @@ from internal import atomic
 from internal import checkpoints
 from internal import cli
 from internal import datasets
+from internal import depth_metrics
 from internal.datasets import packed
 from internal import inference
 from internal import lpips
@@ -126,6 +127,7 @@ def evaluate(config) -> dict:
                           'Config.overwrite = True to evaluate again and replace it')
   render_fn = inference.make_render_fn(config, model, state.params, step)
   lpips_fn, lpips_reason = load_lpips_fn(config)
+  depth_score = depth_metrics.scorer(test_set, ndc=dataset_and_scene(config)[0] == 'llff')  # Exact depths.
   os.makedirs(out_dir, exist_ok=True)
   per_image = []
   for i in positions:
@@ -133,6 +135,8 @@ def evaluate(config) -> dict:
                                        config.render_chunk_size)
     mask = None if test_set.masks is None else test_set.masks[i]
     values = metrics.image_metrics(rendering['rgb'], test_set.images[i], lpips_fn, mask)
+    if depth_score is not None:
+      values.update(depth_score(i, rendering['distance_mean']))
     per_image.append({'id': int(test_set.ids[i]), **values})
     save_images(rendering, out_dir, int(test_set.ids[i]))
     print(f'view {test_set.ids[i]}: ' + ', '.join(f'{k} {v:.4f}' for k, v in values.items() if v is not None))

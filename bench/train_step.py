@@ -24,6 +24,7 @@ from jax import random
 
 from bench import released_equivalent
 from internal import configs
+from internal import flops as flops_lib
 from internal import inference
 from internal.models import MipNerfModel
 from internal import rays as rays_lib
@@ -79,8 +80,7 @@ def step_runner(model_cls, overrides, batch):
   _, state = ts.create_train_state(config, random.PRNGKey(0), batch['rays'])
   step = ts.make_train_step(config, model_cls(white_background=False))
   key = random.PRNGKey(1)
-  cost = step.lower(state, batch, key).compile().cost_analysis()
-  flops = (cost[0] if isinstance(cost, list) else cost).get('flops', float('nan'))
+  flops = flops_lib.compiled_flops(step, state, batch, key)
   holder = list(block(step(state, batch, key)))
 
   def run():

@@ -1,0 +1,173 @@
+"""tools.study end to end on the generated scene (2 methods x 2 scenes, tiny): cells, CSV, plots, resume, tables;
+and the study file's errors."""
+
+import csv
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import gin
+import numpy as np
+from PIL import Image
+import pytest
+
+from internal import configs
+from test_checkpoints import JAX_CACHE  # pylint: disable=unused-import  (sets the JAX compilation cache)
+from tools import study as study_lib
+from tools import study_plots
+from tools import study_spec
+from tools import tables
+import train
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+STEPS = 20
+TINY_STUDY = f'''
+name = "mini"
+bindings = ["MLP.net_depth = 2", "MLP.net_width = 16", "MLP.net_width_viewdirs = 16",
+            "MipNerfModel.num_samples = 8", "Config.batch_size = 64", "Config.max_steps = {STEPS}",
+            "Config.freq_reg_end = 18", "Config.print_every = 10", "Config.train_render_every = 0",
+            "Config.checkpoint_every = 10", "Config.compute_lpips = False", "Config.render_chunk_size = 192",
+            "Config.generated_size = (12, 16)", "Config.data_dir = '{{out}}/scenes/{{scene}}'"]
+[methods.freenerf]
+configs = ["{REPO}/configs/demo.gin"]
+[methods.mipnerf]
+configs = ["{REPO}/configs/demo.gin"]
+bindings = ["Config.freq_reg = False", "Config.freq_reg_end = 0", "Config.occ_reg_loss_mult = 0."]
+[scenes.object]
+bindings = ["Config.generated_rig = 'object'"]
+[scenes.forward]
+bindings = ["Config.generated_rig = 'forward'"]
+[[axis]]
+name = "views"
+binding = "Config.n_input_views"
+values = [3]
+[plot]
+x = ["views", "gflops_per_step"]
+metrics = ["psnr", "depth_mae"]
+pareto = true
+[[paper]]
+method = "freenerf"
+metric = "psnr"
+x = "views"
+points = [[3, 10.0]]
+'''
+
+
+def _rows(path):
+  with open(path, newline='') as f:
+    return list(csv.DictReader(f))
+
+
+@pytest.fixture(scope='module', name='ran')
+def fixture_ran(tmp_path_factory):
+  """(study, out) after a half-trained cell was started by hand and the study was run in-process."""
+  out = str(tmp_path_factory.mktemp('study') / 'out')
+  path = pathlib.Path(out).parent / 'mini.toml'
+  path.write_text(TINY_STUDY)
+  study = study_spec.load(path)
+  half = study_lib.write_spec(study, study_spec.cells(study)[0], out, 'data')
+  spec = json.loads(pathlib.Path(half, study_lib.SPEC_FILE).read_text())
+  gin.clear_config()
+  train.train(configs.load_config(spec['gin_configs'], spec['gin_bindings']), stop_at_step=10)
+  assert study_lib.run_study(study, out, in_process=True) == {}
+  return study, out, path
+
+
+def test_every_cell_is_recorded_with_metrics_and_costs(ran):
+  study, out, _ = ran
+  rows = _rows(os.path.join(out, 'mini', study_lib.RESULTS_FILE))
+  assert [r['cell'] for r in rows] == ['freenerf__object__views=3', 'freenerf__forward__views=3',
+                                       'mipnerf__object__views=3', 'mipnerf__forward__views=3']
+  for row in rows:
+    assert row['status'] == 'done' and row['step'] == str(STEPS) and row['complete'] == 'True'
+    assert 5. < float(row['psnr']) < 40. and float(row['depth_mae']) > 0.
+    assert 0. <= float(row['depth_within_5pct']) <= 1. and float(row['gflops_per_step']) > 0.
+    assert float(row['train_seconds']) > 0. and float(row['peak_rss_mb']) > 100.
+  assert [r['steps_trained'] for r in rows] == ['10', '20', '20', '20']     # The half-done cell resumed.
+  first = study_lib.read_cell(os.path.join(out, 'mini', rows[0]['cell']))
+  assert first['resumed_from_step'] == 10 and first['expname'] == 'freenerf'
+
+
+def test_plots_are_png_images(ran):
+  _, out, _ = ran
+  for name in ('psnr_vs_views', 'depth_mae_vs_views', 'psnr_vs_gflops_per_step'):
+    with Image.open(os.path.join(out, 'mini', f'{name}.png')) as image:
+      assert image.format == 'PNG' and image.size == (640, 440)
+
+
+def test_rerun_skips_finished_cells(ran):
+  _, out, path = ran
+  before = {p: p.read_text() for p in pathlib.Path(out, 'mini').glob(f'*/{study_lib.CELL_FILE}')}
+  result = subprocess.run([sys.executable, '-m', 'tools.study', str(path), '--out', out], cwd=REPO,
+                          capture_output=True, text=True, check=True)
+  assert 'running' not in result.stdout and 'results.csv' in result.stdout
+  assert len(before) == 4 and all(p.read_text() == text for p, text in before.items())
+  listing = subprocess.run([sys.executable, '-m', 'tools.study', str(path), '--out', out, '--list'], cwd=REPO,
+                           capture_output=True, text=True, check=True).stdout
+  assert listing.count('done') == 4
+
+
+def test_tables_gather_the_study(ran, tmp_path):
+  _, out, _ = ran
+  assert tables.main([os.path.join(out, 'mini'), '--out', str(tmp_path)]) == 0
+  blender = {r['scene']: r for r in _rows(tmp_path / 'blender_freenerf_3views.csv')}
+  llff = {r['scene']: r for r in _rows(tmp_path / 'llff_mipnerf_3views.csv')}
+  assert blender['generated_object']['note'] == 'not a protocol scene' and blender['mean']['PSNR'] == ''
+  assert llff['generated_forward']['step'] == str(STEPS)
+  cell = study_lib.read_cell(os.path.join(out, 'mini', 'freenerf__object__views=3'))
+  assert float(blender['generated_object']['PSNR']) == pytest.approx(cell['means']['psnr'], abs=1e-6)
+
+
+def test_pareto_front_by_hand():
+  points = [(1., 10.), (2., 12.), (2., 11.), (3., 11.5), (4., 13.)]
+  assert study_plots.pareto_front(points, False) == [(1., 10.), (2., 12.), (4., 13.)]
+  assert study_plots.pareto_front([(1., .5), (2., .4), (3., .6)], True) == [(1., .5), (2., .4)]
+
+
+def test_cells_and_gin_of_a_study():
+  study = study_spec.parse(TINY_STUDY.replace('values = [3]', 'values = [3, 6]') + '''
+[[axis]]
+name = "M"
+points = [{label = "M5", value = 5, bindings = ["Config.occ_reg_range = {M}"]}, {label = "off", bindings = []}]
+''', 's.toml')
+  cells = study_spec.cells(study)
+  assert len(cells) == 2 * 2 * 2 * 2
+  cell = cells[1]
+  assert cell.cell_id == 'freenerf__object__views=3__M=off' and cell.expname == 'freenerf_M=off'
+  configs_, bindings = study_spec.cell_gin(study, cells[0], 'O', 'D', 'O/mini/x')
+  assert configs_ == [f'{REPO}/configs/demo.gin']
+  assert "Config.data_dir = 'O/scenes/object'" in bindings and 'Config.n_input_views = 3' in bindings
+  assert bindings[-3:] == ['Config.occ_reg_range = M5', "Config.expname = 'freenerf_M=M5'",
+                           "Config.checkpoint_dir = 'O/mini/x'"]
+
+
+@pytest.mark.parametrize('text, message', [
+    ('name = "x"', r'bad\.toml: methods: missing'),
+    ('name = "x"\n[methods.a]\nconfig = []\n[scenes.s]', r'bad\.toml: methods\.a: unknown keys \[\'config\'\]'),
+    ('name = "x"\n[methods.a]\n[scenes.s]\nbindings = ["Config.data_dir = \'{root}\'"]',
+     r"scenes\.s: .* unknown template fields \['root'\]"),
+    ('name = "x"\n[methods.a]\n[scenes.s]\n[[axis]]\nname = "T"\nvalues = [1]', r'axis\[0\]: give either'),
+    ('name = "x"\n[methods.a]\n[scenes.s]\n[plot]\nx = ["speed"]', r"plot\.x: 'speed' is neither"),
+    ('name = 3', r'bad\.toml: name: 3 is a int; expected str'),
+    ('name = "x"\n[methods.a', r'bad\.toml: not valid TOML'),
+])
+def test_bad_study_files_name_the_file_and_key(text, message):
+  with pytest.raises(study_spec.StudyError, match=message):
+    study_spec.parse(text, 'bad.toml')
+
+
+def test_missing_study_file_is_an_error(tmp_path):
+  with pytest.raises(study_spec.StudyError, match='does not exist'):
+    study_spec.load(tmp_path / 'none.toml')
+
+
+def test_committed_study_files_parse():
+  files = sorted((REPO / 'studies').glob('*.toml'))
+  assert files
+  for path in files:
+    study = study_spec.load(path)
+    assert study_spec.cells(study)
+    for cell in study_spec.cells(study):
+      study_spec.cell_gin(study, cell, 'out', 'data', 'run')

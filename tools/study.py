@@ -1,0 +1,247 @@
+"""Runs a study or a paper table: every cell (method x scene x axis points) trained and evaluated in its own run.
+
+Usage: python -m tools.study STUDY.toml [--out out/studies] [--data_root data] [--jobs N] [--gpus 0,1,...]
+                             [--shard K/N] [--list] [--plots-only]
+
+Each cell runs `train(config)` then eval's `evaluate(config)` in a subprocess (`python -m tools.study
+--run-cell <cell dir>`: gin state stays per process and cells can run in parallel) in the run directory
+<out>/<study>/<cell id>/run/, and writes <out>/<study>/<cell id>/cell.json: the evaluation means, wall times (train, eval; they
+include data loading and compilation), steps/s, XLA's flop count of one train step, the process's peak RSS
+and, on accelerators, the device's peak bytes. Its output goes to <cell>/log.txt.
+Resumable: a cell with cell.json is skipped; a half-trained one resumes from its newest checkpoint.
+--jobs N runs N cells at a time; --gpus gives one GPU per worker (CUDA_VISIBLE_DEVICES), --shard K/N takes
+every N-th cell from K (one command per host on a shared folder). At the end (also after failures) the
+results of all finished cells are gathered into <out>/<study>/results.csv and <metric>_vs_<x>.png plots.
+`python -m tools.tables <out>/<study>` gathers the same runs into the paper's tables.
+"""
+
+import argparse
+import concurrent.futures
+import csv
+import json
+import os
+import queue
+import resource
+import subprocess
+import sys
+import time
+from typing import Dict, List, Optional
+
+from tools import study_plots
+from tools import study_spec
+
+CELL_FILE = 'cell.json'
+SPEC_FILE = 'cell_spec.json'
+LOG_FILE = 'log.txt'
+RUN_SUBDIR = 'run'  # The cell's run directory (Config.checkpoint_dir) inside its folder.
+RESULTS_FILE = 'results.csv'
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def study_dir(study: study_spec.Study, out: str) -> str:
+  return os.path.join(out, study.name)
+
+
+def cell_dir(study: study_spec.Study, cell: study_spec.Cell, out: str) -> str:
+  return os.path.join(study_dir(study, out), cell.cell_id)
+
+
+def read_cell(path: str) -> Optional[dict]:
+  """The cell.json of a cell folder, or None when the cell has not finished."""
+  path = os.path.join(path, CELL_FILE)
+  if not os.path.isfile(path):
+    return None
+  with open(path) as f:
+    return json.load(f)
+
+
+def write_spec(study: study_spec.Study, cell: study_spec.Cell, out: str, data_root: str) -> str:
+  """Writes <cell>/cell_spec.json (the cell's gin configs and bindings, labels); returns the cell folder."""
+  path = cell_dir(study, cell, out)
+  configs, bindings = study_spec.cell_gin(study, cell, out, data_root, os.path.join(path, RUN_SUBDIR))
+  os.makedirs(path, exist_ok=True)
+  spec = {'study': study.name, 'cell': cell.cell_id, 'method': cell.method, 'scene': cell.scene,
+          'labels': cell.labels(), 'gin_configs': configs, 'gin_bindings': bindings}
+  with open(os.path.join(path, SPEC_FILE), 'w') as f:
+    json.dump(spec, f, indent=1)
+  return path
+
+
+def _peak_memory() -> dict:
+  """Peak RSS of this process (MiB) and the first device's peak bytes in use (None where not reported)."""
+  import jax  # pylint: disable=import-outside-toplevel
+  stats = jax.local_devices()[0].memory_stats() or {}
+  return {'peak_rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.,
+          'device_peak_bytes': stats.get('peak_bytes_in_use')}
+
+
+def run_cell(path: str) -> dict:
+  """Trains (resuming) and evaluates the cell in folder path from its cell_spec.json; writes cell.json."""
+  import gin  # pylint: disable=import-outside-toplevel
+  import eval as eval_lib  # pylint: disable=import-outside-toplevel
+  from internal import checkpoints, configs, flops  # pylint: disable=import-outside-toplevel
+  import train  # pylint: disable=import-outside-toplevel
+  with open(os.path.join(path, SPEC_FILE)) as f:
+    spec = json.load(f)
+  gin.clear_config()
+  config = configs.load_config(spec['gin_configs'], spec['gin_bindings'])
+  try:
+    start_step = checkpoints.latest_step(config.checkpoint_dir)
+  except checkpoints.NoCheckpointError:
+    start_step = None
+  tic = time.perf_counter()
+  result = train.train(config)
+  train_seconds = time.perf_counter() - tic
+  if result.signum is not None:
+    raise RuntimeError(f'training of {path!r} stopped by signal {result.signum}; rerun to resume')
+  tic = time.perf_counter()
+  record = eval_lib.existing_record(config) or eval_lib.evaluate(config)
+  eval_seconds = time.perf_counter() - tic
+  steps = config.max_steps - (start_step or 0)
+  cell = {**{k: spec[k] for k in ('study', 'cell', 'method', 'scene', 'labels')},
+          'dataset': record['dataset'], 'record_scene': record['scene'], 'n_input_views': record['n_input_views'],
+          'expname': config.expname, 'step': record['step'], 'complete': record['complete'],
+          'means': record['means'], 'resumed_from_step': start_step, 'steps_trained': steps,
+          'train_seconds': train_seconds, 'eval_seconds': eval_seconds,
+          'steps_per_sec': steps / train_seconds if steps else None,
+          'gflops_per_step': flops.train_step_flops(config) / 1e9, **_peak_memory()}
+  with open(os.path.join(path, CELL_FILE + '.tmp'), 'w') as f:
+    json.dump(cell, f, indent=1)
+  os.replace(os.path.join(path, CELL_FILE + '.tmp'), os.path.join(path, CELL_FILE))
+  gin.clear_config()
+  return cell
+
+
+def _subprocess_cell(path: str, env: Dict[str, str]) -> int:
+  """Runs one cell in a fresh python process (same working directory: relative paths of the study file
+  resolve as in-process), output to <cell>/log.txt; returns its exit status."""
+  with open(os.path.join(path, LOG_FILE), 'a') as log:
+    python_path = os.pathsep.join([REPO] + [p for p in [os.environ.get('PYTHONPATH')] if p])
+    return subprocess.call([sys.executable, '-m', 'tools.study', '--run-cell', path], stdout=log,
+                           stderr=subprocess.STDOUT, env={**os.environ, 'PYTHONPATH': python_path, **env})
+
+
+def _worker_envs(jobs: int, gpus: Optional[str]) -> List[Dict[str, str]]:
+  """One environment per worker: its GPU when --gpus is given."""
+  if gpus:
+    return [{'CUDA_VISIBLE_DEVICES': g.strip()} for g in gpus.split(',')]
+  return [{} for _ in range(jobs)]
+
+
+def run_cells(paths: List[str], envs: List[Dict[str, str]], in_process: bool = False) -> Dict[str, str]:
+  """Runs the cells of paths over the workers (a queue); returns {path: error} of the failed cells."""
+  if in_process:
+    failed = {}
+    for path in paths:
+      try:
+        run_cell(path)
+      except Exception as e:  # pylint: disable=broad-except  (one failed cell must not stop the study)
+        failed[path] = f'{type(e).__name__}: {e}'
+    return failed
+  free = queue.Queue()
+  for env in envs:
+    free.put(env)
+
+  def work(path):
+    env = free.get()
+    try:
+      print(f'running {path} {env or ""}', flush=True)
+      status = _subprocess_cell(path, env)
+      return None if status == 0 else f'exit status {status}; see {os.path.join(path, LOG_FILE)}'
+    finally:
+      free.put(env)
+  with concurrent.futures.ThreadPoolExecutor(len(envs)) as pool:
+    errors = dict(zip(paths, pool.map(work, paths)))
+  return {p: e for p, e in errors.items() if e is not None}
+
+
+def _shard(cells: list, shard: Optional[str]) -> list:
+  """Every N-th cell from K for --shard K/N."""
+  if not shard:
+    return cells
+  try:
+    k, n = map(int, shard.split('/'))
+  except ValueError:
+    raise ValueError(f'--shard {shard!r}; expected K/N with 0 <= K < N') from None
+  if not 0 <= k < n:
+    raise ValueError(f'--shard {shard!r}; expected K/N with 0 <= K < N')
+  return cells[k::n]
+
+
+def gather(study: study_spec.Study, out: str) -> List[dict]:
+  """Rows of results.csv: one per cell (finished or not), labels, status, means and costs."""
+  rows = []
+  for cell in study_spec.cells(study):
+    record = read_cell(cell_dir(study, cell, out))
+    row = {'cell': cell.cell_id, 'method': cell.method, 'scene': cell.scene, **cell.labels(),
+           'status': 'done' if record else 'missing'}
+    if record:
+      row.update(step=record['step'], complete=record['complete'], **record['means'],
+                 **{k: record[k] for k in ('train_seconds', 'eval_seconds', 'steps_trained', 'steps_per_sec',
+                                           'gflops_per_step', 'peak_rss_mb', 'device_peak_bytes')})
+    rows.append(row)
+  return rows
+
+
+def write_results(study: study_spec.Study, out: str) -> List[str]:
+  """Writes results.csv and the plots; returns the written paths."""
+  rows = gather(study, out)
+  fields = list(dict.fromkeys(k for row in rows for k in row))
+  path = os.path.join(study_dir(study, out), RESULTS_FILE)
+  os.makedirs(os.path.dirname(path), exist_ok=True)
+  with open(path, 'w', newline='') as f:
+    writer = csv.DictWriter(f, fieldnames=fields)
+    writer.writeheader()
+    writer.writerows({k: ('' if row.get(k) is None else row.get(k)) for k in fields} for row in rows)
+  return [path] + study_plots.write_plots(study, rows, study_dir(study, out))
+
+
+def run_study(study: study_spec.Study, out: str, data_root: str = 'data', jobs: int = 1,
+              gpus: Optional[str] = None, shard: Optional[str] = None, in_process: bool = False) -> Dict[str, str]:
+  """Runs the unfinished cells (of the shard), then writes results and plots; returns {cell dir: error}."""
+  todo = [write_spec(study, c, out, data_root) for c in _shard(study_spec.cells(study), shard)]
+  todo = [p for p in todo if read_cell(p) is None]
+  failed = run_cells(todo, _worker_envs(jobs, gpus), in_process) if todo else {}
+  for path in write_results(study, out):
+    print(path)
+  return failed
+
+
+def main(argv=None) -> int:
+  """CLI entry point; returns the exit status (1 when a cell failed)."""
+  parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+  parser.add_argument('study', nargs='?', help='study file (TOML)')
+  parser.add_argument('--out', default='out/studies', help='root of the study folders')
+  parser.add_argument('--data_root', default='data', help='fills {data_root} in the study file')
+  parser.add_argument('--jobs', type=int, default=1, help='cells run at a time')
+  parser.add_argument('--gpus', help='comma-separated GPU ids, one worker each (overrides --jobs)')
+  parser.add_argument('--shard', help='K/N: run every N-th cell starting at K (one command per host)')
+  parser.add_argument('--list', action='store_true', help='list the cells and their state, run nothing')
+  parser.add_argument('--plots-only', action='store_true', help='only gather results.csv and the plots')
+  parser.add_argument('--run-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
+  args = parser.parse_args(argv)
+  if args.run_cell:
+    print(json.dumps(run_cell(args.run_cell), indent=1))
+    return 0
+  if not args.study:
+    parser.error('a study file is required')
+  if args.jobs < 1:
+    parser.error(f'--jobs {args.jobs}; expected >= 1')
+  study = study_spec.load(args.study)
+  if args.list:
+    for cell in study_spec.cells(study):
+      done = read_cell(cell_dir(study, cell, args.out)) is not None
+      print(f'{"done   " if done else "pending"} {cell_dir(study, cell, args.out)}')
+    return 0
+  if args.plots_only:
+    for path in write_results(study, args.out):
+      print(path)
+    return 0
+  failed = run_study(study, args.out, args.data_root, args.jobs, args.gpus, args.shard)
+  for path, error in failed.items():
+    print(f'FAILED {path}: {error}', file=sys.stderr)
+  return 1 if failed else 0
+
+
+if __name__ == '__main__':
+  sys.exit(main())

@@ -1,0 +1,97 @@
+"""Plots of a study's results: a metric against an axis (one line per method / scene / other labels, the paper's
+values dashed beside ours) or against a recorded cost (wall time, GFLOP per step) with the Pareto front marked."""
+
+import math
+import os
+from typing import List, Optional, Sequence, Tuple
+
+import matplotlib
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # pylint: disable=wrong-import-position
+
+from tools import study_spec
+
+
+def _number(value) -> Optional[float]:
+  """A finite float, or None."""
+  try:
+    value = float(value)
+  except (TypeError, ValueError):
+    return None
+  return value if math.isfinite(value) else None
+
+
+def pareto_front(points: Sequence[Tuple[float, float]], lower_is_better: bool) -> List[Tuple[float, float]]:
+  """Points [(cost, metric)] not dominated by a cheaper-or-equal, better-or-equal other point, by cost."""
+  sign = -1. if lower_is_better else 1.
+  front, best = [], -math.inf
+  for cost, value in sorted(points, key=lambda p: (p[0], -sign * p[1])):
+    if sign * value > best:
+      front.append((cost, value))
+      best = sign * value
+  return front
+
+
+def _axis_positions(study: study_spec.Study, x: str):
+  """({label: position}, tick labels or None): numeric values, or indices for a categorical axis."""
+  axis = next((a for a in study.axes if a.name == x), None)
+  if axis is None:
+    return None, None
+  if all(p.value is not None for p in axis.points):
+    return {p.label: p.value for p in axis.points}, None
+  return {p.label: float(i) for i, p in enumerate(axis.points)}, [p.label for p in axis.points]
+
+
+def _series(study: study_spec.Study, rows: List[dict], x: str, metric: str, positions) -> dict:
+  """{line name: [(x, y)]}: one line per method, scene and the labels of the axes other than x."""
+  others = [a.name for a in study.axes if a.name != x]
+  lines = {}
+  for row in rows:
+    y = _number(row.get(metric))
+    xv = positions.get(row.get(x)) if positions is not None else _number(row.get(x))
+    if y is None or xv is None:
+      continue
+    name = ' '.join([row['method'], row['scene']] + [f'{a}={row[a]}' for a in others])
+    lines.setdefault(name, []).append((xv, y))
+  return {name: sorted(points) for name, points in lines.items()}
+
+
+def plot(study: study_spec.Study, rows: List[dict], x: str, metric: str, path: str) -> bool:
+  """Draws metric against x into path (PNG); False (nothing written) when no cell has both values."""
+  positions, ticks = _axis_positions(study, x)
+  lines = _series(study, rows, x, metric, positions)
+  if not lines:
+    return False
+  fig, ax = plt.subplots(figsize=(6.4, 4.4))
+  for name, points in lines.items():
+    ax.plot(*zip(*points), marker='o', linestyle='-' if positions is not None else 'none', label=name)
+  for curve in study.paper:
+    if curve.metric == metric and curve.x == x:
+      ax.plot(*zip(*curve.points), marker='x', linestyle='--', color='black',
+              label=f'paper: {curve.method}' + (f' ({curve.source})' if curve.source else ''))
+  if study.plot.pareto:
+    front = pareto_front([p for points in lines.values() for p in points], metric in study_spec.LOWER_IS_BETTER)
+    ax.step(*zip(*front), where='post', color='red', linewidth=1.5, alpha=.6, label='Pareto front')
+    ax.scatter(*zip(*front), s=120, facecolors='none', edgecolors='red')
+  if ticks:
+    ax.set_xticks(range(len(ticks)), ticks, rotation=20)
+  ax.set_xlabel(x)
+  ax.set_ylabel(metric)
+  ax.set_title(f'{study.name}: {metric} vs {x}')
+  ax.grid(alpha=.3)
+  ax.legend(fontsize=7)
+  fig.tight_layout()
+  fig.savefig(path, dpi=100)
+  plt.close(fig)
+  return True
+
+
+def write_plots(study: study_spec.Study, rows: List[dict], out_dir: str) -> List[str]:
+  """<metric>_vs_<x>.png for every plotted metric and x that has data; returns the written paths."""
+  written = []
+  for x in study.plot.x:
+    for metric in study.plot.metrics:
+      path = os.path.join(out_dir, f'{metric}_vs_{x}.png')
+      if plot(study, rows, x, metric, path):
+        written.append(path)
+  return written

@@ -1,0 +1,323 @@
+"""Study files (TOML): methods x scenes x axes of gin bindings, expanded into cells; validated with clear errors.
+
+A study file (see studies/*.toml):
+
+  name = "example"                        # output folder <out>/<name>/
+  bindings = ["MLP.net_width = 16"]       # applied to every cell after the method's configs
+  [methods.<m>]  configs = [...]  bindings = [...]
+  [scenes.<s>]   bindings = [...]
+  [[axis]]  name = "T"  binding = "Config.freq_reg_end"  values = [100, 500]          # a swept binding, or
+  [[axis]]  name = "M"  points = [{label = "M=5", value = 5, bindings = [...], configs = [...]}, ...]
+  [plot]  x = ["T"]  metrics = ["psnr"]  pareto = false
+  [[paper]]  method = "mipnerf"  metric = "psnr"  x = "ratio"  points = [[0.1, 17.62], [1.0, 9.01]]
+
+Cells are the product methods x scenes x axis points. A cell's gin input, in order: the method's configs, the
+points' configs, the study's, method's, scene's and points' bindings, then Config.expname and
+Config.checkpoint_dir set by the runner. Configs and bindings are templates (str.format): {out} (the --out
+root), {data_root} (--data_root), {study}, {method}, {scene} and each axis name (the cell's label on that axis);
+write {{ and }} for literal braces.
+"""
+
+import dataclasses
+import itertools
+import math
+import pathlib
+import string
+import tomllib
+from typing import Dict, List, Optional, Tuple
+
+# Axis named VIEWS_AXIS is the tables' view count: it stays out of Config.expname (the tables' method column).
+VIEWS_AXIS = 'views'
+# Recorded per-cell numbers that can serve as a plot's x besides the axes.
+RECORDED_X = ('train_seconds', 'eval_seconds', 'steps_per_sec', 'gflops_per_step', 'peak_rss_mb')
+# Metrics where lower is better (the Pareto front keeps the low ones).
+LOWER_IS_BETTER = ('lpips', 'avg_error', 'depth_mae', 'lpips_masked', 'avg_error_masked')
+
+
+class StudyError(ValueError):
+  """A study file does not follow the format; the message names the file and the key."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Point:
+  """One position on an axis: its label (folder and expname part), numeric value (None: categorical), gin."""
+  label: str
+  value: Optional[float]
+  bindings: Tuple[str, ...] = ()
+  configs: Tuple[str, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
+class Axis:
+  name: str
+  points: Tuple[Point, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+  name: str
+  configs: Tuple[str, ...]
+  bindings: Tuple[str, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class Plot:
+  x: Tuple[str, ...]
+  metrics: Tuple[str, ...]
+  pareto: bool
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperCurve:
+  """Values the paper reports for one method and metric against an axis (drawn beside ours)."""
+  method: str
+  metric: str
+  x: str
+  points: Tuple[Tuple[float, float], ...]
+  source: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Study:
+  name: str
+  path: str
+  bindings: Tuple[str, ...]
+  methods: Tuple[Method, ...]
+  scenes: Tuple[Tuple[str, Tuple[str, ...]], ...]
+  axes: Tuple[Axis, ...]
+  plot: Plot
+  paper: Tuple[PaperCurve, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+  """One run of a study: the method, scene and one point per axis; `gin` gives its configs and bindings."""
+  study: str
+  method: str
+  scene: str
+  points: Tuple[Tuple[str, Point], ...]
+
+  @property
+  def cell_id(self) -> str:
+    """Folder name: method, scene and axis labels joined by '__'."""
+    return '__'.join([self.method, self.scene] + [f'{axis}={p.label}' for axis, p in self.points])
+
+  @property
+  def expname(self) -> str:
+    """Config.expname: the method plus the labels of every axis except the view count."""
+    return '_'.join([self.method] + [f'{axis}={p.label}' for axis, p in self.points if axis != VIEWS_AXIS])
+
+  def labels(self) -> Dict[str, str]:
+    return {axis: p.label for axis, p in self.points}
+
+
+class _Reader:
+  """Typed access to a TOML table with errors naming the file and the key path."""
+
+  def __init__(self, path: str):
+    self.path = path
+
+  def fail(self, key: str, message: str):
+    raise StudyError(f'{self.path}: {key}: {message}')
+
+  def get(self, table: dict, key: str, where: str, kind, default=dataclasses.MISSING):
+    name = f'{where}.{key}' if where else key
+    if key not in table:
+      if default is dataclasses.MISSING:
+        self.fail(name, f'missing (expected {kind.__name__})')
+      return default
+    value = table[key]
+    if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
+      self.fail(name, f'{value!r} is a {type(value).__name__}; expected {kind.__name__}')
+    return value
+
+  def strings(self, table: dict, key: str, where: str) -> Tuple[str, ...]:
+    values = self.get(table, key, where, list, [])
+    if not all(isinstance(v, str) for v in values):
+      self.fail(f'{where}.{key}' if where else key, f'{values!r}; expected a list of strings')
+    return tuple(values)
+
+  def unknown(self, table: dict, allowed, where: str) -> None:
+    extra = sorted(set(table) - set(allowed))
+    if extra:
+      self.fail(where or 'top level', f'unknown keys {extra}; expected some of {sorted(allowed)}')
+
+
+def gin_literal(value) -> str:
+  """A TOML value as a gin literal: True/False, numbers, quoted strings, [lists]."""
+  if isinstance(value, bool):
+    return str(value)
+  if isinstance(value, (int, float)):
+    return repr(value)
+  if isinstance(value, str):
+    return repr(value)
+  if isinstance(value, list):
+    return '[' + ', '.join(map(gin_literal, value)) + ']'
+  raise TypeError(f'{value!r} cannot be a gin value')
+
+
+def _number(value) -> Optional[float]:
+  """value as a float if it is a real number (not a bool), else None."""
+  return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+
+
+def _axis(r: _Reader, table: dict, where: str) -> Axis:
+  """An [[axis]] entry: binding + values, or explicit points."""
+  r.unknown(table, ('name', 'binding', 'values', 'points'), where)
+  name = r.get(table, 'name', where, str)
+  if not name.isidentifier():
+    r.fail(f'{where}.name', f'{name!r}; expected an identifier (it is a template field)')
+  if ('binding' in table) == ('points' in table):
+    r.fail(where, 'give either binding and values, or points')
+  if 'binding' in table:
+    binding = r.get(table, 'binding', where, str)
+    values = r.get(table, 'values', where, list)
+    try:
+      points = [Point(str(v), _number(v), (f'{binding} = {gin_literal(v)}',)) for v in values]
+    except TypeError as e:
+      r.fail(f'{where}.values', str(e))
+  else:
+    points = []
+    for i, p in enumerate(r.get(table, 'points', where, list)):
+      at = f'{where}.points[{i}]'
+      if not isinstance(p, dict):
+        r.fail(at, f'{p!r}; expected a table {{label, value, bindings, configs}}')
+      r.unknown(p, ('label', 'value', 'bindings', 'configs'), at)
+      value = p.get('value')
+      if value is not None and _number(value) is None:
+        r.fail(f'{at}.value', f'{value!r}; expected a number')
+      label = r.get(p, 'label', at, str, None) or (str(value) if value is not None else None)
+      if label is None:
+        r.fail(at, 'needs a label or a value')
+      points.append(Point(label, _number(value), r.strings(p, 'bindings', at), r.strings(p, 'configs', at)))
+  if not points:
+    r.fail(where, 'has no points')
+  labels = [p.label for p in points]
+  bad = [l for l in labels if not l or '/' in l or '__' in l or l.startswith('.')]
+  if bad or len(set(labels)) < len(labels):
+    r.fail(where, f'labels {labels} must be distinct, non-empty, without "/" or "__"')
+  return Axis(name, tuple(points))
+
+
+def _names(r: _Reader, table: dict, key: str) -> dict:
+  """A required table of named sub-tables (methods, scenes), names usable as folder names."""
+  entries = r.get(table, key, '', dict)
+  if not entries:
+    r.fail(key, 'is empty')
+  for name, entry in entries.items():
+    if not isinstance(entry, dict):
+      r.fail(f'{key}.{name}', f'{entry!r}; expected a table')
+    if '/' in name or '__' in name or name.startswith('.') or '=' in name:
+      r.fail(f'{key}.{name}', 'the name must not contain "/", "__", "=" or start with "."')
+  return entries
+
+
+def _paper(r: _Reader, entries: list, axes) -> Tuple[PaperCurve, ...]:
+  curves = []
+  for i, table in enumerate(entries):
+    at = f'paper[{i}]'
+    r.unknown(table, ('method', 'metric', 'x', 'points', 'source'), at)
+    points = r.get(table, 'points', at, list)
+    if not all(isinstance(p, list) and len(p) == 2 and all(_number(v) is not None for v in p) for p in points):
+      r.fail(f'{at}.points', f'{points!r}; expected [[x, value], ...] numbers')
+    curve = PaperCurve(r.get(table, 'method', at, str), r.get(table, 'metric', at, str),
+                       r.get(table, 'x', at, str), tuple((float(x), float(y)) for x, y in points),
+                       r.get(table, 'source', at, str, ''))
+    if curve.x not in axes:
+      r.fail(f'{at}.x', f'{curve.x!r} is not an axis ({sorted(axes)})')
+    curves.append(curve)
+  return tuple(curves)
+
+
+def parse(text: str, path: str) -> Study:
+  """The Study of a TOML text (path names it in errors)."""
+  r = _Reader(path)
+  try:
+    data = tomllib.loads(text)
+  except tomllib.TOMLDecodeError as e:
+    raise StudyError(f'{path}: not valid TOML: {e}') from e
+  r.unknown(data, ('name', 'description', 'bindings', 'methods', 'scenes', 'axis', 'plot', 'paper'), '')
+  name = r.get(data, 'name', '', str)
+  if not name or '/' in name or name.startswith('.'):
+    r.fail('name', f'{name!r}; expected a folder name')
+  methods = []
+  for m, table in _names(r, data, 'methods').items():
+    r.unknown(table, ('configs', 'bindings'), f'methods.{m}')
+    methods.append(Method(m, r.strings(table, 'configs', f'methods.{m}'), r.strings(table, 'bindings', f'methods.{m}')))
+  scenes = []
+  for s, table in _names(r, data, 'scenes').items():
+    r.unknown(table, ('bindings',), f'scenes.{s}')
+    scenes.append((s, r.strings(table, 'bindings', f'scenes.{s}')))
+  axes = tuple(_axis(r, a, f'axis[{i}]') for i, a in enumerate(r.get(data, 'axis', '', list, [])))
+  axis_names = [a.name for a in axes]
+  if len(set(axis_names)) < len(axis_names):
+    r.fail('axis', f'axis names {axis_names} repeat')
+  reserved = set(axis_names) & ({'out', 'data_root', 'study', 'method', 'scene', 'cell', 'status', 'step',
+                                  'complete'} | set(RECORDED_X))
+  if reserved:
+    r.fail('axis', f'names {sorted(reserved)} are reserved (template fields or results.csv columns)')
+  plot_table = r.get(data, 'plot', '', dict, {})
+  r.unknown(plot_table, ('x', 'metrics', 'pareto'), 'plot')
+  plot = Plot(r.strings(plot_table, 'x', 'plot') or tuple(axis_names[:1]),
+              r.strings(plot_table, 'metrics', 'plot') or ('psnr',), r.get(plot_table, 'pareto', 'plot', bool, False))
+  for x in plot.x:
+    if x not in axis_names and x not in RECORDED_X:
+      r.fail('plot.x', f'{x!r} is neither an axis {axis_names} nor a recorded value {list(RECORDED_X)}')
+  study = Study(name, path, r.strings(data, 'bindings', ''), tuple(methods), tuple(scenes), axes, plot,
+                _paper(r, r.get(data, 'paper', '', list, []), axis_names))
+  _check_templates(study, r)
+  return study
+
+
+def load(path) -> Study:
+  """Reads and validates a study file."""
+  path = str(path)
+  if not pathlib.Path(path).is_file():
+    raise StudyError(f'study file {path!r} does not exist')
+  return parse(pathlib.Path(path).read_text(), path)
+
+
+def _fields(study: Study) -> set:
+  return {'out', 'data_root', 'study', 'method', 'scene'} | {a.name for a in study.axes}
+
+
+def _check_templates(study: Study, r: _Reader) -> None:
+  """Every template field used in configs and bindings must be known (before any cell runs)."""
+  known = _fields(study)
+  texts = [('bindings', study.bindings)]
+  texts += [(f'methods.{m.name}', m.configs + m.bindings) for m in study.methods]
+  texts += [(f'scenes.{s}', b) for s, b in study.scenes]
+  texts += [(f'axis {a.name}', p.configs + p.bindings) for a in study.axes for p in a.points]
+  for where, strings in texts:
+    for text in strings:
+      try:
+        used = {f for _, f, _, _ in string.Formatter().parse(text) if f is not None}
+      except ValueError as e:
+        r.fail(where, f'{text!r}: {e} (write {{{{ and }}}} for literal braces)')
+      if used - known:
+        r.fail(where, f'{text!r} uses unknown template fields {sorted(used - known)}; known: {sorted(known)}')
+
+
+def cells(study: Study) -> List[Cell]:
+  """Every cell: methods x scenes x axis points, in file order."""
+  grids = list(itertools.product(*[[(a.name, p) for p in a.points] for a in study.axes]))
+  return [Cell(study.name, m.name, s, tuple(g)) for m in study.methods for s, _ in study.scenes for g in grids]
+
+
+def cell_gin(study: Study, cell: Cell, out: str, data_root: str, run_dir: str) -> Tuple[List[str], List[str]]:
+  """(gin config files, gin bindings) of a cell, templates filled, run dir and expname last."""
+  method = next(m for m in study.methods if m.name == cell.method)
+  scene = dict(study.scenes)[cell.scene]
+  fields = dict(out=out, data_root=data_root, study=study.name, method=cell.method, scene=cell.scene,
+                **cell.labels())
+  fill = lambda texts: [t.format(**fields) for t in texts]
+  points = [p for _, p in cell.points]
+  configs = fill(method.configs + tuple(c for p in points for c in p.configs))
+  bindings = fill(study.bindings + method.bindings + scene + tuple(b for p in points for b in p.bindings))
+  return configs, bindings + [f'Config.expname = {cell.expname!r}', f'Config.checkpoint_dir = {run_dir!r}']
+
+
+def x_value(cell: Cell, axis: str) -> Optional[float]:
+  """The cell's numeric value on an axis (None when categorical)."""
+  value = dict(cell.points)[axis].value
+  return None if value is None or math.isnan(value) else value
