@@ -1,8 +1,9 @@
 """Every ```bash block of README.md runs as written (with tiny settings), so that the README cannot drift.
 
 Each block runs in bash in a copy of the repository, with one scene per loop (the README's scene-list variables)
-and a `python` on PATH that appends tiny model and data bindings to train.py / eval.py / render.py (the shared
-scenes instead of data/, 2 steps, a small model, low resolution) and turns `python -m pytest` into a collection
+and a `python` on PATH that appends tiny model and data bindings to train.py / eval.py / render.py and to the
+tools that take them (tools.study, tools.pack_scene): the shared scenes instead of data/, 2 steps, a small
+model, low resolution. It turns `python -m pytest` into a collection
 run (the suite is not run inside itself). `python3 -m venv`, `. .venv/bin/activate` and `pip install` steps are
 dropped: the test runs in the installed environment.
 """
@@ -43,7 +44,8 @@ SHIM = '''#!{python}
 """README test shim: runs the real interpreter with tiny bindings appended; logs each call and its status."""
 import json, subprocess, sys
 args = sys.argv[1:]
-if args and args[0] in ('train.py', 'eval.py', 'render.py'):
+TAKES_BINDINGS = (['-m', 'tools.study'], ['-m', 'tools.pack_scene'])
+if args[:1] in (['train.py'], ['eval.py'], ['render.py']) or args[:2] in (TAKES_BINDINGS):
   configs = ' '.join(a for a in args if 'configs/' in a)
   args += ['--gin_bindings'] + {tiny!r} + [x for name, extra in {data!r}.items() if name in configs for x in extra]
 elif args[:2] == ['-m', 'pytest']:

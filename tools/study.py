@@ -1,7 +1,7 @@
 """Runs a study or a paper table: every cell (method x scene x axis points) trained and evaluated in its own run.
 
 Usage: python -m tools.study STUDY.toml [--out out/studies] [--data_root data] [--jobs N] [--gpus 0,1,...]
-                             [--shard K/N] [--list] [--plots-only]
+                             [--shard K/N] [--list] [--plots-only] [--gin_bindings B ...]
 
 Each cell runs `train(config)` then eval's `evaluate(config)` in a subprocess (`python -m tools.study
 --run-cell <cell dir>`: gin state stays per process and cells can run in parallel) in the run directory
@@ -27,6 +27,7 @@ import sys
 import time
 from typing import Dict, List, Optional
 
+from internal import run_dir
 from tools import study_plots
 from tools import study_spec
 
@@ -55,10 +56,12 @@ def read_cell(path: str) -> Optional[dict]:
     return json.load(f)
 
 
-def write_spec(study: study_spec.Study, cell: study_spec.Cell, out: str, data_root: str) -> str:
+def write_spec(study: study_spec.Study, cell: study_spec.Cell, out: str, data_root: str,
+               extra_bindings=()) -> str:
   """Writes <cell>/cell_spec.json (the cell's gin configs and bindings, labels); returns the cell folder."""
   path = cell_dir(study, cell, out)
-  configs, bindings = study_spec.cell_gin(study, cell, out, data_root, os.path.join(path, RUN_SUBDIR))
+  configs, bindings = study_spec.cell_gin(study, cell, out, data_root, os.path.join(path, RUN_SUBDIR),
+                                          extra_bindings)
   os.makedirs(path, exist_ok=True)
   spec = {'study': study.name, 'cell': cell.cell_id, 'method': cell.method, 'scene': cell.scene,
           'labels': cell.labels(), 'gin_configs': configs, 'gin_bindings': bindings}
@@ -197,9 +200,10 @@ def write_results(study: study_spec.Study, out: str) -> List[str]:
 
 
 def run_study(study: study_spec.Study, out: str, data_root: str = 'data', jobs: int = 1,
-              gpus: Optional[str] = None, shard: Optional[str] = None, in_process: bool = False) -> Dict[str, str]:
+              gpus: Optional[str] = None, shard: Optional[str] = None, in_process: bool = False,
+              extra_bindings=()) -> Dict[str, str]:
   """Runs the unfinished cells (of the shard), then writes results and plots; returns {cell dir: error}."""
-  todo = [write_spec(study, c, out, data_root) for c in _shard(study_spec.cells(study), shard)]
+  todo = [write_spec(study, c, out, data_root, extra_bindings) for c in _shard(study_spec.cells(study), shard)]
   todo = [p for p in todo if read_cell(p) is None]
   failed = run_cells(todo, _worker_envs(jobs, gpus), in_process) if todo else {}
   for path in write_results(study, out):
@@ -209,7 +213,7 @@ def run_study(study: study_spec.Study, out: str, data_root: str = 'data', jobs: 
 
 def main(argv=None) -> int:
   """CLI entry point; returns the exit status (1 when a cell failed)."""
-  parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+  parser = run_dir.FlagParser(description=__doc__.split('\n')[0])
   parser.add_argument('study', nargs='?', help='study file (TOML)')
   parser.add_argument('--out', default='out/studies', help='root of the study folders')
   parser.add_argument('--data_root', default='data', help='fills {data_root} in the study file')
@@ -218,6 +222,8 @@ def main(argv=None) -> int:
   parser.add_argument('--shard', help='K/N: run every N-th cell starting at K (one command per host)')
   parser.add_argument('--list', action='store_true', help='list the cells and their state, run nothing')
   parser.add_argument('--plots-only', action='store_true', help='only gather results.csv and the plots')
+  parser.add_argument('--gin_bindings', action='extend', nargs='+', default=[], metavar='BINDING',
+                      help='gin bindings appended to every cell (after the study file\'s own)')
   parser.add_argument('--run-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
   args = parser.parse_args(argv)
   if args.run_cell:
@@ -237,7 +243,8 @@ def main(argv=None) -> int:
     for path in write_results(study, args.out):
       print(path)
     return 0
-  failed = run_study(study, args.out, args.data_root, args.jobs, args.gpus, args.shard)
+  failed = run_study(study, args.out, args.data_root, args.jobs, args.gpus, args.shard,
+                     extra_bindings=tuple(args.gin_bindings))
   for path, error in failed.items():
     print(f'FAILED {path}: {error}', file=sys.stderr)
   return 1 if failed else 0

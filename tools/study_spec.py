@@ -304,8 +304,9 @@ def cells(study: Study) -> List[Cell]:
   return [Cell(study.name, m.name, s, tuple(g)) for m in study.methods for s, _ in study.scenes for g in grids]
 
 
-def cell_gin(study: Study, cell: Cell, out: str, data_root: str, run_dir: str) -> Tuple[List[str], List[str]]:
-  """(gin config files, gin bindings) of a cell, templates filled, run dir and expname last."""
+def cell_gin(study: Study, cell: Cell, out: str, data_root: str, run_dir: str,
+             extra_bindings=()) -> Tuple[List[str], List[str]]:
+  """(gin config files, gin bindings) of a cell, templates filled, then extra_bindings, run dir and expname last."""
   method = next(m for m in study.methods if m.name == cell.method)
   scene = dict(study.scenes)[cell.scene]
   fields = dict(out=out, data_root=data_root, study=study.name, method=cell.method, scene=cell.scene,
@@ -314,7 +315,7 @@ def cell_gin(study: Study, cell: Cell, out: str, data_root: str, run_dir: str) -
   points = [p for _, p in cell.points]
   configs = fill(method.configs + tuple(c for p in points for c in p.configs))
   bindings = fill(study.bindings + method.bindings + scene + tuple(b for p in points for b in p.bindings))
-  return configs, bindings + [f'Config.expname = {cell.expname!r}', f'Config.checkpoint_dir = {run_dir!r}']
+  return configs, bindings + list(extra_bindings) + [f'Config.expname = {cell.expname!r}', f'Config.checkpoint_dir = {run_dir!r}']
 
 
 def x_value(cell: Cell, axis: str) -> Optional[float]:
