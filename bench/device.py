@@ -99,19 +99,17 @@ def measure_precision(name, methods, args, bindings):
           'peak_memory_bytes': memory, 'memory_source': source}
 
 
-def table(results) -> str:
-  """A plain-text table of results {precision: measure_precision(...)}."""
-  head = ('precision', 'method', 'step ms', 'rays/s', 'TFLOP/s', 'peak TFLOP/s', 'of peak', 'render rays/s',
-          'XLA step GB', 'peak mem GB')
-  lines = [' | '.join(head)]
-  for name, result in results.items():
-    for method, f in result['methods'].items():
-      lines.append(' | '.join([
-          name, method, f'{1e3 * f["step_seconds"]:.1f}', f'{f["rays_per_s"]:.0f}',
-          f'{f["achieved_tflops"]:.3g}', f'{result["matmul_peak_tflops"]:.3g}', f'{f["fraction_of_peak"]:.2f}',
-          f'{f["render_rays_per_s"]:.0f}', f'{f["xla_step_bytes"] / 2**30:.3g}',
-          f'{result["peak_memory_bytes"] / 2**30:.2f}']))
-  return '\n'.join(lines)
+TABLE_HEAD = ' | '.join(('precision', 'method', 'step ms', 'rays/s', 'TFLOP/s', 'peak TFLOP/s', 'of peak',
+                          'render rays/s', 'XLA step GB', 'peak mem GB'))
+
+
+def table_rows(name: str, result) -> str:
+  """Plain-text table rows (TABLE_HEAD's columns) of one precision's measure_precision(...) result."""
+  return '\n'.join(' | '.join([
+      name, method, f'{1e3 * f["step_seconds"]:.1f}', f'{f["rays_per_s"]:.0f}', f'{f["achieved_tflops"]:.3g}',
+      f'{result["matmul_peak_tflops"]:.3g}', f'{f["fraction_of_peak"]:.2f}', f'{f["render_rays_per_s"]:.0f}',
+      f'{f["xla_step_bytes"] / 2**30:.3g}', f'{result["peak_memory_bytes"] / 2**30:.2f}'])
+      for method, f in result['methods'].items())
 
 
 def _names(text: str, options, flag: str):
@@ -136,15 +134,17 @@ def main(argv=None):
   names = _names(args.precisions, precision.PRECISIONS, '--precisions')
   methods = _names(args.methods, available_methods(), '--methods')
   bindings = TINY if args.tiny else []
-  results = {name: measure_precision(name, methods, args, bindings) for name in names}
-  gin.clear_config()
   report = {'device': jax.devices()[0].device_kind, 'platform': jax.devices()[0].platform,
             'jax_version': jax.__version__,
             'command': shlex.join(['python', '-m', 'bench.device'] + list(sys.argv[1:] if argv is None else argv)),
             'batch_size': args.batch_size, 'repeats': args.repeats, 'render_rays': args.render_rays,
-            'tiny': args.tiny, 'results': results}
+            'tiny': args.tiny, 'results': {}}
   print(f'{report["device"]} ({report["platform"]}), jax {report["jax_version"]}: {report["command"]}')
-  print(table(results))
+  print(TABLE_HEAD, flush=True)
+  for name in names:  # Rows printed as each precision finishes.
+    report['results'][name] = measure_precision(name, methods, args, bindings)
+    print(table_rows(name, report['results'][name]), flush=True)
+  gin.clear_config()
   if args.out:
     with open(args.out, 'w') as f:
       json.dump(report, f, indent=2)
