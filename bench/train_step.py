@@ -14,17 +14,15 @@ import argparse
 import functools
 import json
 import statistics
-import time
 
 import gin
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import random
 
+from bench import common
 from bench import released_equivalent
 from internal import configs
-from internal import flops as flops_lib
 from internal import inference
 from internal.models import MipNerfModel
 from internal import rays as rays_lib
@@ -47,11 +45,6 @@ def dtu_like_rays(num_rays: int, seed: int = 0) -> rays_lib.Rays:
   return rays_lib.map_rays(lambda x: jnp.asarray(x, jnp.float32), rays)
 
 
-def block(tree):
-  """Waits for every array of tree."""
-  return jax.block_until_ready(tree)
-
-
 # [rows, C] @ [C, C] matmuls of the MLP's width: a cache-sized one (this machine's best, PERF.md) and
 # one as tall as a batch-256 level; the peak is the faster of the two.
 MATMUL_SHAPES = ((4096, 256, 256), (32768, 256, 256))
@@ -59,44 +52,17 @@ MATMUL_SHAPES = ((4096, 256, 256), (32768, 256, 256))
 
 def matmul_runner(reduce):
   """Zero-arg callable: seconds per flop, reduce (min: peak, mean: sustained) over 8 runs of each shape."""
-  runs = []
-  for m, k, n in MATMUL_SHAPES:
-    a, b = random.normal(random.PRNGKey(0), (m, k)), random.normal(random.PRNGKey(1), (k, n))
-    f = jax.jit(lambda a, b: a @ b)
-    block(f(a, b))
-    runs.append((functools.partial(f, a, b), 2 * m * k * n))
-  return lambda: min(reduce([_timed(lambda: block(f())) for _ in range(8)]) / flops for f, flops in runs)
-
-
-def _timed(fn) -> float:
-  start = time.perf_counter()
-  fn()
-  return time.perf_counter() - start
+  return common.matmul_runner(MATMUL_SHAPES, reduce)
 
 
 def step_runner(model_cls, overrides, batch):
   """(zero-arg callable returning one step's seconds, params, flops per step) for the paper model."""
   config = configs.Config(**PAPER_DTU3, **overrides)
-  _, state = ts.create_train_state(config, random.PRNGKey(0), batch['rays'])
-  step = ts.make_train_step(config, model_cls(white_background=False))
-  key = random.PRNGKey(1)
-  flops = flops_lib.compiled_flops(step, state, batch, key)
-  holder = list(block(step(state, batch, key)))
-
-  def run():
-    start = time.perf_counter()
-    holder[:] = block(step(holder[0], batch, key))
-    return time.perf_counter() - start
-  return run, holder, flops
+  run, holder, xla = common.step_runner(config, model_cls(white_background=False), batch)
+  return run, holder, xla['flops']
 
 
-def interleaved_medians(runners, repeats: int):
-  """Median result of each zero-arg runner, run interleaved (A, B, C, A, B, C, ...) to share the noise."""
-  times = {name: [] for name in runners}
-  for _ in range(repeats):
-    for name, run in runners.items():
-      times[name].append(run())
-  return {name: statistics.median(t) for name, t in times.items()}
+interleaved_medians = common.interleaved_medians
 
 
 def released_render_fn(model, params, config, step):
@@ -117,8 +83,8 @@ def released_render_fn(model, params, config, step):
 def render_runner(render_fn, num_rays: int, chunk: int):
   """Zero-arg callable returning the seconds to render num_rays rays in chunks (compiled here)."""
   rays = dtu_like_rays(num_rays, seed=2)
-  block(render_fn(rays_lib.map_rays(lambda x: x[:chunk], rays)))
-  return lambda: _timed(lambda: inference.render_image(render_fn, rays, chunk))
+  common.block(render_fn(rays_lib.map_rays(lambda x: x[:chunk], rays)))
+  return lambda: common.timed(lambda: inference.render_image(render_fn, rays, chunk))
 
 
 def main():

@@ -9,6 +9,7 @@ from typing import Optional, Sequence
 import gin
 
 from internal import models
+from internal import precision
 
 DATASET_LOADERS = ('dtu', 'llff', 'blender', 'generated', 'packed')
 
@@ -76,6 +77,7 @@ class Config:
   resample_padding_init: float = 0.01
   resample_padding_final: float = 0.01
   randomized: bool = True
+  precision: str = 'float32'            # The MLP's numerics: one of precision.PRECISIONS.
 
   # FreeNeRF regularizers.
   freq_reg: bool = False
@@ -133,6 +135,7 @@ def validate(config: Config) -> None:
   _choice(config, 'nonfinite_grad_policy', ('skip', 'raise'))
   _choice(config, 'lpips_input_range', ('released', 'official'))
   _choice(config, 'generated_rig', ('object', 'forward'))
+  _choice(config, 'precision', precision.PRECISIONS)
   _check_types(config)
   for name in ('max_steps', 'batch_size', 'render_chunk_size', 'checkpoint_every', 'checkpoint_keep',
                'print_every'):

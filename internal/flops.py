@@ -1,4 +1,4 @@
-"""XLA's flop count of compiled programs, and of one train step of a config."""
+"""XLA's flop count (and memory estimate) of compiled programs, and of one train step of a config."""
 
 import jax
 from jax import random
@@ -7,11 +7,24 @@ from internal import datasets
 from internal import train_step as train_step_lib
 
 
+def compiled_cost(jitted, *args) -> dict:
+  """XLA's {'flops', 'bytes'} of jitted compiled for args (nan where the backend reports none).
+
+  'bytes' is XLA's estimate of the program's memory: arguments + outputs + temporaries - aliased.
+  """
+  compiled = jitted.lower(*args).compile()
+  cost = compiled.cost_analysis()
+  cost = cost[0] if isinstance(cost, list) else cost
+  memory = compiled.memory_analysis()
+  return {'flops': float((cost or {}).get('flops', float('nan'))),
+          'bytes': float('nan') if memory is None else float(
+              memory.argument_size_in_bytes + memory.output_size_in_bytes + memory.temp_size_in_bytes
+              - memory.alias_size_in_bytes)}
+
+
 def compiled_flops(jitted, *args) -> float:
   """XLA's flop count of jitted compiled for args (nan when the backend reports none)."""
-  cost = jitted.lower(*args).compile().cost_analysis()
-  cost = cost[0] if isinstance(cost, list) else cost
-  return float((cost or {}).get('flops', float('nan')))
+  return compiled_cost(jitted, *args)['flops']
 
 
 def train_step_flops(config) -> float:

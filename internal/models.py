@@ -10,6 +10,7 @@ from jax import random
 
 from internal import encoding
 from internal import gaussians
+from internal import precision as precision_lib
 from internal import sampling
 from internal import volume_render
 
@@ -26,16 +27,21 @@ def _dense_init(in_dim: int, out_dim: int):
   return init
 
 
-def dense(layer, *parts):
+def matmul(x, kernel, precision=None):
+  """x [..., d] @ kernel [d, o] in x's dtype (the float32 kernel is cast at use) at a matmul precision."""
+  return jnp.matmul(x, kernel.astype(x.dtype), precision=precision)
+
+
+def dense(layer, *parts, precision=None):
   """Dense layer {'kernel', 'bias'} of the concatenation of parts [..., d_i], never materialized."""
-  out, start = layer['bias'], 0
+  out, start = layer['bias'].astype(parts[0].dtype), 0
   for part in parts:
-    out = out + part @ layer['kernel'][start:start + part.shape[-1]]
+    out = out + matmul(part, layer['kernel'][start:start + part.shape[-1]], precision)
     start += part.shape[-1]
   return out
 
 
-@gin.configurable
+@gin.configurable(denylist=['precision'])
 class MLP(nn.Module):
   """The shared NeRF MLP, as pure functions of its Dense_i parameters (released names and shapes)."""
   net_depth: int = 8
@@ -54,9 +60,15 @@ class MLP(nn.Module):
   rgb_activation: Callable[..., Any] = nn.sigmoid
   rgb_padding: float = 0.001
   use_viewdirs: bool = True
+  precision: str = 'float32'  # One of precision.PRECISIONS, set from Config.precision (not a gin binding).
 
   def setup(self):
     self.layers = {name: self.param(name, _dense_init(i, o)) for name, i, o in self.layer_shapes()}
+    self.dtype, self.matmul_precision = precision_lib.settings(self.precision)
+
+  def _dense(self, name: str, *parts):
+    """Dense layer `name` of parts [..., d_i] at this MLP's matmul precision."""
+    return dense(self.layers[name], *parts, precision=self.matmul_precision)
 
   def _skip_after(self, i: int) -> bool:
     return i % self.skip_layer == 0 and i > 0
@@ -83,29 +95,30 @@ class MLP(nn.Module):
     enc = encoding.integrated_pos_enc(means, covs, self.min_deg_point, self.max_deg_point)
     if mask_point is not None:
       enc = enc * mask_point
+    enc = enc.astype(self.dtype)  # The IPE (sines of large arguments) and its mask stay float32.
     x = (enc,)
     for i in range(self.net_depth):
-      x = (self.net_activation(dense(self.layers[f'Dense_{i}'], *x)),)
+      x = (self.net_activation(self._dense(f'Dense_{i}', *x)),)
       if self._skip_after(i):
         x += (enc,)  # The skip connection re-uses the masked encoding.
-    raw_density = dense(self.layers[f'Dense_{self.net_depth}'], *x)[:, 0] + noise
+    raw_density = self._dense(f'Dense_{self.net_depth}', *x)[:, 0].astype(jnp.float32) + noise
     return self.density_activation(raw_density + self.density_bias), x
 
   def _colour(self, features, view, num_samples: int):
     """rgb [B*S, 3] from trunk features (parts [B*S, ...]) and encoded view directions [B, V]."""
     names = iter(f'Dense_{i}' for i in range(self.net_depth + 1, 2 * self.net_depth + 4))
     if self.use_viewdirs:
-      bottleneck = dense(self.layers[next(names)], *features)
+      bottleneck = self._dense(next(names), *features)
       layer = self.layers[next(names)]
       # [bottleneck, view] @ kernel, with the view term computed once per ray, not per sample.
       width = bottleneck.shape[-1]
-      per_sample = bottleneck @ layer['kernel'][:width]
-      per_ray = view @ layer['kernel'][width:] + layer['bias']
+      per_sample = matmul(bottleneck, layer['kernel'][:width], self.matmul_precision)
+      per_ray = matmul(view, layer['kernel'][width:], self.matmul_precision) + layer['bias'].astype(self.dtype)
       x = per_sample.reshape((-1, num_samples) + per_sample.shape[1:]) + per_ray[:, None]
       features = (self.net_activation(x.reshape(per_sample.shape)),)
       for _ in range(self.net_depth_viewdirs - 1):
-        features = (self.net_activation(dense(self.layers[next(names)], *features)),)
-    rgb = self.rgb_activation(dense(self.layers[next(names)], *features))
+        features = (self.net_activation(self._dense(next(names), *features)),)
+    rgb = self.rgb_activation(self._dense(next(names), *features).astype(jnp.float32))
     return rgb * (1 + 2 * self.rgb_padding) - self.rgb_padding
 
   def _noise(self, key, shape):
@@ -126,6 +139,7 @@ class MLP(nn.Module):
     view = encoding.pos_enc(viewdirs, 0, self.deg_view, append_identity=True)
     if mask_view is not None:
       view = view * mask_view
+    view = view.astype(self.dtype)
     flat = means.reshape(-1, 3)
     density, features = self._density(flat, covs.reshape(-1, 3), mask_point,
                                       self._noise(key, flat.shape[:1]))
@@ -140,7 +154,7 @@ class MLP(nn.Module):
     return -grad / norm
 
 
-@gin.configurable
+@gin.configurable(denylist=['precision'])
 class MipNerfModel(nn.Module):
   """Two-level mip-NeRF sharing one MLP: coarse stratified samples, then resampled fine ones."""
   num_samples: int = 128
@@ -150,9 +164,10 @@ class MipNerfModel(nn.Module):
   disable_integration: bool = False
   white_background: bool = True
   pdf_padding: str = 'released'  # 'released' | 'even': see docs/numerics.md.
+  precision: str = 'float32'  # Set from Config.precision, passed on to the MLP.
 
   def setup(self):
-    self.mlp = MLP()
+    self.mlp = MLP(precision=self.precision)
 
   def __call__(self, key, rays, mask_point=None, mask_view=None, resample_padding=0.01,
                compute_extras=False, compute_normals=False):
@@ -185,9 +200,9 @@ class MipNerfModel(nn.Module):
     return renderings, history
 
 
-def construct_model(key, example_rays, white_background: bool):
+def construct_model(key, example_rays, white_background: bool, precision: str = 'float32'):
   """Builds MipNerfModel (gin-bound) and initializes its variables on example rays [B, ...]."""
-  model = MipNerfModel(white_background=white_background)
+  model = MipNerfModel(white_background=white_background, precision=precision)
   variables = model.init(key, None, example_rays)
   return model, variables
 

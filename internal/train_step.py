@@ -36,7 +36,8 @@ GUARD_CHECKS = (('loss_finite', 'loss'), ('grads_finite', 'gradients'), ('lr_val
 
 def create_train_state(config, key, example_rays):
   """(model, TrainState at step 0) for Config, initialized on example rays [B, ...]."""
-  model, variables = models.construct_model(key, example_rays, config.white_background)
+  model, variables = models.construct_model(key, example_rays, config.white_background,
+                                             config.precision)
   params = variables['params']
   return model, TrainState(step=jnp.array(0, jnp.int32), params=params,
                            opt_state=optim.adam(config.adam_eps).init(params))

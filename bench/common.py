@@ -1,0 +1,61 @@
+"""Pieces shared by the benchmarks: waiting and timing, interleaved medians, matmul rates, a compiled step."""
+
+import functools
+import statistics
+import time
+
+import jax
+import jax.numpy as jnp
+from jax import random
+
+from internal import flops
+from internal import train_step as ts
+
+
+def block(tree):
+  """Waits for every array of tree."""
+  return jax.block_until_ready(tree)
+
+
+def timed(fn) -> float:
+  """Seconds fn() takes."""
+  start = time.perf_counter()
+  fn()
+  return time.perf_counter() - start
+
+
+def interleaved_medians(runners, repeats: int):
+  """Median result of each zero-arg runner, run interleaved (A, B, C, A, B, C, ...) to share the noise."""
+  times = {name: [] for name in runners}
+  for _ in range(repeats):
+    for name, run in runners.items():
+      times[name].append(run())
+  return {name: statistics.median(t) for name, t in times.items()}
+
+
+def matmul_runner(shapes, reduce, runs: int = 8, dtype=jnp.float32, precision=None):
+  """Zero-arg callable: seconds per flop, reduce (min: peak, mean: sustained) over runs of each [m,k]@[k,n]."""
+  timers = []
+  for m, k, n in shapes:
+    a = random.normal(random.PRNGKey(0), (m, k)).astype(dtype)
+    b = random.normal(random.PRNGKey(1), (k, n)).astype(dtype)
+    f = jax.jit(functools.partial(jnp.matmul, precision=precision))
+    block(f(a, b))
+    timers.append((functools.partial(f, a, b), 2 * m * k * n))
+  return lambda: min(reduce([timed(lambda: block(f())) for _ in range(runs)]) / flops
+                     for f, flops in timers)
+
+
+def step_runner(config, model, batch):
+  """(zero-arg callable returning one step's seconds, [state, stats], XLA {'flops', 'bytes'} of the step)."""
+  _, state = ts.create_train_state(config, random.PRNGKey(0), batch['rays'])
+  step = ts.make_train_step(config, model)
+  key = random.PRNGKey(1)
+  xla = flops.compiled_cost(step, state, batch, key)
+  holder = list(block(step(state, batch, key)))
+
+  def run():
+    start = time.perf_counter()
+    holder[:] = block(step(holder[0], batch, key))
+    return time.perf_counter() - start
+  return run, holder, xla

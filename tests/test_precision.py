@@ -1,0 +1,99 @@
+"""Config.precision: float32 is the exact float32 path, bfloat16 stays close with float32 params and outputs."""
+
+import gin
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax import random
+
+from conftest import random_rays
+from internal import configs
+from internal import models
+from internal import precision
+from internal import run_dir
+from internal import train_step as ts
+
+TINY = ['MLP.net_depth = 3', 'MLP.net_width = 32', 'MLP.skip_layer = 2', 'MLP.net_width_viewdirs = 16',
+        'MipNerfModel.num_samples = 8', 'MLP.density_noise = 1.0']
+
+
+def _config(name):
+  return configs.Config(precision=name, freq_reg=True, freq_reg_end=10, occ_reg_loss_mult=0.01,
+                        grad_max_norm=0.1, white_background=False)
+
+
+def _render(name, params, rays):
+  """Fine-level outputs of the tiny model at one precision, with given (float32) params."""
+  model = models.MipNerfModel(white_background=False, precision=name)
+  return model.apply({'params': params}, None, rays)[0][-1]
+
+
+def _dot_precisions(name):
+  """(matmul precision, operand dtype) of every dot_general in the tiny model's forward pass."""
+  gin.parse_config(TINY)
+  rays = random_rays(0, 4)
+  model, variables = models.construct_model(random.PRNGKey(0), rays, False, name)
+  jaxpr = jax.make_jaxpr(lambda v: model.apply(v, None, rays))(variables)
+  return {(str(e.params['precision']), str(e.invars[0].aval.dtype))
+          for e in jaxpr.jaxpr.eqns if e.primitive.name == 'dot_general'}
+
+
+def test_every_matmul_uses_the_chosen_precision_and_dtype():
+  assert _dot_precisions('float32') == {('(Precision.HIGHEST, Precision.HIGHEST)', 'float32')}
+  assert _dot_precisions('default') == {('None', 'float32')}
+  assert _dot_precisions('bfloat16') == {('None', 'bfloat16')}
+
+
+@pytest.mark.parametrize('name', precision.PRECISIONS)
+def test_train_step_runs_and_keeps_float32_params(name):
+  gin.parse_config(TINY)
+  config = _config(name)
+  rays = random_rays(0, 64)
+  model, state = ts.create_train_state(config, random.PRNGKey(0), rays)
+  batch = {'rays': rays, 'rgb': np.random.default_rng(0).uniform(size=(64, 3)).astype(np.float32)}
+  before = jax.tree.map(np.asarray, state.params)
+  new, stats = ts.make_train_step(config, model)(state, batch, random.PRNGKey(1))
+  assert bool(stats['grads_finite']) and np.isfinite(float(stats['loss']))
+  assert stats['loss'].dtype == jnp.float32
+  leaves = jax.tree.leaves(new.params) + jax.tree.leaves(new.opt_state)
+  assert all(x.dtype in (jnp.float32, jnp.int32) for x in leaves)
+  assert any(np.any(np.asarray(a) != b)  # The update moved the parameters.
+             for a, b in zip(jax.tree.leaves(new.params), jax.tree.leaves(before)))
+
+
+def test_float32_equals_the_backend_default_path_on_cpu():
+  # On CPU the default matmul precision is full float32, the path of the code before Config.precision.
+  gin.parse_config(TINY)
+  rays = random_rays(1, 32)
+  _, variables = models.construct_model(random.PRNGKey(0), rays, False)
+  f32, default = (_render(n, variables['params'], rays) for n in ('float32', 'default'))
+  for key in ('rgb', 'acc', 'distance_mean'):
+    np.testing.assert_array_equal(f32[key], default[key])
+
+
+def test_bfloat16_close_to_float32_with_float32_outputs():
+  gin.parse_config(TINY)
+  rays = random_rays(2, 32)
+  _, variables = models.construct_model(random.PRNGKey(0), rays, False)
+  f32, bf16 = (_render(n, variables['params'], rays) for n in ('float32', 'bfloat16'))
+  for key in ('rgb', 'acc', 'weights', 'distance_mean'):
+    assert bf16[key].dtype == jnp.float32, key
+  difference = np.abs(np.asarray(bf16['rgb']) - np.asarray(f32['rgb']))
+  assert 0 < difference.max() < 2e-2  # Rounded (so not the float32 path) but close.
+  np.testing.assert_allclose(bf16['acc'], f32['acc'], atol=2e-2)
+
+
+def test_bad_precision_is_a_clear_error():
+  with pytest.raises(ValueError, match=r"Config.precision = 'fp16'; expected one of \['float32'"):
+    configs.validate(configs.Config(precision='fp16'))
+  with pytest.raises(ValueError, match='Config.precision'):
+    models.construct_model(random.PRNGKey(0), random_rays(0, 2), False, 'fp16')
+
+
+def test_precision_comes_from_config_only_and_is_fingerprinted():
+  with pytest.raises(ValueError, match='precision'):
+    gin.parse_config(["MLP.precision = 'bfloat16'"])
+  keys = run_dir.fingerprint(configs.Config(precision='bfloat16'))
+  assert keys['Config.precision'] == 'bfloat16'
+  assert 'MLP.precision' not in keys and 'MipNerfModel.precision' not in keys
