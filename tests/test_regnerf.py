@@ -1,5 +1,7 @@
 """RegNeRF's terms against hand computations: depth TV, its weight schedule, near/far annealing, poses, patches."""
 
+import dataclasses
+
 import gin
 import jax
 import numpy as np
@@ -126,7 +128,7 @@ def test_train_step_adds_the_depth_tv_only_when_asked():
   # The TV term is 0.1 x coarse TV + 0.5 x fine TV, with released mask weight 0: zero, so the losses differ
   # only through the annealed near/far of the data rays.
   assert float(stats1['loss_depth_tv']) == 0.
-  fixed = configs.Config(**{**tv.__dict__, 'regnerf_fix_released_bugs': True})
+  fixed = dataclasses.replace(tv, regnerf_fix_released_bugs=True)
   _, stats2 = train_step.compute_loss(fixed, model, state.params, dict(batch, patch_rays=patch), key, 1)
   expected = 0.1 * stats2['depth_tv_level0'] + 0.5 * stats2['depth_tv_level1']
   assert float(stats2['loss_depth_tv']) == pytest.approx(float(expected)) and float(expected) > 0
