@@ -24,6 +24,7 @@ import eval as eval_lib
 from internal import checkpoints
 from internal import cli
 from internal import datasets
+from internal import depth_smoothness
 from internal import inference
 from internal import metrics
 from internal import run_dir as run_dir_lib
@@ -133,6 +134,11 @@ def _check_batch(config, mesh) -> None:
   if config.batch_size % mesh.size:
     raise ValueError(f'Config.batch_size = {config.batch_size} must be a multiple of the number of devices '
                      f'({mesh.size})')
+  patches = config.batch_size_random // config.patch_size**2
+  if depth_smoothness.needs_patches(config) and patches % mesh.size:
+    raise ValueError(f'Config.batch_size_random = {config.batch_size_random} makes {patches} patches of '
+                     f'{config.patch_size}x{config.patch_size}; expected a multiple of the number of devices '
+                     f'({mesh.size}) so that every device gets whole patches')
 
 
 def train(config, stop_at_step: int = 0) -> TrainResult:

@@ -3,7 +3,8 @@
 Usage: python -m bench.train_step [--batch 256] [--repeats 5] [--render_rays 8192] [--render_repeats 3]
 
 Reports, side by side:
-  1. FreeNeRF step (both regularizers on) / plain mip-NeRF step (both off);
+  1. FreeNeRF step (both regularizers on) / plain mip-NeRF step (both off), and RegNeRF step (depth TV on
+     batch_size_random = batch random-pose rays in 8x8 patches, near/far annealing) / mip-NeRF step;
   2. our FreeNeRF step / a released-equivalent graph (per-sample vmap(value_and_grad), tiled masks);
   3. achieved GFLOP/s of our step (XLA's flop count / time) against a matmul peak measured here
      (best of 8 runs of MATMUL_SHAPES; the mean of the 8 is reported as the sustained rate);
@@ -32,6 +33,9 @@ PAPER_DTU3 = dict(near=0.5, far=3.5, white_background=False, max_steps=43945, lr
                   lr_final=2e-5, lr_delay_steps=512, lr_delay_mult=0.01, grad_max_norm=0.1,
                   grad_max_val=0.1)
 FREENERF = dict(freq_reg=True, freq_reg_end=39550, occ_reg_loss_mult=0.01, occ_wb_prior=True)
+REGNERF = dict(anneal_nearfar=True, anneal_nearfar_steps=256, anneal_nearfar_perc=0.5, depth_tvnorm_loss_mult=0.1,
+               depth_tvnorm_decay=True, depth_tvnorm_maxstep=512, depth_tvnorm_loss_mult_start=400.,
+               depth_tvnorm_loss_mult_end=0.1, depth_tvnorm_mask_weight=1.0, patch_size=8)
 
 
 def dtu_like_rays(num_rays: int, seed: int = 0) -> rays_lib.Rays:
@@ -101,6 +105,9 @@ def main():
   steps = {name: step_runner(model_cls, overrides, batch) for name, model_cls, overrides in (
       ('freenerf', MipNerfModel, FREENERF), ('mipnerf', MipNerfModel, {}),
       ('released_freenerf', released_equivalent.ReleasedModel, FREENERF))}
+  patches = rays_lib.map_rays(lambda x: x.reshape((-1, 8, 8, x.shape[-1])), dtu_like_rays(args.batch, seed=3))
+  steps['regnerf'] = step_runner(MipNerfModel, dict(REGNERF, batch_size_random=args.batch),
+                                 dict(batch, patch_rays=patches))
   runners = {name: run for name, (run, _, _) in steps.items()}
   runners.update(matmul_peak=matmul_runner(min), matmul_sustained=matmul_runner(statistics.mean))
   times = interleaved_medians(runners, args.repeats)
@@ -120,6 +127,7 @@ def main():
   report = {
       'devices': str(jax.devices()), 'batch': args.batch, 'step_seconds': times,
       'freenerf_over_mipnerf': times['freenerf'] / times['mipnerf'],
+      'regnerf_over_mipnerf': times['regnerf'] / times['mipnerf'],
       'ours_over_released_equivalent': times['freenerf'] / times['released_freenerf'],
       'step_gflop': flops / 1e9, 'achieved_gflops': achieved, 'matmul_peak_gflops': peak,
       'fraction_of_peak': achieved / peak, 'matmul_sustained_gflops': sustained,

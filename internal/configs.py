@@ -90,6 +90,27 @@ class Config:
   occ_wb_range: int = 15
   distortion_loss_mult: float = 0.
 
+  # RegNeRF's geometry regularization and sample-space annealing (docs/regnerf.md), released names.
+  load_random_rays: bool = True         # Allow random-pose patches; made only when a geometry loss needs them.
+  batch_size_random: int = 4096         # Random-pose rays per step: batch_size_random // patch_size**2 patches.
+  patch_size: int = 8
+  n_random_poses: int = 10000
+  random_pose_focusptjitter: bool = True  # DTU: jitter the look-at point by N(0, 0.125^2).
+  random_pose_radius: float = 1.0       # DTU: scale of the random camera-position box.
+  depth_tvnorm_loss_mult: float = 0.    # Depth-smoothness (TV) weight when depth_tvnorm_decay is False.
+  depth_tvnorm_decay: bool = False      # Weight from _loss_mult_start to _end over depth_tvnorm_maxstep steps.
+  depth_tvnorm_maxstep: int = 0
+  depth_tvnorm_loss_mult_start: float = 0.
+  depth_tvnorm_loss_mult_end: float = 0.
+  depth_tvnorm_mask_weight: float = 0.  # TV weighted by stop_grad(acc) * this (released: 0 zeroes the loss).
+  anneal_nearfar: bool = False          # Grow [near, far] from a band around its mid point (pure in the step).
+  anneal_nearfar_steps: int = 2000
+  anneal_nearfar_perc: float = 0.2
+  anneal_mid_perc: float = 0.5
+  flow_loss_mult: float = 0.            # The appearance (flow) model was never released: must stay 0.
+  regnerf_fix_released_bugs: bool = False  # LLFF: n_random_poses poses (not 1); mask weight 0 = unweighted TV.
+  warmup_end: int = 0                   # Older released name of freq_reg_end (llff9_regnerf.gin sets it to 0).
+
   # Evaluation.
   eval_test_ids: Optional[Sequence[int]] = None  # Subset of test-view positions (None = all).
   eval_factor: int = 1                  # Extra downsampling of test views for quick evaluation.
@@ -113,8 +134,18 @@ def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ())
 def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> Config:
   """Parses gin and returns a validated Config."""
   parse_gin(gin_configs, gin_bindings)
-  config = Config()
+  config = _apply_warmup_end(Config())
   validate(config)
+  return config
+
+
+def _apply_warmup_end(config: Config) -> Config:
+  """Config with freq_reg_end taken from the released alias warmup_end when only the alias is set."""
+  if config.warmup_end and config.freq_reg_end and config.warmup_end != config.freq_reg_end:
+    raise ValueError(f'Config.warmup_end = {config.warmup_end} (an older name of Config.freq_reg_end) '
+                     f'conflicts with Config.freq_reg_end = {config.freq_reg_end}; set only one')
+  if config.warmup_end and not config.freq_reg_end:
+    return dataclasses.replace(config, freq_reg_end=config.warmup_end)
   return config
 
 
@@ -161,6 +192,7 @@ def validate(config: Config) -> None:
     raise ValueError(f'Config.near = {config.near}; expected > 0 for {config.dataset_loader!r} scenes, whose rays '
                      'start in world space (only LLFF-style NDC rays start at 0)')
   _warn_on_unused_regularizer(config)
+  _validate_regnerf(config)
 
 
 def needs_positive_near(config: Config) -> bool:
@@ -195,3 +227,21 @@ def _warn_on_unused_regularizer(config: Config) -> None:
   if config.occ_reg_loss_mult > 0 and config.occ_reg_range > num_samples:
     warnings.warn(f'Config.occ_reg_range = {config.occ_reg_range} exceeds MipNerfModel.num_samples = '
                   f'{num_samples}: the occlusion loss covers every sample of the ray', stacklevel=3)
+
+
+def _validate_regnerf(config: Config) -> None:
+  """Raises a ValueError naming the RegNeRF setting that is out of range or not implemented."""
+  if config.flow_loss_mult != 0:
+    raise ValueError(f'Config.flow_loss_mult = {config.flow_loss_mult}: RegNeRF\'s appearance (flow) '
+                     'regularizer was never released and is not implemented; expected 0')
+  if config.patch_size < 2:
+    raise ValueError(f'Config.patch_size = {config.patch_size}; expected >= 2 (the TV loss needs neighbours)')
+  if config.batch_size_random < config.patch_size**2 or config.batch_size_random % config.patch_size**2:
+    raise ValueError(f'Config.batch_size_random = {config.batch_size_random}; expected a positive multiple of '
+                     f'Config.patch_size**2 = {config.patch_size**2}')
+  for name in ('n_random_poses', 'anneal_nearfar_steps'):
+    if getattr(config, name) < 1:
+      raise ValueError(f'Config.{name} = {getattr(config, name)}; expected a positive integer')
+  if config.depth_tvnorm_decay and config.depth_tvnorm_maxstep < 1:
+    raise ValueError(f'Config.depth_tvnorm_maxstep = {config.depth_tvnorm_maxstep}; expected a positive '
+                     'integer when Config.depth_tvnorm_decay = True')

@@ -9,6 +9,8 @@ import jax.numpy as jnp
 from jax import random
 import optax
 
+from internal import anneal
+from internal import depth_smoothness
 from internal import freq_mask
 from internal import losses
 from internal import models
@@ -53,9 +55,14 @@ def masks_at(config, step):
 
 
 def compute_loss(config, model, params, batch, key, step):
-  """(total loss, stats) of one batch {'rays': Rays [B, ...], 'rgb': [B, 3]} at step."""
+  """(total loss, stats) of one batch {'rays': Rays [B, ...], 'rgb': [B, 3]} at step.
+
+  With RegNeRF's depth smoothness the batch also holds 'patch_rays' [P, ps, ps, ...] (no data loss on them).
+  """
   mask_point, mask_view = masks_at(config, step)
   rays = batch['rays']
+  if config.anneal_nearfar:
+    rays = anneal.anneal_rays(config, rays, step)
   renderings, history = model.apply(
       {'params': params}, key if config.randomized else None, rays, mask_point, mask_view,
       schedule.resample_padding(config, step))
@@ -77,12 +84,28 @@ def compute_loss(config, model, params, batch, key, step):
     s_vals = (fine['t_vals'] - rays.near) / (rays.far - rays.near)
     stats['loss_distortion'] = losses.distortion_loss(s_vals, fine['weights'])
     loss += config.distortion_loss_mult * stats['loss_distortion']
+  if depth_smoothness.needs_patches(config):
+    stats['loss_depth_tv'], tvs = _depth_smoothness(config, model, params, batch['patch_rays'], key, step,
+                                                    mask_point, mask_view)
+    stats.update({f'depth_tv_level{level}': tv for level, tv in enumerate(tvs)})
+    loss += stats['loss_depth_tv']
   if mask_point is not None:
     stats['mask_visible_point'] = jnp.mean(mask_point)
     stats['mask_visible_view'] = jnp.mean(mask_view)
   stats['loss'] = loss
   stats['psnr'] = stats[f'psnr_level{len(renderings) - 1}']
   return loss, stats
+
+
+def _depth_smoothness(config, model, params, patch_rays, key, step, mask_point, mask_view):
+  """(weighted depth-TV loss, per-level TV [L]) of the model on random-pose patch rays [P, ps, ps, ...]."""
+  patch_shape = patch_rays.origins.shape[:3]
+  rays = jax.tree.map(lambda x: x.reshape((-1, x.shape[-1])), patch_rays)
+  if config.anneal_nearfar:
+    rays = anneal.anneal_rays(config, rays, step)
+  _, history = model.apply({'params': params}, random.fold_in(key, 1) if config.randomized else None, rays,
+                           mask_point, mask_view, schedule.resample_padding(config, step))
+  return depth_smoothness.depth_smoothness_loss(config, history, patch_shape, step)
 
 
 def make_train_step(config, model):

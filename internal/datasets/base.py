@@ -9,6 +9,7 @@ import numpy as np
 from internal.rays import Rays
 
 SPLITS = ('train', 'test')
+RELEASED_ALL_VIEWS = 100  # The released *_mipnerf_all configs write n_input_views = 100 for "every view".
 
 
 class DatasetError(ValueError):
@@ -76,12 +77,21 @@ def scene_dir(data_dir: str, scene: str, setting: str) -> str:
 
 def first_n(pool: Sequence[int], n: int, what: str) -> List[int]:
   """The first n ids of the training pool (n = 0: all of it); raises when n exceeds the pool."""
-  if n == 0:
+  if all_views(n, len(pool), what):
     return list(pool)
   if n > len(pool):
     raise DatasetError(f'Config.n_input_views = {n} exceeds the {len(pool)} training views of {what} '
                        f'(pool {list(pool)}); Config.n_input_views = 0 selects all of them')
   return list(pool[:n])
+
+
+def all_views(n: int, pool_size: int, what: str) -> bool:
+  """Whether n_input_views n selects the whole pool: 0, or the released 100 beyond the pool (said in the log)."""
+  if n == RELEASED_ALL_VIEWS and n > pool_size:
+    print(f'Config.n_input_views = {n} (the released *_all configs\' "every view") exceeds the {pool_size} '
+          f'training views of {what}: training on all of them')
+    return True
+  return n == 0
 
 
 def present_test_ids(ids: Sequence[int], paths: Sequence[str], allow_missing: bool) -> List[int]:

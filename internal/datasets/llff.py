@@ -60,7 +60,7 @@ def split_ids(split: str, n_images: int, llffhold: int, n_views: int) -> list:
   if split == 'test':
     return [i for i in range(n_images) if i % llffhold == 0]
   pool = [i for i in range(n_images) if i % llffhold]
-  if n_views == 0:
+  if base.all_views(n_views, len(pool), 'LLFF'):
     return pool
   if n_views > len(pool):
     raise base.DatasetError(f'Config.n_input_views = {n_views} exceeds the {len(pool)} LLFF training views '
