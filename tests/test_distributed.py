@@ -1,5 +1,6 @@
 """Training as 2 cooperating processes (jax.distributed, gloo on 127.0.0.1, 1 CPU device each) equals 1 process."""
 
+import argparse
 import glob
 import os
 import signal
@@ -16,6 +17,7 @@ from tensorboardX.proto import event_pb2
 
 from internal import checkpoints
 from internal import datasets
+from internal import distributed
 from test_checkpoints import (  # pylint: disable=unused-import  (scene_dir: fixture)
     DEMO, JAX_CACHE, ROOT, TINY, _leaves, scene_dir, tiny_config)
 import train
@@ -130,3 +132,17 @@ def test_two_processes_killed_after_a_checkpoint_resume_like_one(tmp_path, scene
   _finish(_launch(scene_dir, run))
   # Tensorboard events not yet flushed when killed are lost; the resumed run logs the steps after killed_at.
   _assert_close(_state(scene_dir, run), _losses(run), one_process, first_logged=killed_at + 1)
+
+
+@pytest.mark.parametrize('flags, message', [
+    (['--num_processes', '0'], r'--num_processes = 0 must be >= 1'),
+    (['--num_processes', '2', '--process_id', '2', '--coordinator_address', 'h:1'],
+     r'--process_id = 2 must be in 0 \.\. 1'),
+    (['--num_processes', '2'], r"--coordinator_address = '' must be HOST:PORT")])
+def test_inconsistent_process_flags_are_errors_naming_the_flag(flags, message, monkeypatch):
+  for name in distributed.ENV.values():
+    monkeypatch.delenv(name, raising=False)
+  parser = argparse.ArgumentParser()
+  distributed.add_flags(parser)
+  with pytest.raises(ValueError, match=message):
+    distributed.initialize(parser.parse_args(flags))
