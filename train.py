@@ -25,6 +25,7 @@ from internal import checkpoints
 from internal import cli
 from internal import datasets
 from internal import depth_smoothness
+from internal import distributed
 from internal import inference
 from internal import metrics
 from internal import run_dir as run_dir_lib
@@ -55,6 +56,33 @@ class StopFlag:
   def __call__(self, signum, frame):
     self.signum = signum
 
+  def stopping(self, sync_point: bool) -> bool:
+    """True when the loop must stop after this step.
+
+    With several processes they must stop at the same step: they agree at sync points only, where a signal
+    that any of them got stops them all.
+    """
+    if jax.process_count() > 1:
+      if not sync_point:
+        return False
+      self.signum = distributed.max_over_processes(self.signum or 0) or None
+    return self.signum is not None
+
+
+class NullWriter:
+  """The tensorboard writer of processes other than process 0: logs nothing."""
+
+  def add_scalar(self, *args, **kwargs):
+    """Logs nothing."""
+
+  add_image = add_scalar
+
+  def __enter__(self):
+    return self
+
+  def __exit__(self, *exc):
+    return False
+
 
 @contextlib.contextmanager
 def stop_on_signals():
@@ -74,7 +102,8 @@ class Progress:
   def __init__(self, config, writer, first_step: int):
     self.config, self.writer = config, writer
     self.window = []
-    self.bar = tqdm.tqdm(total=config.max_steps, initial=first_step - 1, unit='step', **cli.progress_kwargs())
+    self.bar = tqdm.tqdm(total=config.max_steps, initial=first_step - 1, unit='step',
+                         disable=not distributed.is_primary(), **cli.progress_kwargs())
     self.tic = time.time()
     self.skips = train_step_lib.SkipCounter(config.nonfinite_grad_policy, config.max_skipped_steps)
 
@@ -116,7 +145,7 @@ class Progress:
 
 def preview(config, model, state, step: int, test_set, writer) -> None:
   """Renders one test view with the current parameters and logs its PSNR and images to tensorboard."""
-  render_fn = inference.make_render_fn(config, model, state.params, step)
+  render_fn = inference.make_render_fn(config, model, sharding.local_copy(state.params), step)
   rays = jax.tree.map(lambda x: x[PREVIEW_INDEX], test_set.rays)
   rendering = inference.render_image(render_fn, rays, config.render_chunk_size)
   writer.add_scalar('test/psnr', metrics.psnr(rendering['rgb'], test_set.images[PREVIEW_INDEX]), step)
@@ -144,28 +173,33 @@ def _check_batch(config, mesh) -> None:
 def train(config, stop_at_step: int = 0) -> TrainResult:
   """Trains up to Config.max_steps (or stop_at_step, if smaller and > 0), resuming from the newest checkpoint.
 
-  The run directory is locked against a second training meanwhile. The final state is saved whether the loop
-  ends or a signal stops it.
+  The run directory is locked against a second training meanwhile (by process 0, when several processes train
+  together). The final state is saved whether the loop ends or a signal stops it.
   """
-  with run_dir_lib.open_run(config) as run_dir:
-    return _train_in(config, run_dir, stop_at_step)
+  with contextlib.ExitStack() as stack:
+    distributed.on_primary(lambda: stack.enter_context(run_dir_lib.open_run(config)), 'opening the run directory')
+    return _train_in(config, config.checkpoint_dir, stop_at_step)
 
 
 def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
   """train() inside the locked run directory; the settings are recorded once data and model are ready."""
   mesh = sharding.data_mesh()
   _check_batch(config, mesh)
-  batcher = datasets.make_batcher(datasets.load_dataset('train', config), config)
+  dataset = distributed.primary_first(lambda: datasets.load_dataset('train', config), 'loading the data')
+  batcher = datasets.make_batcher(dataset, config)
   eval_lib.check_eval_inputs(config)
   init_key, train_key = random.split(random.PRNGKey(config.jax_rng_seed))
   model, state = train_step_lib.create_train_state(config, init_key, _example_rays(batcher))
-  run_dir_lib.record_settings(run_dir, config)
+  distributed.on_primary(lambda: run_dir_lib.record_settings(run_dir, config), 'recording the settings')
   mngr = checkpoints.manager(run_dir, config.checkpoint_keep)
+  state = sharding.replicate(state, mesh)
   restored = checkpoints.restore_latest(mngr, state)
-  state = sharding.replicate(restored if restored is not None else state, mesh)
+  state = restored if restored is not None else state
+  primary = distributed.is_primary()
+  writer = tensorboardX.SummaryWriter(os.path.join(run_dir, 'tensorboard')) if primary else NullWriter()
   last = min(config.max_steps, stop_at_step) if stop_at_step > 0 else config.max_steps
   try:
-    with tensorboardX.SummaryWriter(os.path.join(run_dir, 'tensorboard')) as writer, stop_on_signals() as stop:
+    with writer, stop_on_signals() as stop:
       state, skipped = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last)
     checkpoints.save(mngr, state)
   finally:
@@ -187,11 +221,12 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
     for step in range(first, last + 1):
       state, stats = step_fn(state, sharding.shard_batch(batcher(step), mesh), key)
       progress.add(step, stats)
-      if step % config.print_every == 0 or step == last or stop.signum:
+      stopping = stop.stopping(step % config.print_every == 0 or step == last)
+      if step % config.print_every == 0 or step == last or stopping:
         progress.flush(step)
-      if stop.signum:
+      if stopping:
         break
-      if config.train_render_every > 0 and step % config.train_render_every == 0:
+      if config.train_render_every > 0 and step % config.train_render_every == 0 and distributed.is_primary():
         test_set = test_set if test_set is not None else datasets.load_dataset('test', config)
         preview(config, model, state, step, test_set, writer)
       if step % config.checkpoint_every == 0 and step < last:
@@ -215,7 +250,9 @@ def main(argv=None) -> int:
   parser = run_dir_lib.flag_parser(__doc__.split('\n')[0])
   parser.add_argument('--stop_at_step', type=int, default=0,
                       help='save a checkpoint and exit after this step (resume later with the same command)')
+  distributed.add_flags(parser)
   args = parser.parse_args(argv)
+  distributed.initialize(args)
   demo = not args.gin_configs
   config = run_dir_lib.config_from_flags(args)
   result = train(config, args.stop_at_step)
@@ -228,7 +265,9 @@ def main(argv=None) -> int:
   if result.skipped:
     print(f'{result.skipped} update(s) were skipped for non-finite values (see the log above and '
           'train/skipped_steps in tensorboard).')
-  if demo:
+  if demo and jax.process_count() > 1:
+    print('Several processes train the demo but do not evaluate it: run eval.py and render.py as one process.')
+  elif demo:
     psnr = run_demo(config)
     print(f'Demo test PSNR at step {step}: {psnr:.2f} dB (outputs in {result.run_dir!r}).')
   return 0

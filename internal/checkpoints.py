@@ -16,7 +16,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 import tensorstore
 
-
+from internal import distributed
 from internal import train_step
 
 CHECKPOINT_SUBDIR = 'checkpoints'
@@ -89,8 +89,8 @@ def damage(step_dir: str):
   return None
 
 
-def _newest_intact(mngr: ocp.CheckpointManager, template):
-  """(step, TrainState, [(step, reason) of newer damaged steps]) of the newest restorable checkpoint.
+def _newest_intact(mngr: ocp.CheckpointManager, load):
+  """(step, load(step), [(step, reason) of newer damaged steps]) of the newest checkpoint that load can read.
 
   (None, None, []) when there is no checkpoint; NoIntactCheckpointError naming the folder when all are damaged.
   """
@@ -99,7 +99,7 @@ def _newest_intact(mngr: ocp.CheckpointManager, template):
     reason = damage(os.path.join(mngr.directory, str(step)))
     if reason is None:
       try:
-        return step, _restore(mngr, step, template), damaged
+        return step, load(step), damaged
       except Exception as e:  # pylint: disable=broad-except  (orbax and tensorstore raise bare Exceptions)
         reason = str(e).split('\n')[0]
     damaged.append((step, reason))
@@ -114,20 +114,27 @@ def _report(folder: str, step: int, reason: str, action: str) -> None:
   print(f'checkpoint step {step} in {folder!r} is damaged ({reason}); {action}', file=sys.stderr)
 
 
-def restore_latest(mngr: ocp.CheckpointManager, template):
-  """The newest intact TrainState shaped like template (None when there is none), for training.
-
-  Newer damaged step folders are moved aside to damaged_<step>_<time> and reported.
-  """
-  step, state, damaged = _newest_intact(mngr, template)
+def _set_aside_damaged(mngr: ocp.CheckpointManager) -> int:
+  """Moves step folders newer than the newest intact one aside (reported); returns that step (-1: none)."""
+  step, _, damaged = _newest_intact(mngr, lambda step: None)
   for bad, reason in damaged:
     folder = os.path.join(os.fspath(mngr.directory), str(bad))
     aside = os.path.join(os.fspath(mngr.directory), f'damaged_{bad}_{time.strftime("%Y%m%d-%H%M%S")}')
     os.rename(folder, aside)
     _report(folder, bad, reason, f'moved it to {aside!r}; resuming from step {step}')
-  if damaged:
-    mngr.reload()
-  return state
+  return -1 if step is None else step
+
+
+def restore_latest(mngr: ocp.CheckpointManager, template):
+  """The newest intact TrainState shaped like template (None when there is none), for training.
+
+  Newer damaged step folders are moved aside to damaged_<step>_<time> and reported, by process 0 alone; every
+  process then restores the step process 0 chose (orbax restores are collective).
+  """
+  step = distributed.on_primary(lambda: _set_aside_damaged(mngr), 'checking the checkpoints')
+  step = distributed.max_over_processes(-1 if step is None else step)
+  mngr.reload()
+  return None if step < 0 else _restore(mngr, step, template)
 
 
 def load_latest(run_dir: str, template):
@@ -138,7 +145,7 @@ def load_latest(run_dir: str, template):
   latest_step(run_dir)  # Names the folder when it holds no checkpoint at all.
   mngr = reader(run_dir)
   try:
-    step, state, damaged = _newest_intact(mngr, template)
+    step, state, damaged = _newest_intact(mngr, lambda step: _restore(mngr, step, template))
   finally:
     mngr.close()
   for bad, reason in damaged:

@@ -12,6 +12,7 @@ import os
 import sys
 
 from internal import checkpoints
+from internal import distributed
 from internal import run_dir
 from internal import train_step
 
@@ -19,9 +20,10 @@ USAGE_ERROR_STATUS = 2
 NONFINITE_STATUS = 3
 DEBUG_ENV = 'FREENERF_DEBUG'
 # ValueError covers Config validation, gin's unknown bindings and the loaders' DatasetError; FileNotFoundError
-# covers missing data and NoCheckpointError; FileExistsError is an evaluation or rendering that exists already.
+# covers missing data and NoCheckpointError; FileExistsError is an evaluation or rendering that exists already;
+# PrimaryFailed is what the other processes of a several-process training say when process 0 met such an error.
 USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, run_dir.RunDirError,
-               checkpoints.NoCheckpointError)
+               checkpoints.NoCheckpointError, distributed.PrimaryFailed)
 
 
 def robust_streams() -> None:

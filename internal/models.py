@@ -203,7 +203,7 @@ class MipNerfModel(nn.Module):
 def construct_model(key, example_rays, white_background: bool, precision: str = 'float32'):
   """Builds MipNerfModel (gin-bound) and initializes its variables on example rays [B, ...]."""
   model = MipNerfModel(white_background=white_background, precision=precision)
-  variables = model.init(key, None, example_rays)
+  variables = jax.jit(model.init)(key, None, example_rays)  # One compile, not one per operation.
   return model, variables
 
 

@@ -42,7 +42,7 @@ def create_train_state(config, key, example_rays):
                                              config.precision)
   params = variables['params']
   return model, TrainState(step=jnp.array(0, jnp.int32), params=params,
-                           opt_state=optim.adam(config.adam_eps).init(params))
+                           opt_state=jax.jit(optim.adam(config.adam_eps).init)(params))
 
 
 def masks_at(config, step):
