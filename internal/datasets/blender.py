@@ -78,10 +78,9 @@ def load_blender(split: str, config, scene_dir: str, name: str, mode: str, test_
                       split=split, name=name)
 
 
-def render_path_rays(config, scene_dir: str):
-  """Rays [F,H,W,...] of an orbit at the test cameras' mean radius and height, facing the origin."""
+def render_cameras(scene_dir: str, factor: int):
+  """(test camera-to-worlds [N,3,4] f64, pixtocam [3,3], height, width) of render frames at 1/factor size."""
   meta = read_transforms(scene_dir, 'test')
-  factor = max(int(config.render_factor or config.factor), 1)
   present = [p for p in (frame_path(scene_dir, f) for f in meta['frames']) if os.path.isfile(p)]
   if not present:
     raise base.DatasetNotFoundError(f'Blender render path: no test image of {scene_dir!r} exists to size the frames')
@@ -89,6 +88,12 @@ def render_path_rays(config, scene_dir: str):
   height, width = full_h // factor, full_w // factor
   pixtocam = cameras.focal_pixtocam(.5 * width / np.tan(.5 * float(meta['camera_angle_x'])), height, width)
   poses = np.array([f['transform_matrix'] for f in meta['frames']], np.float64)[:, :3, :4]
+  return poses, pixtocam, height, width
+
+
+def render_path_rays(config, scene_dir: str):
+  """Rays [F,H,W,...] of an orbit at the test cameras' mean radius and height, facing the origin."""
+  poses, pixtocam, height, width = render_cameras(scene_dir, max(int(config.render_factor or config.factor), 1))
   path = cameras.orbit_path(poses, config.render_path_frames)
   return raygen.stack_rays((raygen.pinhole_rays(p, pixtocam, height, width, config.near, config.far, True)
                             for p in path), len(path))

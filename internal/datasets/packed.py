@@ -139,15 +139,7 @@ def _blender_record(config, datasets: dict, scene_dir: str) -> dict:
     c2w = np.array([meta['frames'][i]['transform_matrix'] for i in data.ids], np.float64)[:, :3, :4]
     record['arrays'].update({f'{split}/camtoworlds': c2w,
                              f'{split}/pixtocams': np.repeat(pixtocam[None], len(data.ids), 0)})
-  meta = blender.read_transforms(scene_dir, 'test')
-  factor = render_factor(config)
-  present = [p for p in (blender.frame_path(scene_dir, f) for f in meta['frames']) if os.path.isfile(p)]
-  if not present:
-    raise base.DatasetNotFoundError(f'Blender render path: no test image of {scene_dir!r} exists to size the frames')
-  full_h, full_w = image_io.image_size(present[0])
-  height, width = full_h // factor, full_w // factor
-  pixtocam = cameras.focal_pixtocam(.5 * width / np.tan(.5 * float(meta['camera_angle_x'])), height, width)
-  poses = np.array([f['transform_matrix'] for f in meta['frames']], np.float64)[:, :3, :4]
+  poses, pixtocam, height, width = blender.render_cameras(scene_dir, render_factor(config))
   train_pixtocam = record['arrays']['train/pixtocams'][0]
   record['arrays'].update({'cameras/camtoworlds': poses,
                            'cameras/pixtocams': np.repeat(train_pixtocam[None], len(poses), 0),
