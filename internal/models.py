@@ -106,7 +106,7 @@ class MLP(nn.Module):
 
   def _colour(self, features, view, num_samples: int):
     """rgb [B*S, 3] from trunk features (parts [B*S, ...]) and encoded view directions [B, V]."""
-    names = iter(f'Dense_{i}' for i in range(self.net_depth + 1, 2 * self.net_depth + 4))
+    names = iter(name for name, _, _ in self.layer_shapes()[self.net_depth + 1:])  # The heads after density.
     if self.use_viewdirs:
       bottleneck = self._dense(next(names), *features)
       layer = self.layers[next(names)]

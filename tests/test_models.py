@@ -141,3 +141,18 @@ def test_skip_connection_reuses_masked_encoding():
   expected = jax.nn.softplus(dense(3, jnp.concatenate([x, enc], -1))[:, 0] - 1.)
   np.testing.assert_allclose(mlp.apply(params, None, means, covs, mask, method=models.MLP.predict_density),
                              expected, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize('bindings, heads', [
+    (['MLP.net_depth = 1', 'MLP.net_depth_viewdirs = 3'], 5),   # View branch deeper than the trunk + 1.
+    (['MLP.net_depth = 3', 'MLP.net_depth_viewdirs = 1'], 3),
+    (['MLP.use_viewdirs = False'], 1)])
+def test_every_head_layer_is_created_and_used(bindings, heads):
+  model, variables = _tiny(bindings)
+  params = variables['params']['mlp']
+  depth = gin.query_parameter('MLP.net_depth')
+  # Trunk, density, then the heads: bottleneck, view layers and rgb (rgb only without view directions).
+  assert sorted(params, key=lambda n: int(n.split('_')[1])) == [f'Dense_{i}' for i in range(depth + 1 + heads)]
+  (renderings, _) = model.apply(variables, None, random_rays(1, 4))
+  rgb = renderings[-1]['rgb']
+  assert rgb.shape == (4, 3) and bool(jnp.all(jnp.isfinite(rgb)))
