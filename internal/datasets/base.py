@@ -112,6 +112,11 @@ def check_finite(values: np.ndarray, path: str, what: str) -> None:
                        '(NaN or Inf); expected finite numbers')
 
 
+def render_factor(config) -> int:
+  """The render path's downsampling factor (>= 1): Config.render_factor, else Config.factor."""
+  return max(int(config.render_factor or config.factor), 1)
+
+
 def load_factor(config, split: str) -> int:
   """Total integer downsampling factor (>= 1): Config.factor, times Config.eval_factor for the test split."""
   factor = max(int(config.factor), 1)

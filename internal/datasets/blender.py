@@ -93,7 +93,7 @@ def render_cameras(scene_dir: str, factor: int):
 
 def render_path_rays(config, scene_dir: str):
   """Rays [F,H,W,...] of an orbit at the test cameras' mean radius and height, facing the origin."""
-  poses, pixtocam, height, width = render_cameras(scene_dir, max(int(config.render_factor or config.factor), 1))
+  poses, pixtocam, height, width = render_cameras(scene_dir, base.render_factor(config))
   path = cameras.orbit_path(poses, config.render_path_frames)
   return raygen.stack_rays((raygen.pinhole_rays(p, pixtocam, height, width, config.near, config.far, True)
                             for p in path), len(path))

@@ -213,7 +213,7 @@ def load_dtu(split: str, config) -> base.Dataset:
 def render_path_rays(config):
   """Rays [F,H,W,...] of the DTU spiral over all cameras, with the mean test intrinsics."""
   scan_dir, layout, projections = scan_setup(config)
-  factor = max(int(config.render_factor or config.factor), 1)
+  factor = base.render_factor(config)
   train_pool, test_ids = split_ids(config.dtu_split_type, len(projections), config.dtuhold)
   paths = [p for p in image_paths(scan_dir, layout, train_pool, config.dtu_light_cond) if os.path.isfile(p)]
   if not paths:

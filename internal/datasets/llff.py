@@ -98,7 +98,7 @@ def load_llff(split: str, config, scene_dir: str, name: str) -> base.Dataset:
 
 def render_path_rays(config, scene_dir: str):
   """Rays [F,H,W,...] (NDC) of the LLFF spiral path (Config.render_path_frames frames)."""
-  factor = max(int(config.render_factor or config.factor), 1)
+  factor = base.render_factor(config)
   paths, extra, poses_bounds = scene_setup(scene_dir, factor)
   c2w, bounds, focal = process_poses(poses_bounds)
   full_h, full_w = image_io.image_size(paths[0])

@@ -39,11 +39,6 @@ def settings(config, source: str) -> dict:
   return {name: _jsonable(getattr(config, name)) for name in COMMON_SETTINGS + SOURCE_SETTINGS[source]}
 
 
-def render_factor(config) -> int:
-  """The render path's downsampling factor: Config.render_factor, else Config.factor (at least 1)."""
-  return max(int(config.render_factor or config.factor), 1)
-
-
 # ---------------------------------------------------------------- value coding
 
 def encode(name: str, values: np.ndarray) -> dict:
@@ -91,7 +86,7 @@ def _dtu_record(config, datasets: dict) -> dict:
   for split, data in datasets.items():
     pixtocams, poses = dtu.normalized_cameras(projections, base.load_factor(config, split))
     record['arrays'].update({f'{split}/camtoworlds': poses[data.ids], f'{split}/pixtocams': pixtocams[data.ids]})
-  factor = render_factor(config)
+  factor = base.render_factor(config)
   pixtocams, poses = dtu.normalized_cameras(projections, factor)
   train_pool, test_ids = dtu.split_ids(config.dtu_split_type, len(projections), config.dtuhold)
   paths = [p for p in dtu.image_paths(scan_dir, layout, train_pool, config.dtu_light_cond) if os.path.isfile(p)]
@@ -115,7 +110,7 @@ def _llff_record(config, datasets: dict, scene_dir: str) -> dict:
     record['arrays'].update({f'{split}/camtoworlds': c2w[data.ids],
                              f'{split}/pixtocams': np.repeat(pixtocam[None], len(data.ids), 0),
                              f'{split}/focal': np.float64(split_focal)})
-  factor = render_factor(config)
+  factor = base.render_factor(config)
   paths, extra, _ = llff.scene_setup(scene_dir, factor)
   full_h, full_w = image_io.image_size(paths[0])
   height, width = full_h // extra, full_w // extra
@@ -139,7 +134,7 @@ def _blender_record(config, datasets: dict, scene_dir: str) -> dict:
     c2w = np.array([meta['frames'][i]['transform_matrix'] for i in data.ids], np.float64)[:, :3, :4]
     record['arrays'].update({f'{split}/camtoworlds': c2w,
                              f'{split}/pixtocams': np.repeat(pixtocam[None], len(data.ids), 0)})
-  poses, pixtocam, height, width = blender.render_cameras(scene_dir, render_factor(config))
+  poses, pixtocam, height, width = blender.render_cameras(scene_dir, base.render_factor(config))
   train_pixtocam = record['arrays']['train/pixtocams'][0]
   record['arrays'].update({'cameras/camtoworlds': poses,
                            'cameras/pixtocams': np.repeat(train_pixtocam[None], len(poses), 0),
@@ -183,7 +178,7 @@ def pack_arrays(config, datasets: dict) -> dict:
           'ray_kind': record['ray_kind'], 'path_kind': record['path_kind'],
           'ray_params': {'near': float(config.near), 'far': float(config.far),
                          'near_origin': float(config.near_origin)},
-          'render': {**record['render'], 'factor': render_factor(config)}, 'splits': splits}
+          'render': {**record['render'], 'factor': base.render_factor(config)}, 'splits': splits}
   arrays['meta'] = np.array(json.dumps(meta))
   return arrays
 
@@ -248,8 +243,8 @@ def render_path_rays(config):
   meta, arrays = read_pack(config.data_dir)
   check_settings(config, meta, config.data_dir)
   render = meta['render']
-  if render_factor(config) != render['factor']:
-    raise base.DatasetError(f'Config.render_factor = {config.render_factor} (render factor {render_factor(config)}) '
+  if base.render_factor(config) != render['factor']:
+    raise base.DatasetError(f'Config.render_factor = {config.render_factor} (render factor {base.render_factor(config)}) '
                             f'differs from the packed render factor {render["factor"]} of {config.data_dir!r}; '
                             'set Config.render_factor to it or pack the scene again')
   poses = path_poses(meta['path_kind'], arrays['render/source'], arrays.get('render/bounds'),
