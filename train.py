@@ -198,13 +198,12 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
 
 def run_demo(bindings, stop_at_step: int = 0) -> int:
   """The demo: trains mip-NeRF and FreeNeRF alike (configs/demo*.gin), then evaluates, renders and compares."""
-  method_cfgs = demo.method_configs(bindings)
-  for config in method_cfgs.values():
-    status = train_and_report(config, stop_at_step)
+  out_dir = demo.output_dir(demo.method_configs(bindings))  # Checks both configs before any work.
+  for name in demo.METHODS:
+    status = train_and_report(demo.method_config(name, bindings), stop_at_step)
     if status:
       return status
-  psnrs = demo.finish(method_cfgs)
-  out_dir = demo.output_dir(method_cfgs)
+  psnrs = demo.finish(bindings)
   print('Demo test PSNR: ' + ', '.join(f'{name} {psnr:.2f} dB' for name, psnr in psnrs.items()) +
         f'; side by side in {os.path.join(out_dir, demo.PICTURE)!r}, run directories in {out_dir!r}.')
   return 0

@@ -32,12 +32,15 @@ GAP, HEADER, LABEL_WIDTH, LINE = 4, 22, 56, 16
 PICTURE, ORBIT_VIDEO = 'demo.png', 'demo_orbit.mp4'
 
 
+def method_config(name: str, bindings=()):
+  """Parses gin afresh for one method (gin then holds its bindings, as its model needs) and returns its Config."""
+  gin.clear_config()
+  return configs.load_config(METHODS[name], bindings)
+
+
 def method_configs(bindings=()) -> dict:
   """{method name: validated Config} of both demo configs with the same extra bindings applied to each."""
-  out = {}
-  for name, files in METHODS.items():
-    gin.clear_config()
-    out[name] = configs.load_config(files, bindings)
+  out = {name: method_config(name, bindings) for name in METHODS}
   dirs = [c.checkpoint_dir for c in out.values()]
   if len(set(map(os.path.abspath, dirs))) != len(dirs):
     raise ValueError(f'the demo needs one run directory per method, but Config.checkpoint_dir = {dirs[0]!r} is '
@@ -114,18 +117,16 @@ def side_by_side(truth: list, renderings: dict, truth_depths: list, blocks_per_r
   return tiles, columns, ['colour', 'depth'] * (len(blocks) // blocks_per_row)
 
 
-def write_picture(method_cfgs: dict, records: dict, path: str) -> np.ndarray:
-  """Renders the shown test views with every method and writes the side-by-side picture to path; returns it."""
-  config = next(iter(method_cfgs.values()))
-  test_set = datasets.load_dataset('test', config)
-  positions = [p for p in SHOWN_VIEWS if p < len(test_set.ids)]
-  renderings = {name: render_views(cfg, test_set, positions) for name, cfg in method_cfgs.items()}
-  tiles, columns, rows = side_by_side([test_set.images[p] for p in positions], renderings,
-                                      [test_set.depths[p] for p in positions])
-  scores = ', '.join(f'{name} {records[name]["means"]["psnr"]:.2f} dB' for name in method_cfgs)
+def write_picture(truth, records: dict, renderings: dict, n_input_views: int, path: str) -> np.ndarray:
+  """Writes the side-by-side picture of the shown views to path; returns it.
+
+  truth: (images, depths) of the shown test views; records: {method: metrics record}; renderings: {method:
+  renderings of the shown views}.
+  """
+  tiles, columns, rows = side_by_side(truth[0], renderings, truth[1])
+  scores = ', '.join(f'{name} {record["means"]["psnr"]:.2f} dB' for name, record in records.items())
   evaluated = len(records['FreeNeRF']['per_image'])
-  title = f'{config.n_input_views} training views; test PSNR over {evaluated} views: {scores}'
-  picture = grid(tiles, columns, rows, title)
+  picture = grid(tiles, columns, rows, f'{n_input_views} training views; test PSNR over {evaluated} views: {scores}')
   vis.save_png(picture / 255., path)
   return picture
 
@@ -147,11 +148,18 @@ def write_orbit_video(method_cfgs: dict, path: str) -> bool:
   return True
 
 
-def finish(method_cfgs: dict) -> dict:
+def finish(bindings=()) -> dict:
   """Evaluates and renders both trained runs, writes the picture and the orbit video; {method: test PSNR}."""
-  records = {name: evaluate_and_render(cfg) for name, cfg in method_cfgs.items()}
+  method_cfgs, records, renderings = {}, {}, {}
+  for name in METHODS:
+    method_cfgs[name] = config = method_config(name, bindings)
+    records[name] = evaluate_and_render(config)
+    test_set = datasets.load_dataset('test', config)
+    positions = [p for p in SHOWN_VIEWS if p < len(test_set.ids)]
+    renderings[name] = render_views(config, test_set, positions)
   out_dir = output_dir(method_cfgs)
-  write_picture(method_cfgs, records, os.path.join(out_dir, PICTURE))
+  truth = [test_set.images[p] for p in positions], [test_set.depths[p] for p in positions]
+  write_picture(truth, records, renderings, config.n_input_views, os.path.join(out_dir, PICTURE))
   if not write_orbit_video(method_cfgs, os.path.join(out_dir, ORBIT_VIDEO)):
     print(render_lib.VIDEO_HINT)
   return {name: record['means']['psnr'] for name, record in records.items()}
