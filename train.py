@@ -1,7 +1,7 @@
 """Trains FreeNeRF / mip-NeRF from gin configs; with no arguments it runs the demo end to end.
 
   python train.py --gin_configs=configs/freenerf/dtu3_freenerf.gin --gin_bindings="Config.dtu_scan = 'scan21'"
-  python train.py   # demo (configs/demo.gin): generate a scene, train, evaluate, render; prints the test PSNR
+  python train.py   # demo: FreeNeRF and mip-NeRF on a generated scene, evaluated, rendered, side by side
 
 Training resumes from the newest checkpoint of Config.checkpoint_dir, and refuses a directory holding a run with
 other settings. SIGINT / SIGTERM save a checkpoint and exit (status 128 + signal); rerun the command to resume.
@@ -24,6 +24,7 @@ import eval as eval_lib
 from internal import checkpoints
 from internal import cli
 from internal import datasets
+from internal import demo
 from internal import depth_smoothness
 from internal import distributed
 from internal import inference
@@ -32,7 +33,6 @@ from internal import run_dir as run_dir_lib
 from internal import sharding
 from internal import train_step as train_step_lib
 from internal import vis
-import render as render_lib
 
 PREVIEW_INDEX = 0  # The test view rendered every Config.train_render_every steps.
 
@@ -237,12 +237,20 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
   return state, progress.skips.total
 
 
-def run_demo(config) -> float:
-  """After training the demo: evaluates and renders (unless already done for this step); returns test PSNR."""
-  record = eval_lib.existing_record(config) or eval_lib.evaluate(config)
-  if not render_lib.existing_renders(config):
-    render_lib.render(config)
-  return record['means']['psnr']
+def run_demo(bindings, stop_at_step: int = 0) -> int:
+  """The demo: trains mip-NeRF and FreeNeRF alike (configs/demo*.gin), then evaluates, renders and compares."""
+  out_dir = demo.output_dir(demo.method_configs(bindings))  # Checks both configs before any work.
+  for name in demo.METHODS:
+    status = train_and_report(demo.method_config(name, bindings), stop_at_step)
+    if status:
+      return status
+  if jax.process_count() > 1:
+    print('Several processes trained the demo but do not evaluate it: run eval.py and render.py as one process.')
+    return 0
+  psnrs = demo.finish(bindings)
+  print('Demo test PSNR: ' + ', '.join(f'{name} {psnr:.2f} dB' for name, psnr in psnrs.items()) +
+        f'; side by side in {os.path.join(out_dir, demo.PICTURE)!r}, run directories in {out_dir!r}.')
+  return 0
 
 
 def main(argv=None) -> int:
@@ -253,9 +261,14 @@ def main(argv=None) -> int:
   distributed.add_flags(parser)
   args = parser.parse_args(argv)
   distributed.initialize(args)
-  demo = not args.gin_configs
-  config = run_dir_lib.config_from_flags(args)
-  result = train(config, args.stop_at_step)
+  if not args.gin_configs:
+    return run_demo(args.gin_bindings, args.stop_at_step)
+  return train_and_report(run_dir_lib.config_from_flags(args), args.stop_at_step)
+
+
+def train_and_report(config, stop_at_step: int = 0) -> int:
+  """Trains one run and prints how it ended; returns the exit status (128 + signal when stopped)."""
+  result = train(config, stop_at_step)
   step = int(result.state.step)
   if result.signum is not None:
     print(f'Stopped by signal {result.signum} at step {step}; checkpoint saved in {result.run_dir!r}. '
@@ -265,11 +278,6 @@ def main(argv=None) -> int:
   if result.skipped:
     print(f'{result.skipped} update(s) were skipped for non-finite values (see the log above and '
           'train/skipped_steps in tensorboard).')
-  if demo and jax.process_count() > 1:
-    print('Several processes train the demo but do not evaluate it: run eval.py and render.py as one process.')
-  elif demo:
-    psnr = run_demo(config)
-    print(f'Demo test PSNR at step {step}: {psnr:.2f} dB (outputs in {result.run_dir!r}).')
   return 0
 
 

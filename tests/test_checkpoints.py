@@ -63,7 +63,7 @@ def test_refuses_a_run_directory_with_other_settings(tmp_path):
   run = tmp_path / 'run'
   run_dir_lib.record_settings(run_dir_lib.prepare_run_dir(tiny_config('s', run)), tiny_config('s', run))
   (run / 'marker').write_text('from the first run')
-  with pytest.raises(run_dir_lib.RunDirError, match=r"run'.*Config\.max_steps: 800 -> 900.*Config\.overwrite"):
+  with pytest.raises(run_dir_lib.RunDirError, match=r"run'.*Config\.max_steps: 700 -> 900.*Config\.overwrite"):
     run_dir_lib.prepare_run_dir(tiny_config('s', run, 'Config.max_steps = 900'))
   with pytest.raises(run_dir_lib.RunDirError, match='MLP.net_width'):
     run_dir_lib.prepare_run_dir(tiny_config('s', run, 'MLP.net_width = 48'))
@@ -84,7 +84,7 @@ def test_refuses_a_foreign_non_empty_directory_even_with_overwrite(tmp_path):
 def test_eval_side_check_names_the_differences(tmp_path):
   run_dir_lib.record_settings(run_dir_lib.prepare_run_dir(tiny_config('s', tmp_path / 'run')),
                               tiny_config('s', tmp_path / 'run'))
-  with pytest.raises(run_dir_lib.RunDirError, match='Config.freq_reg_end: 720 -> 0'):
+  with pytest.raises(run_dir_lib.RunDirError, match='Config.freq_reg_end: 630 -> 0'):
     run_dir_lib.check_run_dir(tiny_config('s', tmp_path / 'run', 'Config.freq_reg_end = 0'))
   with pytest.raises(run_dir_lib.RunDirError, match='holds no run'):
     run_dir_lib.check_run_dir(tiny_config('s', tmp_path / 'other'))

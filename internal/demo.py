@@ -1,0 +1,165 @@
+"""The demo: FreeNeRF and its mip-NeRF baseline, trained alike on a few views of the generated scene, side by side.
+
+Each method is one run directory; the baseline is configs/demo.gin followed by configs/demo_mipnerf.gin, which
+only names its run and switches the regularizers off. After both are trained, evaluated and rendered, `finish`
+writes to the runs' parent folder demo.png (per shown test view a colour and a depth row: ground truth | mip-NeRF
+| FreeNeRF) and demo_orbit.mp4 (both orbits side by side, when imageio-ffmpeg is installed).
+"""
+
+import os
+
+import gin
+import jax
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+import eval as eval_lib
+from internal import checkpoints
+from internal import configs
+from internal import datasets
+from internal import inference
+from internal import run_dir as run_dir_lib
+from internal import vis
+import render as render_lib
+
+CONFIG_DIR = os.path.dirname(run_dir_lib.DEMO_CONFIG)
+METHODS = {'mip-NeRF': [run_dir_lib.DEMO_CONFIG, os.path.join(CONFIG_DIR, 'demo_mipnerf.gin')],
+           'FreeNeRF': [run_dir_lib.DEMO_CONFIG]}
+SHOWN_VIEWS = (0, 2, 4, 6)     # Positions in the test split: every 90 degrees of the test orbit.
+BLOCKS_PER_ROW = 2             # Test views side by side in the picture.
+SCALE = 2                      # Nearest-neighbour upscaling of the small renders.
+GAP, HEADER, LABEL_WIDTH, LINE = 4, 22, 56, 16
+PICTURE, ORBIT_VIDEO = 'demo.png', 'demo_orbit.mp4'
+
+
+def method_config(name: str, bindings=()):
+  """Parses gin afresh for one method (gin then holds its bindings, as its model needs) and returns its Config."""
+  gin.clear_config()
+  return configs.load_config(METHODS[name], bindings)
+
+
+def method_configs(bindings=()) -> dict:
+  """{method name: validated Config} of both demo configs with the same extra bindings applied to each."""
+  out = {name: method_config(name, bindings) for name in METHODS}
+  dirs = [c.checkpoint_dir for c in out.values()]
+  if len(set(map(os.path.abspath, dirs))) != len(dirs):
+    raise ValueError(f'the demo needs one run directory per method, but Config.checkpoint_dir = {dirs[0]!r} is '
+                     'bound for both; leave Config.checkpoint_dir to configs/demo*.gin')
+  return out
+
+
+def output_dir(method_cfgs: dict) -> str:
+  """The folder of the demo's picture and video: the parent of the FreeNeRF run directory."""
+  return os.path.dirname(os.path.abspath(method_cfgs['FreeNeRF'].checkpoint_dir))
+
+
+def evaluate_and_render(config) -> dict:
+  """Evaluates and renders the orbit of a trained run, each unless done for its newest step; metrics record."""
+  record = eval_lib.existing_record(config) or eval_lib.evaluate(config)
+  if not render_lib.existing_renders(config):
+    render_lib.render(config)
+  return record
+
+
+def render_views(config, test_set, positions) -> list:
+  """Renderings {'rgb', 'distance_mean', ...} [H, W, ...] of the run's newest checkpoint at test positions."""
+  model, state = checkpoints.restore_model(config, config.checkpoint_dir,
+                                           jax.tree.map(lambda x: x[0, 0, :8], test_set.rays))
+  render_fn = inference.make_render_fn(config, model, state.params, int(state.step))
+  return [inference.render_image(render_fn, jax.tree.map(lambda x, i=i: x[i], test_set.rays),
+                                 config.render_chunk_size) for i in positions]
+
+
+def grid(tiles, column_titles, row_titles, title: str = '', scale: int = SCALE) -> np.ndarray:
+  """Tiles (rows of float [h, w, 3] images in [0, 1]) -> labelled uint8 picture [H, W, 3].
+
+  Tile (r, c) is upscaled by `scale` (nearest) and placed at top = HEADER + LINE * bool(title) + r * (h*scale +
+  GAP), left = LABEL_WIDTH + c * (w*scale + GAP), on white.
+  """
+  h, w = np.shape(tiles[0][0])[:2]
+  th, tw = h * scale, w * scale
+  top0 = HEADER + (LINE if title else 0)
+  canvas = np.full((top0 + len(tiles) * (th + GAP), LABEL_WIDTH + len(tiles[0]) * (tw + GAP), 3), 255, np.uint8)
+  for r, row in enumerate(tiles):
+    for c, tile in enumerate(row):
+      top, left = top0 + r * (th + GAP), LABEL_WIDTH + c * (tw + GAP)
+      canvas[top:top + th, left:left + tw] = np.repeat(np.repeat(vis.to_uint8(tile), scale, 0), scale, 1)
+  image = Image.fromarray(canvas)
+  draw, font = ImageDraw.Draw(image), ImageFont.load_default()
+  if title:
+    draw.text((4, 2), title, fill=(0, 0, 0), font=font)
+  for c, text in enumerate(column_titles):
+    draw.text((LABEL_WIDTH + c * (tw + GAP) + 2, top0 - HEADER + 4), text, fill=(0, 0, 0), font=font)
+  for r, text in enumerate(row_titles):
+    draw.text((4, top0 + r * (th + GAP) + th // 2 - 6), text, fill=(0, 0, 0), font=font)
+  return np.asarray(image)
+
+
+def side_by_side(truth: list, renderings: dict, truth_depths: list, blocks_per_row: int = BLOCKS_PER_ROW) -> tuple:
+  """(tiles, column titles, row titles): per view a colour row and a depth row, ground truth then each method.
+
+  truth: images [h, w, 3] per view; renderings: {method: per-view renderings}; truth_depths: [h, w] per view
+  (0 where nothing is hit). Each view's depths share the ground truth's colour range. Views are laid out in
+  blocks of columns, blocks_per_row to a row.
+  """
+  blocks = []
+  for v, image in enumerate(truth):
+    depth_range = vis.depth_range(truth_depths[v])
+    colour = [image] + [np.asarray(r[v]['rgb']) for r in renderings.values()]
+    depth = [vis.colorize_depth(truth_depths[v], depth_range)] + [
+        vis.colorize_depth(r[v]['distance_mean'], depth_range) for r in renderings.values()]
+    blocks.append([colour, depth])
+  blank = [[np.ones_like(tile) for tile in row] for row in blocks[0]]
+  blocks += [blank] * (-len(blocks) % blocks_per_row)
+  tiles = [sum((blocks[b + k][r] for k in range(blocks_per_row)), [])
+           for b in range(0, len(blocks), blocks_per_row) for r in range(2)]
+  columns = (['ground truth'] + list(renderings)) * blocks_per_row
+  return tiles, columns, ['colour', 'depth'] * (len(blocks) // blocks_per_row)
+
+
+def write_picture(truth, records: dict, renderings: dict, n_input_views: int, path: str) -> np.ndarray:
+  """Writes the side-by-side picture of the shown views to path; returns it.
+
+  truth: (images, depths) of the shown test views; records: {method: metrics record}; renderings: {method:
+  renderings of the shown views}.
+  """
+  tiles, columns, rows = side_by_side(truth[0], renderings, truth[1])
+  scores = ', '.join(f'{name} {record["means"]["psnr"]:.2f} dB' for name, record in records.items())
+  evaluated = len(records['FreeNeRF']['per_image'])
+  picture = grid(tiles, columns, rows, f'{n_input_views} training views; test PSNR over {evaluated} views: {scores}')
+  vis.save_png(picture / 255., path)
+  return picture
+
+
+def write_orbit_video(method_cfgs: dict, path: str) -> bool:
+  """Writes both methods' orbit renders side by side (colour row, depth row) as an mp4; False without ffmpeg."""
+  if not render_lib.can_write_video():
+    return False
+  folders = {name: render_lib.output_dir(cfg.checkpoint_dir, checkpoints.latest_step(cfg.checkpoint_dir))
+             for name, cfg in method_cfgs.items()}
+  num_frames = next(iter(method_cfgs.values())).render_path_frames
+
+  def frame(f):
+    tiles = [[np.asarray(Image.open(os.path.join(d, f'{kind}_{f:03d}.png'))) / 255. for d in folders.values()]
+             for kind in ('color', 'depth')]
+    picture = grid(tiles, list(folders), ['colour', 'depth'])
+    return picture[:picture.shape[0] // 2 * 2, :picture.shape[1] // 2 * 2]  # Even sizes for h264.
+  render_lib.write_video(np.stack([frame(f) for f in range(num_frames)]), path)
+  return True
+
+
+def finish(bindings=()) -> dict:
+  """Evaluates and renders both trained runs, writes the picture and the orbit video; {method: test PSNR}."""
+  method_cfgs, records, renderings = {}, {}, {}
+  for name in METHODS:
+    method_cfgs[name] = config = method_config(name, bindings)
+    records[name] = evaluate_and_render(config)
+    test_set = datasets.load_dataset('test', config)
+    positions = [p for p in SHOWN_VIEWS if p < len(test_set.ids)]
+    renderings[name] = render_views(config, test_set, positions)
+  out_dir = output_dir(method_cfgs)
+  truth = [test_set.images[p] for p in positions], [test_set.depths[p] for p in positions]
+  write_picture(truth, records, renderings, config.n_input_views, os.path.join(out_dir, PICTURE))
+  if not write_orbit_video(method_cfgs, os.path.join(out_dir, ORBIT_VIDEO)):
+    print(render_lib.VIDEO_HINT)
+  return {name: record['means']['psnr'] for name, record in records.items()}
