@@ -19,7 +19,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 CONFIG_FILES = sorted((ROOT / 'configs').rglob('*.gin'))
 LR_BLOCK = {'lr_init': 0.002, 'lr_final': 0.00002, 'lr_delay_steps': 512, 'lr_delay_mult': 0.01,
             'grad_max_norm': 0.1, 'grad_max_val': 0.1}
-# PROTOCOL §4/§6: (max_steps, freq_reg_end) per setting, written out here independently of the config files.
+# The released configs' (max_steps, freq_reg_end) per setting, written out here independently of the config files.
 STEPS = {('dtu', 3): (43945, 39550), ('dtu', 6): (87891, 61524), ('dtu', 9): (131836, 65918),
          ('llff', 3): (69768, 62791), ('llff', 6): (139535, 97675), ('llff', 9): (209303, 104651)}
 

@@ -1,4 +1,4 @@
-"""Tests of internal/freq_mask.py against PROTOCOL §2.3 worked examples and a literal reference."""
+"""Tests of internal/freq_mask.py against worked examples of the released mask and a literal reference."""
 
 import jax
 import jax.numpy as jnp
@@ -20,7 +20,7 @@ def _expected(length, ones, frac_idx=(), frac=0.):
 
 
 def _reference_released(length, step, end):
-  """PROTOCOL §2.3 rule read literally (float64 numpy, slice assignment)."""
+  """The released get_freq_reg_mask rule read literally (float64 numpy, slice assignment)."""
   if step >= end:
     return np.ones(length)
   mask = np.zeros(length)
