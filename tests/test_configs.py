@@ -13,7 +13,6 @@ from internal import models
 from internal import run_dir
 from internal import train_step
 import train
-from test_checkpoints import JAX_CACHE  # pylint: disable=unused-import  (persistent compilation cache)
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 CONFIG_FILES = sorted((ROOT / 'configs').rglob('*.gin'))

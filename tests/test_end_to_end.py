@@ -22,7 +22,7 @@ from internal import metrics
 from internal import train_step
 from internal import vis
 import render as render_lib
-from test_checkpoints import ROOT, scene_dir, tiny_config  # pylint: disable=unused-import  (fixture)
+from test_checkpoints import ROOT, tiny_config
 from tools import tables
 import train
 
