@@ -75,7 +75,6 @@ def test_released_gin_files_parse_unchanged(name):
       (0.1, True) if name.startswith('regnerf') else (0., False))
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize('name', RELEASED)
 def test_released_gin_files_train_two_steps_on_the_shared_scenes(tmp_path, name):
   config = configs.load_config([_released(name)], _run_bindings(name, tmp_path / 'run'))
