@@ -49,7 +49,7 @@ def dtu_like_rays(num_rays: int, seed: int = 0) -> rays_lib.Rays:
   return rays_lib.map_rays(lambda x: jnp.asarray(x, jnp.float32), rays)
 
 
-# [rows, C] @ [C, C] matmuls of the MLP's width: a cache-sized one (this machine's best, PERF.md) and
+# [rows, C] @ [C, C] matmuls of the MLP's width: a cache-sized one (the fastest shape on a 2-core CPU) and
 # one as tall as a batch-256 level; the peak is the faster of the two.
 MATMUL_SHAPES = ((4096, 256, 256), (32768, 256, 256))
 

@@ -119,6 +119,10 @@ class Config:
   compute_lpips: bool = True
 
 
+# `include 'configs/common/...'` in the repository's configs resolves from any working directory.
+gin.add_config_file_search_path(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
 def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> None:
   """Parses .gin files and bindings; unknown bindings raise, naming the binding."""
   for path in gin_configs:

@@ -1,4 +1,4 @@
-"""FreeNeRF's frequency-regularization masks over the encoding features (PROTOCOL §2.3)."""
+"""FreeNeRF's frequency-regularization masks over the encoding features (paper Sec. 3.2; docs/numerics.md)."""
 
 import numpy as np
 import jax.numpy as jnp

@@ -1,4 +1,4 @@
-"""Image metrics as FreeNeRF's eval reports them (PROTOCOL §5); predictions are used unclipped.
+"""Image metrics as the released FreeNeRF eval.py reports them; predictions are used unclipped.
 
 Keys produced by `image_metrics`: FULL_METRICS always, MASKED_METRICS when a DTU mask is given. LPIPS entries
 (and the avg_error built from them) are None when no LPIPS function is available: missing, never 0.

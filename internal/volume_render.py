@@ -37,7 +37,11 @@ def weighted_percentiles(weights, t_vals, percentiles):
 
 
 def volumetric_rendering(rgb, density, t_vals, directions, white_background, compute_extras=False):
-  """Renders rgb [B,S,3], density [B,S] over t_vals [B,S+1] -> dict (see INTERFACES.md)."""
+  """Renders rgb [B,S,3], density [B,S] over t_vals [B,S+1] -> dict of [B,...] arrays.
+
+  Keys: rgb, acc, weights, distance_mean, distance_median; with compute_extras also distance_percentiles and
+  distance_std.
+  """
   weights = compute_weights(density, t_vals, directions)
   acc = jnp.sum(weights, axis=-1)
   comp_rgb = jnp.sum(weights[..., None] * rgb, axis=-2)

@@ -6,7 +6,6 @@ import re
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 
@@ -15,6 +14,7 @@ import jax
 import numpy as np
 import pytest
 
+from conftest import JAX_CACHE
 from internal import checkpoints
 from internal import configs
 from internal import datasets
@@ -24,9 +24,6 @@ import train
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DEMO = str(ROOT / 'configs' / 'demo.gin')
-JAX_CACHE = os.path.join(tempfile.gettempdir(), 'freenerf_test_jax_cache')
-jax.config.update('jax_compilation_cache_dir', JAX_CACHE)
-jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.)
 # A tiny model on a 32 x 40 generated scene: enough to check the machinery quickly on a CPU.
 TINY = ['MLP.net_depth = 2', 'MLP.net_width = 32', 'MLP.net_width_viewdirs = 16', 'MipNerfModel.num_samples = 16',
         'Config.generated_size = (32, 40)', 'Config.batch_size = 128', 'Config.print_every = 5',
@@ -38,12 +35,6 @@ def tiny_config(scene_dir, run_dir, *bindings):
   gin.clear_config()
   return configs.load_config([DEMO], TINY + [f"Config.data_dir = '{scene_dir}'",
                                              f"Config.checkpoint_dir = '{run_dir}'"] + list(bindings))
-
-
-@pytest.fixture(scope='session')
-def scene_dir(tmp_path_factory):
-  """Folder of the generated scene (written on first load and shared by every test of the session)."""
-  return tmp_path_factory.getbasetemp() / 'generated_scene'
 
 
 def _leaves(state):

@@ -13,7 +13,7 @@ from conftest import random_rays
 import eval as eval_lib
 from internal import checkpoints
 from internal import train_step
-from test_checkpoints import scene_dir, tiny_config  # pylint: disable=unused-import  (fixture)
+from test_checkpoints import tiny_config
 import train
 
 BINDINGS = ('Config.max_steps = 8', 'Config.checkpoint_every = 2', 'Config.compute_lpips = False',

@@ -5,47 +5,10 @@ import os
 
 import numpy as np
 import pytest
-from PIL import Image
 
+from conftest import H, N_LLFF, W
 from internal.configs import Config
 from internal.datasets import DatasetError, image_io, load_dataset
-
-N_LLFF, H, W = 10, 6, 8
-
-
-def save_png(path, array):
-  os.makedirs(os.path.dirname(path), exist_ok=True)
-  Image.fromarray(array).save(path)
-
-
-def noise(seed, shape):
-  return np.random.default_rng(seed).integers(0, 256, shape, dtype=np.uint8)
-
-
-@pytest.fixture
-def llff_root(tmp_path):
-  """<tmp>/scenes/toy: poses_bounds.npy (10 cameras along x, looking down -z) and images_8/ of 6x8 PNGs."""
-  scene = tmp_path / 'scenes' / 'toy'
-  rows = []
-  for i in range(N_LLFF):
-    pose = np.array([[0., 1., 0., .1 * i], [-1., 0., 0., 0.], [0., 0., 1., 0.]])   # [down, right, back] axes.
-    rows.append(np.concatenate([np.concatenate([pose, [[H * 8.], [W * 8.], [50.]]], 1).ravel(), [2., 20.]]))
-    save_png(str(scene / 'images_8' / f'img{i:02d}.png'), noise(i, (H, W, 3)))
-  np.save(scene / 'poses_bounds.npy', np.array(rows))
-  return tmp_path / 'scenes'
-
-
-@pytest.fixture
-def blender_root(tmp_path):
-  """<tmp>/scenes/toy: 3 train frames and 16 test frames (test[::8] = r_0, r_8) of 8x8 RGBA PNGs."""
-  scene = tmp_path / 'scenes' / 'toy'
-  for split, n in (('train', 3), ('test', 16)):
-    frames = [{'file_path': f'./{split}/r_{i}', 'transform_matrix': np.eye(4).tolist()} for i in range(n)]
-    (scene / split).mkdir(parents=True)
-    (scene / f'transforms_{split}.json').write_text(json.dumps({'camera_angle_x': .7, 'frames': frames}))
-    for i in range(n):
-      save_png(str(scene / split / f'r_{i}.png'), noise(i, (8, 8, 4)))
-  return tmp_path / 'scenes'
 
 
 def llff(root, **kw):

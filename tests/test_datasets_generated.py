@@ -3,7 +3,6 @@
 import filecmp
 import json
 import os
-import time
 
 import numpy as np
 import pytest
@@ -144,10 +143,7 @@ def test_write_scene_is_deterministic_and_seeded(tmp_path):
   assert 'scene.json' in mismatch and 'images/image000.png' in mismatch
 
 
-def test_write_scene_any_size_and_fast(tmp_path):
-  start = time.process_time()
-  synthetic.write_scene(str(tmp_path / 'obj'), 'object')
-  assert time.process_time() - start < 2.
+def test_write_scene_any_size(tmp_path):
   synthetic.write_scene(str(tmp_path / 'big'), 'object', height=30, width=50)
   data = load_dataset('test', gen_config(tmp_path / 'big', 'object', generated_size=(30, 50), n_input_views=2))
   assert data.images.shape == (8, 30, 50, 3)

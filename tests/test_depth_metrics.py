@@ -1,15 +1,13 @@
 """Depth metrics: hand-computed errors, the generated scene's depths in ray units, NDC back to world depth."""
 
 import json
-import os
 
 import numpy as np
 import pytest
 
 from internal import datasets
 from internal import depth_metrics
-from internal.datasets import synthetic
-from test_checkpoints import scene_dir, tiny_config  # pylint: disable=unused-import  (fixture)
+from test_checkpoints import tiny_config
 
 
 def test_depth_errors_by_hand():

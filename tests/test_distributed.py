@@ -18,8 +18,8 @@ from tensorboardX.proto import event_pb2
 from internal import checkpoints
 from internal import datasets
 from internal import distributed
-from test_checkpoints import (  # pylint: disable=unused-import  (scene_dir: fixture)
-    DEMO, JAX_CACHE, ROOT, TINY, _leaves, scene_dir, tiny_config)
+from conftest import JAX_CACHE
+from test_checkpoints import DEMO, ROOT, TINY, _leaves, tiny_config
 import train
 
 STEPS = 8

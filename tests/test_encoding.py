@@ -1,4 +1,4 @@
-"""Tests of internal/encoding.py: lengths, the PROTOCOL §2.3 index map, IPE expectations, stability."""
+"""Tests of internal/encoding.py: lengths, the released index map, IPE expectations, stability."""
 
 import jax
 import jax.numpy as jnp
@@ -21,7 +21,7 @@ def test_lengths():
 
 
 def _table(num_degrees):
-  """PROTOCOL §2.3 index table written out: index -> (kind, degree, coord)."""
+  """The released feature order written out (identity, all sin, then all cos): index -> (kind, degree, coord)."""
   table = {c: (0, -1, c) for c in range(3)}
   cos_start = 3 + 3 * num_degrees  # 51 for 16 degrees, 15 for 4 degrees
   for k in range(num_degrees):

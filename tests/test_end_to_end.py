@@ -22,7 +22,7 @@ from internal import metrics
 from internal import train_step
 from internal import vis
 import render as render_lib
-from test_checkpoints import ROOT, scene_dir, tiny_config  # pylint: disable=unused-import  (fixture)
+from test_checkpoints import ROOT, tiny_config
 from tools import tables
 import train
 
@@ -55,7 +55,6 @@ def trained(tmp_path_factory, scene_dir):  # pylint: disable=redefined-outer-nam
   return run, scene_dir
 
 
-@pytest.mark.slow
 def test_training_beats_the_untrained_model_and_eval_writes_everything(trained):
   run, _ = trained
   config = _config(*trained)
@@ -76,7 +75,6 @@ def test_training_beats_the_untrained_model_and_eval_writes_everything(trained):
   assert os.listdir(run / 'tensorboard') and (run / 'config.gin').is_file()
 
 
-@pytest.mark.slow
 def test_eval_never_replaces_a_finished_evaluation(trained):
   config = _config(*trained)
   if eval_lib.existing_record(config) is None:
@@ -85,7 +83,6 @@ def test_eval_never_replaces_a_finished_evaluation(trained):
     eval_lib.evaluate(config)
 
 
-@pytest.mark.slow
 def test_eval_subset_at_lower_resolution_is_marked_incomplete(trained):
   config = _config(*trained, 'Config.eval_test_ids = [1, 3]', 'Config.eval_factor = 2',
                    'Config.compute_lpips = False', 'Config.overwrite = True')
@@ -99,7 +96,6 @@ def test_eval_subset_at_lower_resolution_is_marked_incomplete(trained):
     eval_lib.select_positions(dataclasses.replace(config, eval_test_ids=[99]), 8)
 
 
-@pytest.mark.slow
 def test_render_writes_the_frames_and_refuses_to_replace_them(trained):
   config = _config(*trained)
   out_dir = render_lib.render(config)

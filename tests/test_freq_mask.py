@@ -1,4 +1,4 @@
-"""Tests of internal/freq_mask.py against PROTOCOL §2.3 worked examples and a literal reference."""
+"""Tests of internal/freq_mask.py against worked examples of the released mask and a literal reference."""
 
 import jax
 import jax.numpy as jnp
@@ -20,7 +20,7 @@ def _expected(length, ones, frac_idx=(), frac=0.):
 
 
 def _reference_released(length, step, end):
-  """PROTOCOL §2.3 rule read literally (float64 numpy, slice assignment)."""
+  """The released get_freq_reg_mask rule read literally (float64 numpy, slice assignment)."""
   if step >= end:
     return np.ones(length)
   mask = np.zeros(length)
@@ -151,9 +151,21 @@ def test_encoding_masks_dispatch():
     freq_mask.encoding_masks(5, **{**kw, 'layout': 'interleaved'})
 
 
+def _reference_paper(num_degrees, step, end):
+  """Paper layout read literally (float64 numpy): identity is group 0, sin and cos of degree k group k + 1."""
+  if step >= end:
+    return np.ones(3 + 6 * num_degrees)
+  bands = np.repeat(np.arange(1, num_degrees + 1), 3)
+  group = np.concatenate([np.zeros(3), bands, bands])
+  ptr = (num_degrees + 1) * step / end
+  n = int(ptr)
+  mask = np.where(group <= n, 1., np.where(group == n + 1, ptr - n, 0.))
+  return np.clip(mask, 1e-8, 1 - 1e-8)
+
+
 @pytest.mark.parametrize('name,fn,reference', [
     ('released', lambda s: freq_mask.released_mask(99, s, END), lambda s: _reference_released(99, s, END)),
-    ('paper', lambda s: freq_mask.paper_mask(4, s, END), lambda s: freq_mask.paper_mask(4, int(s), END)),
+    ('paper', lambda s: freq_mask.paper_mask(4, s, END), lambda s: _reference_paper(4, s, END)),
     ('encoding_masks', lambda s: freq_mask.encoding_masks(
         s, freq_reg=True, freq_reg_end=END, layout='released', max_vis_freq_ratio=0.)[1],
      lambda s: _reference_released(27, s, END)),

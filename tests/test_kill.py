@@ -12,8 +12,8 @@ import numpy as np
 from internal import checkpoints
 from internal import datasets
 from internal import train_step
-from test_checkpoints import (  # pylint: disable=unused-import  (scene_dir: fixture)
-    DEMO, JAX_CACHE, ROOT, TINY, _leaves, _read_stderr, scene_dir, tiny_config)
+from conftest import JAX_CACHE
+from test_checkpoints import DEMO, ROOT, TINY, _leaves, _read_stderr, tiny_config
 import train
 
 STEPS, KILLS = 40, 10

@@ -14,7 +14,7 @@ from internal import lpips
 
 
 def _parity_pair():
-  """The formula-defined 64x96 pair of ECOSYSTEM.md (x = column, y = row)."""
+  """A formula-defined 64x96 pair (x = column, y = row) scored by the official PyTorch LPIPS."""
   y, x = np.mgrid[0:64, 0:96]
   a = np.stack([(x + 2 * y) / 221, (x % 17) / 16, ((3 * x + 5 * y) % 29) / 28], -1)
   b = np.stack([1 - a[..., 0], ((x + 3 * y) % 19) / 18, ((7 * x + 2 * y) % 31) / 30], -1)

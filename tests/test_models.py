@@ -72,13 +72,25 @@ def test_no_mask_multiplication_in_graph_when_regularization_off():
   assert count(*masks) - count(None, None) == 4
 
 
-def test_mask_zero_hides_encoding():
-  # A mask that keeps only the identity makes the output independent of the high-frequency features.
+def _shifted(encode, start):
+  """encode with every feature from index start on shifted by 5."""
+  return lambda *args, **kwargs: encode(*args, **kwargs).at[..., start:].add(5.)
+
+
+def test_mask_zero_hides_encoding(monkeypatch):
+  # A mask that keeps only the identity: changing the masked sin/cos features leaves every output unchanged.
   model, variables = _tiny()
   rays = random_rays(0, 4)
   masks = (freq_mask.fixed_ratio_mask(99, 3 / 99), freq_mask.fixed_ratio_mask(27, 3 / 27))
-  out = model.apply(variables, None, rays, *masks)[0][-1]['rgb']
-  assert np.all(np.isfinite(np.asarray(out)))
+  render = lambda: [np.asarray(level['rgb']) for level in model.apply(variables, None, rays, *masks)[0]]
+  before = render()
+  ipe, pe = encoding.integrated_pos_enc, encoding.pos_enc
+  monkeypatch.setattr(encoding, 'integrated_pos_enc', _shifted(ipe, 3))
+  monkeypatch.setattr(encoding, 'pos_enc', _shifted(pe, 3))
+  for level, expected in zip(render(), before):
+    np.testing.assert_array_equal(level, expected)
+  monkeypatch.setattr(encoding, 'integrated_pos_enc', _shifted(ipe, 0))  # The visible identity does matter.
+  assert not np.allclose(render()[-1], before[-1])
 
 
 def test_normals_only_when_asked_and_unit_length():

@@ -11,7 +11,7 @@ from internal import configs
 from internal import datasets
 from internal import schedule
 from internal import train_step
-from test_checkpoints import DEMO, TINY, scene_dir, tiny_config  # pylint: disable=unused-import  (fixture)
+from test_checkpoints import DEMO, TINY, tiny_config
 import train
 
 

@@ -18,7 +18,8 @@ import sys
 import pytest
 
 from conftest import SHARED_DATA
-from test_checkpoints import JAX_CACHE, ROOT
+from conftest import JAX_CACHE
+from test_checkpoints import ROOT
 
 README = ROOT / 'README.md'
 BLOCKS = re.findall(r'^```bash\n(.*?)^```', README.read_text(), re.S | re.M)

@@ -11,7 +11,7 @@ import pytest
 from internal import atomic
 from internal import checkpoints
 from internal import run_dir as run_dir_lib
-from test_checkpoints import scene_dir, tiny_config  # pylint: disable=unused-import  (fixture)
+from test_checkpoints import tiny_config
 import train
 
 

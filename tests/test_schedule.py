@@ -1,4 +1,4 @@
-"""Learning-rate and padding schedules against the fixture values of PROTOCOL §4 and §9."""
+"""Learning-rate and padding schedules against values of the released schedule computed by hand."""
 
 import numpy as np
 import pytest

@@ -9,12 +9,10 @@ import subprocess
 import sys
 
 import gin
-import numpy as np
 from PIL import Image
 import pytest
 
 from internal import configs
-from test_checkpoints import JAX_CACHE  # pylint: disable=unused-import  (sets the JAX compilation cache)
 from tools import study as study_lib
 from tools import study_plots
 from tools import study_spec

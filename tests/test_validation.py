@@ -7,11 +7,11 @@ import gin
 import numpy as np
 import pytest
 
+from conftest import noise, save_png
 from internal import configs
 from internal.datasets import DatasetError, dtu, load_dataset
 from test_datasets_dtu_layouts import config as dtu_config, synthetic_projections, write_idr
-from test_datasets_errors import (blender, blender_root, llff, llff_root,  # pylint: disable=unused-import
-                                  noise, save_png)
+from test_datasets_errors import blender, llff
 
 
 def _load(*bindings):
