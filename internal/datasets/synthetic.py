@@ -17,7 +17,7 @@ import numpy as np
 
 from internal.datasets import base, cameras, image_io, raygen
 
-SCENE_VERSION = 2  # 2: coarser textures, which a small model learns in a CPU-sized demo.
+SCENE_VERSION = 3  # 3: two-tone solids and large ground checkers, which a small model fits in a CPU demo.
 RIGS = ('object', 'forward')
 N_TRAIN_OBJECT, N_TEST_OBJECT, N_FORWARD = 24, 8, 20
 FOV_X = {'object': .85, 'forward': 1.}
@@ -38,15 +38,15 @@ def colours(rng: np.random.Generator, n: int) -> list:
 
 
 def sphere(centre, radius: float, rng: np.random.Generator) -> dict:
-  """A striped sphere (kind 'object')."""
+  """A sphere in two colours, alternating by quadrant of longitude and hemisphere (kind 'object')."""
   return {'shape': 'sphere', 'kind': 'object', 'centre': list(map(float, centre)), 'radius': float(radius),
-          'colours': colours(rng, 2), 'freq': int(rng.integers(2, 4))}
+          'colours': colours(rng, 2), 'freq': 1}
 
 
 def box(centre, half, up, angle: float, rng: np.random.Generator) -> dict:
-  """A checkered box rotated by angle about the up axis (kind 'object')."""
+  """A box rotated by angle about the up axis, its faces checkered in cells of 0.5 (kind 'object')."""
   return {'shape': 'box', 'kind': 'object', 'centre': list(map(float, centre)), 'half': list(map(float, half)),
-          'rotation': rotation(up, angle).tolist(), 'colours': colours(rng, 2), 'cell': float(rng.uniform(.2, .3))}
+          'rotation': rotation(up, angle).tolist(), 'colours': colours(rng, 2), 'cell': .5}
 
 
 def plane(kind: str, normal, offset: float, axes, radius, cell: float, rng: np.random.Generator) -> dict:
@@ -66,7 +66,7 @@ def object_solids(rng: np.random.Generator) -> list:
   r_big, r_small = rng.uniform(.35, .5), rng.uniform(.2, .3)
   half = rng.uniform(.15, .28, 3)
   third = 2. * np.pi / 3.
-  return [plane('ground', (0, 0, 1), 0., ((1, 0, 0), (0, 1, 0)), 1.5, .5, rng),
+  return [plane('ground', (0, 0, 1), 0., ((1, 0, 0), (0, 1, 0)), 1.5, .75, rng),
           sphere(ring_point(angle, .65, r_big), r_big, rng),
           box(ring_point(angle + third, .7, half[2]), half, (0., 0., 1.), rng.uniform(0., np.pi), rng),
           sphere(ring_point(angle + 2. * third, .7, r_small), r_small, rng)]
