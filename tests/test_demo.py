@@ -12,16 +12,15 @@ import pytest
 import eval as eval_lib
 from internal import configs
 from internal import demo
-from test_checkpoints import TINY, scene_dir  # pylint: disable=unused-import  (fixture)
+from test_checkpoints import TINY
 import train
 
 REGULARIZERS = {'freq_reg', 'freq_reg_end', 'occ_reg_loss_mult'}
-# The pipeline check: the demo's model, samples and schedule (LR endpoints, warm-up, no clipping) on every training
-# view without regularizers, at a reduced size: 32 x 40 pixels, 300 steps of 256 rays. It measured 18.45 dB test
-# PSNR; the bound leaves 1.5 dB for run-to-run noise. (The target for a convincing demo is 25 dB: not reached yet.)
-PIPELINE = ['Config.n_input_views = 0', 'Config.generated_size = (32, 40)', 'Config.max_steps = 300',
-            'Config.batch_size = 256', 'Config.compute_lpips = False', 'Config.render_chunk_size = 1280']
-PIPELINE_MIN_PSNR = 17.
+# The pipeline check: the demo's model, samples, batching, schedule and step count on every training view without
+# regularizers (mip-NeRF). At the demo's 64 x 80 pixels it measured 25.56 dB test PSNR over the 8 test views; the
+# test reduces only the evaluation (no LPIPS).
+PIPELINE = ['Config.n_input_views = 0', 'Config.compute_lpips = False']
+PIPELINE_MIN_PSNR = 25.
 
 
 def test_the_two_demo_configs_differ_only_in_name_run_and_regularizers():
@@ -29,7 +28,7 @@ def test_the_two_demo_configs_differ_only_in_name_run_and_regularizers():
   free, mip = dataclasses.asdict(cfgs['FreeNeRF']), dataclasses.asdict(cfgs['mip-NeRF'])
   assert {k for k in free if free[k] != mip[k]} == {'expname', 'checkpoint_dir'} | REGULARIZERS
   assert (mip['freq_reg'], mip['freq_reg_end'], mip['occ_reg_loss_mult']) == (False, 0, 0.)
-  assert free['freq_reg'] and free['freq_reg_end'] == int(.9 * free['max_steps']) and free['occ_reg_loss_mult'] > 0
+  assert free['freq_reg'] and free['freq_reg_end'] == free['max_steps'] // 2 and free['occ_reg_loss_mult'] > 0
   assert os.path.dirname(free['checkpoint_dir']) == os.path.dirname(mip['checkpoint_dir']) == 'out/demo'
 
 
@@ -70,8 +69,7 @@ def test_side_by_side_rows_columns_and_shared_depth_range():
   np.testing.assert_allclose(tiles[1][0][0, 0], demo.vis.colorize_depth(depths[0])[0, 0])
 
 
-@pytest.mark.slow
-def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch, scene_dir):  # pylint: disable=W0621
+def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch, scene_dir):
   monkeypatch.chdir(tmp_path)
   bindings = TINY + [f"Config.data_dir = '{scene_dir}'", 'Config.max_steps = 4', 'Config.freq_reg_end = 3',
                      'Config.render_path_frames = 2', 'Config.compute_lpips = False', 'Config.eval_test_ids = [0, 1]']
@@ -93,11 +91,10 @@ def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch,
   assert train.main(['--gin_bindings', *bindings]) == 0   # Again: everything is done, nothing is refused.
 
 
-@pytest.mark.slow
-def test_demo_settings_reconstruct_the_scene_from_all_views(tmp_path, scene_dir):  # pylint: disable=W0621
+def test_demo_settings_reconstruct_the_scene_from_all_views(tmp_path):
   gin.clear_config()
   config = configs.load_config(demo.METHODS['mip-NeRF'], PIPELINE + [
-      f"Config.data_dir = '{scene_dir}'", f"Config.checkpoint_dir = '{tmp_path / 'run'}'"])
+      f"Config.data_dir = '{tmp_path / 'scene'}'", f"Config.checkpoint_dir = '{tmp_path / 'run'}'"])
   assert config.n_input_views == 0 and not config.freq_reg and config.lr_final == demo.method_configs()[
       'FreeNeRF'].lr_final
   train.train(config)
