@@ -8,10 +8,19 @@ from typing import Optional, Sequence
 
 import gin
 
+from internal import freq_mask
+from internal import gaussians
+from internal import lpips
 from internal import models
 from internal import precision
-
-DATASET_LOADERS = ('dtu', 'llff', 'blender', 'generated', 'packed')
+from internal import sampling
+from internal import train_step
+from internal.datasets import batching
+from internal.datasets import blender
+from internal.datasets import dtu
+from internal.datasets import image_io
+from internal.datasets import loader
+from internal.datasets import synthetic
 
 
 @gin.configurable()
@@ -32,7 +41,7 @@ class Config:
   render_chunk_size: int = 4096
 
   # Data.
-  dataset_loader: str = 'generated'     # One of DATASET_LOADERS.
+  dataset_loader: str = 'generated'     # One of datasets.loader.LOADERS.
   data_dir: str = 'out/generated_scene'  # 'packed': the .npz written by tools.pack_scene.
   dtu_scan: str = 'scan8'
   llff_scan: str = 'fern'
@@ -149,24 +158,29 @@ def _apply_warmup_end(config: Config) -> Config:
   return config
 
 
-def _choice(config: Config, name: str, options: Sequence[str]) -> None:
+def _choice(config, name: str, options: Sequence[str], prefix: str = 'Config') -> None:
+  """Raises a ValueError naming prefix.name unless the setting is one of options."""
   value = getattr(config, name)
   if value not in options:
-    raise ValueError(f'Config.{name} = {value!r}; expected one of {list(options)}')
+    raise ValueError(f'{prefix}.{name} = {value!r}; expected one of {list(options)}')
 
 
 def validate(config: Config) -> None:
   """Raises a ValueError naming the setting when a value is out of range."""
-  _choice(config, 'dataset_loader', DATASET_LOADERS)
-  _choice(config, 'dtu_layout', ('auto', 'regnerf', 'idr'))
-  _choice(config, 'blender_split', ('dietnerf', 'first_n'))
-  _choice(config, 'downsample_mode', ('released', 'area'))
-  _choice(config, 'batching', ('single_image', 'all_images'))
-  _choice(config, 'freq_mask_layout', ('released', 'paper'))
-  _choice(config, 'nonfinite_grad_policy', ('skip', 'raise'))
-  _choice(config, 'lpips_input_range', ('released', 'official'))
-  _choice(config, 'generated_rig', ('object', 'forward'))
+  # Each option list lives next to the code that implements it.
+  _choice(config, 'dataset_loader', loader.LOADERS)
+  _choice(config, 'dtu_layout', dtu.LAYOUTS)
+  _choice(config, 'blender_split', blender.SPLIT_MODES)
+  _choice(config, 'downsample_mode', image_io.DOWNSAMPLE_MODES)
+  _choice(config, 'batching', batching.BATCHING_MODES)
+  _choice(config, 'freq_mask_layout', freq_mask.LAYOUTS)
+  _choice(config, 'nonfinite_grad_policy', train_step.NONFINITE_POLICIES)
+  _choice(config, 'lpips_input_range', lpips.INPUT_RANGES)
+  _choice(config, 'generated_rig', synthetic.RIGS)
   _choice(config, 'precision', precision.PRECISIONS)
+  model = models.MipNerfModel()
+  _choice(model, 'ray_shape', gaussians.RAY_SHAPES, 'MipNerfModel')
+  _choice(model, 'pdf_padding', sampling.PDF_PADDINGS, 'MipNerfModel')
   _check_types(config)
   for name in ('max_steps', 'batch_size', 'render_chunk_size', 'checkpoint_every', 'checkpoint_keep',
                'print_every'):

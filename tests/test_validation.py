@@ -2,12 +2,21 @@
 
 import json
 import os
+import re
 
 import gin
 import numpy as np
 import pytest
 
 from internal import configs
+from internal import freq_mask
+from internal import gaussians
+from internal import lpips
+from internal import precision
+from internal import sampling
+from internal import train_step
+from internal.datasets import batching, image_io, loader, synthetic
+from internal.datasets import blender as blender_lib
 from internal.datasets import DatasetError, dtu, load_dataset
 from test_datasets_dtu_layouts import config as dtu_config, synthetic_projections, write_idr
 from test_datasets_errors import (blender, blender_root, llff, llff_root,  # pylint: disable=unused-import
@@ -36,6 +45,21 @@ def _load(*bindings):
 def test_bad_settings_raise_value_errors_naming_them(binding, message):
   with pytest.raises(ValueError, match=message):
     _load(binding)
+
+
+@pytest.mark.parametrize('name, options', [
+    ('Config.dataset_loader', loader.LOADERS), ('Config.dtu_layout', dtu.LAYOUTS),
+    ('Config.blender_split', blender_lib.SPLIT_MODES), ('Config.downsample_mode', image_io.DOWNSAMPLE_MODES),
+    ('Config.batching', batching.BATCHING_MODES), ('Config.freq_mask_layout', freq_mask.LAYOUTS),
+    ('Config.nonfinite_grad_policy', train_step.NONFINITE_POLICIES), ('Config.lpips_input_range', lpips.INPUT_RANGES),
+    ('Config.generated_rig', synthetic.RIGS), ('Config.precision', precision.PRECISIONS),
+    ('MipNerfModel.ray_shape', gaussians.RAY_SHAPES), ('MipNerfModel.pdf_padding', sampling.PDF_PADDINGS)])
+def test_option_settings_use_the_list_of_the_module_that_implements_them(name, options):
+  with pytest.raises(ValueError, match=re.escape(f"{name} = 'nope'; expected one of {list(options)}")):
+    _load(f"{name} = 'nope'")
+  for option in options[1:]:  # Every listed option passes validation (the first is the default).
+    if name != 'Config.dataset_loader':  # The loaders' own settings (near > 0 ...) are tested apart.
+      _load(f'{name} = {option!r}')
 
 
 def test_non_finite_near_is_refused():
