@@ -20,6 +20,7 @@ from internal.datasets import blender
 from internal.datasets import dtu
 from internal.datasets import image_io
 from internal.datasets import loader
+from internal.datasets import raygen
 from internal.datasets import synthetic
 
 
@@ -128,6 +129,10 @@ class Config:
   compute_lpips: bool = True
 
 
+# Model fields set from Config (gin refuses bindings of them), e.g. the background the data and renderer share.
+SET_FROM_CONFIG = ('white_background', 'precision')
+
+
 def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> None:
   """Parses .gin files and bindings; unknown bindings raise, naming the binding."""
   for path in gin_configs:
@@ -138,6 +143,12 @@ def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ())
   except SyntaxError as err:  # gin reports a malformed value as a SyntaxError; it is a bad setting.
     raise ValueError(f'cannot parse the gin configs {list(gin_configs)} / bindings {list(gin_bindings)}: '
                      f'{err}') from err
+  except ValueError as err:
+    for name in SET_FROM_CONFIG:
+      if f"denylisted kwarg '{name}'" in str(err):
+        raise ValueError(f'{str(err).splitlines()[-1].strip()}: the model\'s {name} is set from Config.{name}, '
+                         f'the one setting of it; bind Config.{name} instead') from err
+    raise
 
 
 def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> Config:
@@ -205,6 +216,11 @@ def validate(config: Config) -> None:
   if needs_positive_near(config) and config.near <= 0.:
     raise ValueError(f'Config.near = {config.near}; expected > 0 for {config.dataset_loader!r} scenes, whose rays '
                      'start in world space (only LLFF-style NDC rays start at 0)')
+  _check_ndc_near_far(config)
+  if config.max_vis_freq_ratio > 0 and not config.freq_reg:
+    raise ValueError(f'Config.max_vis_freq_ratio = {config.max_vis_freq_ratio} acts only under the frequency '
+                     'regularizer, as released; set Config.freq_reg = True (with Config.freq_reg_end = 0 for the '
+                     'fixed visible ratio alone) or leave the ratio at 0')
   _warn_on_unused_regularizer(config)
   _validate_regnerf(config)
 
@@ -213,6 +229,29 @@ def needs_positive_near(config: Config) -> bool:
   """True for world-space rays (DTU, Blender, the generated object rig); LLFF's NDC rays ignore Config.near."""
   return config.dataset_loader in ('dtu', 'blender') or (
       config.dataset_loader == 'generated' and config.generated_rig == 'object')
+
+
+def uses_ndc_rays(config: Config) -> bool:
+  """True for LLFF-style NDC rays (LLFF, the generated forward rig): their near and far are fixed at 0 and 1."""
+  return config.dataset_loader == 'llff' or (
+      config.dataset_loader == 'generated' and config.generated_rig == 'forward')
+
+
+def _check_ndc_near_far(config: Config) -> None:
+  """Refuses a Config.near/far that NDC rays would ignore: only (0, 1), or both left at their defaults.
+
+  RegNeRF's annealing (Config.anneal_nearfar) reads Config.near/far, so under it only (0, 1) is accepted.
+  """
+  if not uses_ndc_rays(config):
+    return
+  fields = {f.name: f.default for f in dataclasses.fields(Config)}
+  unset = (config.near, config.far) == (fields['near'], fields['far']) and not config.anneal_nearfar
+  if unset or (config.near, config.far) == raygen.NDC_NEAR_FAR:
+    return
+  name, value = ('near', config.near) if config.near != raygen.NDC_NEAR_FAR[0] else ('far', config.far)
+  why = ' (Config.anneal_nearfar reads them)' if config.anneal_nearfar else ''
+  raise ValueError(f'Config.{name} = {value}: {config.dataset_loader!r} scenes use NDC rays, which fix near = 0 '
+                   f'and far = 1{why}; set Config.near = 0 and Config.far = 1')
 
 
 def _check_types(config: Config) -> None:

@@ -159,7 +159,7 @@ class MLP(nn.Module):
     return -grad / norm
 
 
-@gin.configurable(denylist=['precision', 'mlp'])
+@gin.configurable(denylist=['precision', 'white_background', 'mlp'])
 class MipNerfModel(nn.Module):
   """Two-level mip-NeRF sharing one MLP: coarse stratified samples, then resampled fine ones."""
   num_samples: int = 128
@@ -167,7 +167,7 @@ class MipNerfModel(nn.Module):
   stop_level_grad: bool = True
   ray_shape: str = 'cone'
   disable_integration: bool = False
-  white_background: bool = True
+  white_background: bool = True  # Set from Config.white_background (not a gin binding), as the data's background.
   pdf_padding: str = 'released'  # 'released' | 'even': see docs/numerics.md.
   precision: str = 'float32'  # Set from Config.precision, passed on to the MLP.
   mlp: Optional[MLP] = None  # The shared MLP; None builds make_mlp() (gin-bound, at `precision`).
