@@ -211,12 +211,15 @@ DIFFERENCES = {
 
 
 def _effective(path) -> dict:
-  """Every value a .gin file leaves in effect: the Config fields and the MLP and MipNerfModel settings."""
+  """Every value a .gin file leaves in effect: the Config fields and the MLP and MipNerfModel settings.
+
+  The model's own MLP (MipNerfModel.mlp) is compared through the MLP.* settings.
+  """
   gin.clear_config()
   values = {f'Config.{k}': v for k, v in dataclasses.asdict(configs.load_config([str(path)])).items()}
   for module in (models.MLP(), models.MipNerfModel()):
     values.update({f'{type(module).__name__}.{f.name}': getattr(module, f.name)
-                   for f in dataclasses.fields(module) if f.name not in ('parent', 'name')})
+                   for f in dataclasses.fields(module) if f.name not in ('parent', 'name', 'mlp')})
   return values
 
 
