@@ -116,7 +116,7 @@ def write_csv(per_image: list, path: str) -> None:
 def evaluate(config) -> dict:
   """Renders and scores the test views of the run's newest checkpoint; returns the metrics.json record."""
   run_dir = run_dir_lib.check_run_dir(config)
-  test_set = datasets.load_dataset('test', config)
+  test_set = datasets.load_dataset('test', config, ground_truth=True)  # Exact depths for the depth metrics.
   positions = select_positions(config, len(test_set.ids))
   model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], test_set.rays))
   step = int(state.step)  # The newest intact checkpoint's.

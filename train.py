@@ -97,7 +97,11 @@ def stop_on_signals():
 
 
 class Progress:
-  """Per-step stats kept on device and fetched every Config.print_every steps: tqdm bar and tensorboard."""
+  """Per-step stats kept on device and fetched every Config.print_every steps: tqdm bar and tensorboard.
+
+  The bar counts steps whose stats were fetched (so finished), not steps dispatched: with asynchronous dispatch
+  the latter run ahead of the device, and the bar's rate and ETA would race and then stall at every fetch.
+  """
 
   def __init__(self, config, writer, first_step: int):
     self.config, self.writer = config, writer
@@ -112,13 +116,13 @@ class Progress:
     if self.config.nonfinite_grad_policy == 'raise':
       self.skips.record(jax.device_get(stats), step)
     self.window.append((step, stats))
-    self.bar.update(1)
 
   def flush(self, step: int) -> None:
     """Fetches the window's stats, counts skipped updates, logs window means and throughput, updates the bar."""
     if not self.window:
       return
     host = jax.device_get(self.window)
+    self.bar.update(len(host))  # These steps are done now.
     if self.config.nonfinite_grad_policy != 'raise':
       for s, stats in host:
         self.skips.record(stats, s)

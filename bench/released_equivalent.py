@@ -5,7 +5,10 @@ normals on every call, and tiles the frequency masks to [B, S, L]. This module r
 structure on our parameter tree so the two can be timed side by side.
 """
 
+import dataclasses
+
 import jax
+import flax.linen as nn
 import jax.numpy as jnp
 
 from internal import encoding
@@ -32,7 +35,7 @@ class ReleasedMLP(models.MLP):
       return self.density_activation(raw + self.density_bias), x
 
     (density, x), grad = jax.vmap(jax.value_and_grad(density_one, has_aux=True))(
-        means.reshape(-1, 3), covs.reshape(-1, 3), tile(mask_point, 99))
+        means.reshape(-1, 3), covs.reshape(-1, 3), tile(mask_point, encoding.width(self.encoding_degrees()[0])))
     self.sow('intermediates', 'normals', -grad / jnp.maximum(
         jnp.linalg.norm(grad, axis=-1, keepdims=True), 1e-7))
     view = encoding.pos_enc(viewdirs, 0, self.deg_view, append_identity=True)
@@ -45,8 +48,15 @@ class ReleasedMLP(models.MLP):
     return rgb.reshape(means.shape), density.reshape(means.shape[:-1])
 
 
-class ReleasedModel(models.MipNerfModel):
-  """MipNerfModel whose shared MLP is the released-equivalent one."""
+def released_mlp(mlp: models.MLP) -> ReleasedMLP:
+  """The released-equivalent graph with every setting of mlp (its gin bindings and precision)."""
+  return ReleasedMLP(**{f.name: getattr(mlp, f.name) for f in dataclasses.fields(mlp)
+                        if f.name not in ('parent', 'name')})
 
-  def setup(self):
-    self.mlp = ReleasedMLP()
+
+class ReleasedModel(models.MipNerfModel):
+  """MipNerfModel whose shared MLP is the released-equivalent one, with the gin-bound MLP settings."""
+
+  @nn.nowrap
+  def make_mlp(self) -> ReleasedMLP:
+    return released_mlp(super().make_mlp())

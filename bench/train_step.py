@@ -71,7 +71,7 @@ interleaved_medians = common.interleaved_medians
 
 def released_render_fn(model, params, config, step):
   """jit-compiled rays [N, ...] -> fine outputs plus the per-sample normals the released code keeps."""
-  mask_point, mask_view = ts.masks_at(config, jnp.asarray(step))
+  mask_point, mask_view = ts.masks_at(config, model.mlp.encoding_degrees(), jnp.asarray(step))
 
   @jax.jit
   def render(params, chunk_rays):

@@ -8,10 +8,20 @@ from typing import Optional, Sequence
 
 import gin
 
+from internal import freq_mask
+from internal import gaussians
+from internal import lpips
 from internal import models
 from internal import precision
-
-DATASET_LOADERS = ('dtu', 'llff', 'blender', 'generated', 'packed')
+from internal import sampling
+from internal import train_step
+from internal.datasets import batching
+from internal.datasets import blender
+from internal.datasets import dtu
+from internal.datasets import image_io
+from internal.datasets import loader
+from internal.datasets import raygen
+from internal.datasets import synthetic
 
 
 @gin.configurable()
@@ -32,7 +42,7 @@ class Config:
   render_chunk_size: int = 4096
 
   # Data.
-  dataset_loader: str = 'generated'     # One of DATASET_LOADERS.
+  dataset_loader: str = 'generated'     # One of datasets.loader.LOADERS.
   data_dir: str = 'out/generated_scene'  # 'packed': the .npz written by tools.pack_scene.
   dtu_scan: str = 'scan8'
   llff_scan: str = 'fern'
@@ -122,6 +132,9 @@ class Config:
 # `include 'configs/common/...'` in the repository's configs resolves from any working directory.
 gin.add_config_file_search_path(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
+# Model fields set from Config (gin refuses bindings of them), e.g. the background the data and renderer share.
+SET_FROM_CONFIG = ('white_background', 'precision')
+
 
 def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> None:
   """Parses .gin files and bindings; unknown bindings raise, naming the binding."""
@@ -133,6 +146,12 @@ def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ())
   except SyntaxError as err:  # gin reports a malformed value as a SyntaxError; it is a bad setting.
     raise ValueError(f'cannot parse the gin configs {list(gin_configs)} / bindings {list(gin_bindings)}: '
                      f'{err}') from err
+  except ValueError as err:
+    for name in SET_FROM_CONFIG:
+      if f"denylisted kwarg '{name}'" in str(err):
+        raise ValueError(f'{str(err).splitlines()[-1].strip()}: the model\'s {name} is set from Config.{name}, '
+                         f'the one setting of it; bind Config.{name} instead') from err
+    raise
 
 
 def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> Config:
@@ -153,24 +172,29 @@ def _apply_warmup_end(config: Config) -> Config:
   return config
 
 
-def _choice(config: Config, name: str, options: Sequence[str]) -> None:
+def _choice(config, name: str, options: Sequence[str], prefix: str = 'Config') -> None:
+  """Raises a ValueError naming prefix.name unless the setting is one of options."""
   value = getattr(config, name)
   if value not in options:
-    raise ValueError(f'Config.{name} = {value!r}; expected one of {list(options)}')
+    raise ValueError(f'{prefix}.{name} = {value!r}; expected one of {list(options)}')
 
 
 def validate(config: Config) -> None:
   """Raises a ValueError naming the setting when a value is out of range."""
-  _choice(config, 'dataset_loader', DATASET_LOADERS)
-  _choice(config, 'dtu_layout', ('auto', 'regnerf', 'idr'))
-  _choice(config, 'blender_split', ('dietnerf', 'first_n'))
-  _choice(config, 'downsample_mode', ('released', 'area'))
-  _choice(config, 'batching', ('single_image', 'all_images'))
-  _choice(config, 'freq_mask_layout', ('released', 'paper'))
-  _choice(config, 'nonfinite_grad_policy', ('skip', 'raise'))
-  _choice(config, 'lpips_input_range', ('released', 'official'))
-  _choice(config, 'generated_rig', ('object', 'forward'))
+  # Each option list lives next to the code that implements it.
+  _choice(config, 'dataset_loader', loader.LOADERS)
+  _choice(config, 'dtu_layout', dtu.LAYOUTS)
+  _choice(config, 'blender_split', blender.SPLIT_MODES)
+  _choice(config, 'downsample_mode', image_io.DOWNSAMPLE_MODES)
+  _choice(config, 'batching', batching.BATCHING_MODES)
+  _choice(config, 'freq_mask_layout', freq_mask.LAYOUTS)
+  _choice(config, 'nonfinite_grad_policy', train_step.NONFINITE_POLICIES)
+  _choice(config, 'lpips_input_range', lpips.INPUT_RANGES)
+  _choice(config, 'generated_rig', synthetic.RIGS)
   _choice(config, 'precision', precision.PRECISIONS)
+  model = models.MipNerfModel()
+  _choice(model, 'ray_shape', gaussians.RAY_SHAPES, 'MipNerfModel')
+  _choice(model, 'pdf_padding', sampling.PDF_PADDINGS, 'MipNerfModel')
   _check_types(config)
   for name in ('max_steps', 'batch_size', 'render_chunk_size', 'checkpoint_every', 'checkpoint_keep',
                'print_every'):
@@ -195,6 +219,11 @@ def validate(config: Config) -> None:
   if needs_positive_near(config) and config.near <= 0.:
     raise ValueError(f'Config.near = {config.near}; expected > 0 for {config.dataset_loader!r} scenes, whose rays '
                      'start in world space (only LLFF-style NDC rays start at 0)')
+  _check_ndc_near_far(config)
+  if config.max_vis_freq_ratio > 0 and not config.freq_reg:
+    raise ValueError(f'Config.max_vis_freq_ratio = {config.max_vis_freq_ratio} acts only under the frequency '
+                     'regularizer, as released; set Config.freq_reg = True (with Config.freq_reg_end = 0 for the '
+                     'fixed visible ratio alone) or leave the ratio at 0')
   _warn_on_unused_regularizer(config)
   _validate_regnerf(config)
 
@@ -203,6 +232,29 @@ def needs_positive_near(config: Config) -> bool:
   """True for world-space rays (DTU, Blender, the generated object rig); LLFF's NDC rays ignore Config.near."""
   return config.dataset_loader in ('dtu', 'blender') or (
       config.dataset_loader == 'generated' and config.generated_rig == 'object')
+
+
+def uses_ndc_rays(config: Config) -> bool:
+  """True for LLFF-style NDC rays (LLFF, the generated forward rig): their near and far are fixed at 0 and 1."""
+  return config.dataset_loader == 'llff' or (
+      config.dataset_loader == 'generated' and config.generated_rig == 'forward')
+
+
+def _check_ndc_near_far(config: Config) -> None:
+  """Refuses a Config.near/far that NDC rays would ignore: only (0, 1), or both left at their defaults.
+
+  RegNeRF's annealing (Config.anneal_nearfar) reads Config.near/far, so under it only (0, 1) is accepted.
+  """
+  if not uses_ndc_rays(config):
+    return
+  fields = {f.name: f.default for f in dataclasses.fields(Config)}
+  unset = (config.near, config.far) == (fields['near'], fields['far']) and not config.anneal_nearfar
+  if unset or (config.near, config.far) == raygen.NDC_NEAR_FAR:
+    return
+  name, value = ('near', config.near) if config.near != raygen.NDC_NEAR_FAR[0] else ('far', config.far)
+  why = ' (Config.anneal_nearfar reads them)' if config.anneal_nearfar else ''
+  raise ValueError(f'Config.{name} = {value}: {config.dataset_loader!r} scenes use NDC rays, which fix near = 0 '
+                   f'and far = 1{why}; set Config.near = 0 and Config.far = 1')
 
 
 def _check_types(config: Config) -> None:

@@ -33,6 +33,11 @@ def integrated_pos_enc(mean, cov_diag, min_deg, max_deg, append_identity=True):
   return jnp.concatenate([mean, enc], axis=-1) if append_identity else enc
 
 
+def width(num_degrees, num_coords=3, append_identity=True):
+  """Length of pos_enc / integrated_pos_enc over num_degrees degrees of num_coords coordinates."""
+  return num_coords * (int(append_identity) + 2 * num_degrees)
+
+
 def feature_layout(num_degrees, num_coords=3, append_identity=True):
   """Index map of an encoding: (kind [L], degree [L], coord [L]) int; kind 0 id (deg -1), 1 sin, 2 cos."""
   band_degree = np.repeat(np.arange(num_degrees), num_coords)

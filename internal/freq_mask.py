@@ -6,6 +6,7 @@ import jax.numpy as jnp
 from internal import encoding
 
 _LOW, _HIGH = 1e-8, 1. - 1e-8
+LAYOUTS = ('released', 'paper')  # Config.freq_mask_layout: released_mask or paper_mask.
 
 
 def _ramp_mask(group, num, den, step, end):
@@ -35,7 +36,7 @@ def released_mask(length, step, end):
 
 
 def paper_mask(num_degrees, step, end, num_coords=3):
-  """Paper-style mask: identity, then sin and cos of each degree together; f32 [C*(1+2*D)]."""
+  """Paper-style mask: identity, then sin and cos of each degree together; f32 [encoding.width(D, C)]."""
   _, degree, _ = encoding.feature_layout(num_degrees, num_coords, append_identity=True)
   return _ramp_mask(degree + 1, num_degrees + 1, 1, step, end)
 
@@ -45,14 +46,18 @@ def fixed_ratio_mask(length, ratio):
   return jnp.asarray(np.arange(length) < int(length * ratio), jnp.float32)
 
 
-def encoding_masks(step, *, freq_reg, freq_reg_end, layout, max_vis_freq_ratio,
-                   num_deg_point=16, num_deg_view=4):
-  """Masks for the point [3*(1+2*Dp)] and view [3*(1+2*Dv)] encodings, or (None, None)."""
-  len_point, len_view = 3 * (1 + 2 * num_deg_point), 3 * (1 + 2 * num_deg_view)
+def encoding_masks(step, *, freq_reg, freq_reg_end, layout, max_vis_freq_ratio, num_deg_point, num_deg_view):
+  """Masks for the point [width(Dp)] and view [width(Dv)] encodings, or (None, None) without freq_reg.
+
+  As in the released code, the fixed visible-ratio ablation (max_vis_freq_ratio > 0) acts only under freq_reg.
+  """
+  if not freq_reg:
+    return None, None
+  len_point, len_view = encoding.width(num_deg_point), encoding.width(num_deg_view)
   if max_vis_freq_ratio > 0:
     return (fixed_ratio_mask(len_point, max_vis_freq_ratio),
             fixed_ratio_mask(len_view, max_vis_freq_ratio))
-  if not freq_reg or freq_reg_end == 0:
+  if freq_reg_end == 0:
     return None, None
   if layout == 'released':
     return (released_mask(len_point, step, freq_reg_end),
@@ -60,4 +65,4 @@ def encoding_masks(step, *, freq_reg, freq_reg_end, layout, max_vis_freq_ratio,
   if layout == 'paper':
     return (paper_mask(num_deg_point, step, freq_reg_end),
             paper_mask(num_deg_view, step, freq_reg_end))
-  raise ValueError(f"Config.freq_mask_layout = {layout!r}; expected 'released' or 'paper'")
+  raise ValueError(f'Config.freq_mask_layout = {layout!r}; expected one of {list(LAYOUTS)}')

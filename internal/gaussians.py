@@ -34,6 +34,9 @@ def cylinder_to_gaussian(directions, t0, t1, radius):
   return lift_gaussian(directions, t_mean, t_var, r_var)
 
 
+RAY_SHAPES = ('cone', 'cylinder')  # MipNerfModel.ray_shape: conical frustums or cylinders.
+
+
 def cast_rays(t_vals, origins, directions, radii, ray_shape):
   """Gaussians of the intervals of t_vals [...,S+1] -> (means [...,S,3], cov_diag [...,S,3])."""
   if ray_shape == 'cone':
@@ -41,6 +44,6 @@ def cast_rays(t_vals, origins, directions, radii, ray_shape):
   elif ray_shape == 'cylinder':
     gaussian_fn = cylinder_to_gaussian
   else:
-    raise ValueError(f"MipNerfModel.ray_shape = {ray_shape!r}; expected 'cone' or 'cylinder'")
+    raise ValueError(f'MipNerfModel.ray_shape = {ray_shape!r}; expected one of {list(RAY_SHAPES)}')
   means, cov_diag = gaussian_fn(directions, t_vals[..., :-1], t_vals[..., 1:], radii)
   return means + origins[..., None, :], cov_diag

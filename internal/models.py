@@ -1,6 +1,6 @@
 """mip-NeRF with FreeNeRF's frequency-mask hooks: the MLP and the two-level model (flax.linen, gin)."""
 
-from typing import Any, Callable
+from typing import Any, Callable, Optional
 
 import flax.linen as nn
 import gin
@@ -73,9 +73,14 @@ class MLP(nn.Module):
   def _skip_after(self, i: int) -> bool:
     return i % self.skip_layer == 0 and i > 0
 
+  def encoding_degrees(self):
+    """(point, view) encoding degrees: they fix the encoding widths and the frequency masks' lengths."""
+    return self.max_deg_point - self.min_deg_point, self.deg_view
+
   def layer_shapes(self):
     """(name, inputs, outputs) of every dense layer, named Dense_0.. in the released order."""
-    point_dim = 3 * (1 + 2 * (self.max_deg_point - self.min_deg_point))
+    deg_point, deg_view = self.encoding_degrees()
+    point_dim = encoding.width(deg_point)
     shapes, width = [], point_dim
     for i in range(self.net_depth):
       shapes.append((f'Dense_{i}', width, self.net_width))
@@ -83,7 +88,7 @@ class MLP(nn.Module):
     heads = [(width, 1)]
     if self.use_viewdirs:
       heads.append((width, self.net_width))
-      width = self.net_width + 3 * (1 + 2 * self.deg_view)
+      width = self.net_width + encoding.width(deg_view)
       for _ in range(self.net_depth_viewdirs):
         heads.append((width, self.net_width_viewdirs))
         width = self.net_width_viewdirs
@@ -154,7 +159,7 @@ class MLP(nn.Module):
     return -grad / norm
 
 
-@gin.configurable(denylist=['precision'])
+@gin.configurable(denylist=['precision', 'white_background', 'mlp'])
 class MipNerfModel(nn.Module):
   """Two-level mip-NeRF sharing one MLP: coarse stratified samples, then resampled fine ones."""
   num_samples: int = 128
@@ -162,12 +167,20 @@ class MipNerfModel(nn.Module):
   stop_level_grad: bool = True
   ray_shape: str = 'cone'
   disable_integration: bool = False
-  white_background: bool = True
+  white_background: bool = True  # Set from Config.white_background (not a gin binding), as the data's background.
   pdf_padding: str = 'released'  # 'released' | 'even': see docs/numerics.md.
   precision: str = 'float32'  # Set from Config.precision, passed on to the MLP.
+  mlp: Optional[MLP] = None  # The shared MLP; None builds make_mlp() (gin-bound, at `precision`).
 
-  def setup(self):
-    self.mlp = MLP(precision=self.precision)
+  def __post_init__(self):
+    if self.mlp is None:  # Built now, not in setup, so that its encoding degrees are known before init.
+      object.__setattr__(self, 'mlp', self.make_mlp())
+    super().__post_init__()
+
+  @nn.nowrap  # Not a module method: the MLP it builds has no parent until the model adopts it.
+  def make_mlp(self) -> MLP:
+    """The gin-bound MLP at this model's precision."""
+    return MLP(precision=self.precision)
 
   def __call__(self, key, rays, mask_point=None, mask_view=None, resample_padding=0.01,
                compute_extras=False, compute_normals=False):

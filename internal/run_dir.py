@@ -33,7 +33,8 @@ NOT_FINGERPRINTED = (
     'lpips_input_range', 'compute_lpips', 'max_skipped_steps')
 # flax bookkeeping fields of MLP and MipNerfModel, and precision (set from Config.precision, fingerprinted there).
 MODULE_NOT_FINGERPRINTED = ('parent', 'name', 'precision')
-MODEL_NOT_FINGERPRINTED = MODULE_NOT_FINGERPRINTED + ('white_background',)  # Set from Config.white_background.
+# white_background is set from Config.white_background; the shared mlp is fingerprinted as MLP.*.
+MODEL_NOT_FINGERPRINTED = MODULE_NOT_FINGERPRINTED + ('white_background', 'mlp')
 UNSET = '<unset>'
 
 

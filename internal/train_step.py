@@ -27,6 +27,9 @@ class TrainState:
   opt_state: Any
 
 
+NONFINITE_POLICIES = ('skip', 'raise')  # Config.nonfinite_grad_policy: see SkipCounter.
+
+
 class NonFiniteError(FloatingPointError):
   """A step's loss, gradients, learning rate or update was not finite (policy 'raise' or too many skips)."""
 
@@ -45,13 +48,16 @@ def create_train_state(config, key, example_rays):
                            opt_state=jax.jit(optim.adam(config.adam_eps).init)(params))
 
 
-def masks_at(config, step):
-  """Frequency masks (point, view) of Config at a (possibly traced) step; (None, None) when off."""
-  mlp = models.MLP()  # The gin-bound encoding degrees fix the mask lengths.
+def masks_at(config, degrees, step):
+  """Frequency masks (point, view) of Config for the encoding degrees (point, view) at a (possibly traced) step.
+
+  (None, None) when off; degrees is the model's model.mlp.encoding_degrees().
+  """
+  num_deg_point, num_deg_view = degrees
   return freq_mask.encoding_masks(
       step, freq_reg=config.freq_reg, freq_reg_end=config.freq_reg_end,
       layout=config.freq_mask_layout, max_vis_freq_ratio=config.max_vis_freq_ratio,
-      num_deg_point=mlp.max_deg_point - mlp.min_deg_point, num_deg_view=mlp.deg_view)
+      num_deg_point=num_deg_point, num_deg_view=num_deg_view)
 
 
 def compute_loss(config, model, params, batch, key, step):
@@ -59,7 +65,7 @@ def compute_loss(config, model, params, batch, key, step):
 
   With RegNeRF's depth smoothness the batch also holds 'patch_rays' [P, ps, ps, ...] (no data loss on them).
   """
-  mask_point, mask_view = masks_at(config, step)
+  mask_point, mask_view = masks_at(config, model.mlp.encoding_degrees(), step)
   rays = batch['rays']
   if config.anneal_nearfar:
     rays = anneal.anneal_rays(config, rays, step)

@@ -149,7 +149,7 @@ def test_freenerf_configs_hold_the_released_values(dataset, n):
 def test_mipnerf_configs_are_freenerf_without_regularizers(dataset, n):
   config = _ours('mipnerf', dataset, n)
   assert config.max_steps == STEPS[dataset, n][0] and config.n_input_views == n
-  assert train_step.masks_at(config, 0) == (None, None) and config.occ_reg_loss_mult == 0.
+  assert train_step.masks_at(config, models.MLP().encoding_degrees(), 0) == (None, None) and config.occ_reg_loss_mult == 0.
   assert {k: getattr(config, k) for k in LR_BLOCK} == LR_BLOCK
 
 
@@ -172,7 +172,7 @@ def test_blender_config_follows_the_dietnerf_protocol():
 
 def test_freenerf_mask_of_the_dtu3_config_opens_as_released():
   config = _ours('freenerf', 'dtu', 3)
-  point, view = train_step.masks_at(config, config.freq_reg_end // 2)
+  point, view = train_step.masks_at(config, models.MLP().encoding_degrees(), config.freq_reg_end // 2)
   point = np.asarray(point)
   assert point.shape == (99,) and np.asarray(view).shape == (27,)
   assert np.all(point[:51] == 1.) and np.all(point[54:] < 1e-6)  # t/T = 0.5: every sin band, no cos.
@@ -211,12 +211,15 @@ DIFFERENCES = {
 
 
 def _effective(path) -> dict:
-  """Every value a .gin file leaves in effect: the Config fields and the MLP and MipNerfModel settings."""
+  """Every value a .gin file leaves in effect: the Config fields and the MLP and MipNerfModel settings.
+
+  The model's own MLP (MipNerfModel.mlp) is compared through the MLP.* settings.
+  """
   gin.clear_config()
   values = {f'Config.{k}': v for k, v in dataclasses.asdict(configs.load_config([str(path)])).items()}
   for module in (models.MLP(), models.MipNerfModel()):
     values.update({f'{type(module).__name__}.{f.name}': getattr(module, f.name)
-                   for f in dataclasses.fields(module) if f.name not in ('parent', 'name')})
+                   for f in dataclasses.fields(module) if f.name not in ('parent', 'name', 'mlp')})
   return values
 
 

@@ -9,7 +9,7 @@ import pytest
 from scipy import ndimage
 
 from internal.configs import Config
-from internal.datasets import DatasetError, load_dataset, make_batcher, render_path_rays, synthetic
+from internal.datasets import DatasetError, image_io, load_dataset, make_batcher, render_path_rays, synthetic
 
 
 def gen_config(path, rig, **kw):
@@ -22,7 +22,7 @@ def scenes(tmp_path_factory):
   out = {}
   for rig in ('object', 'forward'):
     config = gen_config(root / rig, rig, n_input_views=9)
-    out[rig] = (root / rig, load_dataset('train', config), load_dataset('test', config))
+    out[rig] = (root / rig, load_dataset('train', config), load_dataset('test', config, ground_truth=True))
   return out
 
 
@@ -182,3 +182,19 @@ def test_generated_render_path_and_batches(scenes):
   assert (cos > .999).all()   # The orbit faces the origin.
   batch = make_batcher(train, Config(batch_size=64))(0)
   assert batch['rgb'].shape == (64, 3) and batch['rays'].near.shape == (64, 1)
+
+
+@pytest.mark.parametrize('rig', ['object', 'forward'])
+def test_depths_and_object_masks_are_read_only_when_asked(scenes, rig, monkeypatch):
+  path = scenes[rig][0]
+  opened = []
+  np_load, read_image = np.load, image_io.read_image
+  monkeypatch.setattr(np, 'load', lambda f, *a, **k: opened.append(str(f)) or np_load(f, *a, **k))
+  monkeypatch.setattr(image_io, 'read_image', lambda f, *a, **k: opened.append(str(f)) or read_image(f, *a, **k))
+  ground_truth = lambda: [f for f in opened if f'{os.sep}depth{os.sep}' in f or f'{os.sep}mask{os.sep}' in f]
+  for split in ('train', 'test'):
+    data = load_dataset(split, gen_config(path, rig, n_input_views=9))
+    assert data.depths is None and data.object_masks is None and opened and not ground_truth()
+  data = load_dataset('test', gen_config(path, rig, n_input_views=9), ground_truth=True)
+  assert len(ground_truth()) == 2 * len(data.ids)  # One depth .npy and one mask .png per test view.
+  np.testing.assert_array_equal(data.depths, scenes[rig][2].depths)

@@ -31,7 +31,8 @@ def _surface_residual(solid, p):
 
 def test_generated_object_depth_is_the_ray_parameter(tmp_path):
   scene = tmp_path / 'object'
-  test_set = datasets.load_dataset('test', tiny_config(scene, tmp_path / 'run', 'Config.generated_size = (12, 16)'))
+  test_set = datasets.load_dataset('test', tiny_config(scene, tmp_path / 'run', 'Config.generated_size = (12, 16)'),
+                                   ground_truth=True)
   solids = json.loads((scene / 'scene.json').read_text())['solids']
   hit = test_set.depths > 0
   assert hit.mean() > .3
@@ -43,7 +44,7 @@ def test_generated_object_depth_is_the_ray_parameter(tmp_path):
 def test_ndc_distance_maps_back_to_the_forward_rig_depth(tmp_path):
   config = tiny_config(tmp_path / 'forward', tmp_path / 'run', "Config.generated_rig = 'forward'",
                        'Config.generated_size = (12, 16)')
-  test_set = datasets.load_dataset('test', config)
+  test_set = datasets.load_dataset('test', config, ground_truth=True)
   i = 1
   rays = test_set.rays
   o_w = test_set.camtoworlds[i][:3, 3].astype(np.float64)

@@ -20,6 +20,18 @@ def test_lengths():
   assert all(a.shape == (24,) for a in encoding.feature_layout(4, append_identity=False))
 
 
+def test_width_matches_a_hand_count_and_the_encodings():
+  assert encoding.width(16) == 3 + 16 * 3 * 2 == 99  # Identity, then 16 degrees of sin and cos of x, y, z.
+  assert encoding.width(4) == 3 + 4 * 3 * 2 == 27
+  assert encoding.width(4, append_identity=False) == 24
+  assert encoding.width(2, num_coords=2) == 10
+  x = jnp.ones((2, 3))
+  for degrees, identity in ((16, True), (4, True), (5, False), (0, True)):
+    assert encoding.pos_enc(x, 0, degrees, identity).shape[-1] == encoding.width(degrees, append_identity=identity)
+    assert encoding.feature_layout(degrees, append_identity=identity)[0].shape == (
+        encoding.width(degrees, append_identity=identity),)
+
+
 def _table(num_degrees):
   """The released feature order written out (identity, all sin, then all cos): index -> (kind, degree, coord)."""
   table = {c: (0, -1, c) for c in range(3)}

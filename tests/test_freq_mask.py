@@ -134,7 +134,8 @@ def test_fixed_ratio_mask():
 
 
 def test_encoding_masks_dispatch():
-  kw = dict(freq_reg=True, freq_reg_end=END, layout='released', max_vis_freq_ratio=0.)
+  kw = dict(freq_reg=True, freq_reg_end=END, layout='released', max_vis_freq_ratio=0., num_deg_point=16,
+            num_deg_view=4)
   assert freq_mask.encoding_masks(5, **{**kw, 'freq_reg': False}) == (None, None)
   assert freq_mask.encoding_masks(5, **{**kw, 'freq_reg_end': 0}) == (None, None)
   point, view = freq_mask.encoding_masks(250, **kw)
@@ -143,10 +144,14 @@ def test_encoding_masks_dispatch():
   point, view = freq_mask.encoding_masks(250, **{**kw, 'layout': 'paper'})
   np.testing.assert_array_equal(point, freq_mask.paper_mask(16, 250, END))
   np.testing.assert_array_equal(view, freq_mask.paper_mask(4, 250, END))
-  for freq_reg in (True, False):
-    point, view = freq_mask.encoding_masks(250, **{**kw, 'freq_reg': freq_reg, 'max_vis_freq_ratio': 0.5})
+  for end in (END, 0):  # The fixed visible ratio acts under freq_reg, whatever its end step.
+    point, view = freq_mask.encoding_masks(250, **{**kw, 'freq_reg_end': end, 'max_vis_freq_ratio': 0.5})
     np.testing.assert_array_equal(point, freq_mask.fixed_ratio_mask(99, 0.5))
     np.testing.assert_array_equal(view, freq_mask.fixed_ratio_mask(27, 0.5))
+  # As released, it does not act without the frequency regularizer.
+  assert freq_mask.encoding_masks(250, **{**kw, 'freq_reg': False, 'max_vis_freq_ratio': 0.5}) == (None, None)
+  point, view = freq_mask.encoding_masks(250, **{**kw, 'num_deg_point': 10, 'num_deg_view': 2})
+  assert (point.shape, view.shape) == ((63,), (15,))  # The degrees passed, not defaults, set the lengths.
   with pytest.raises(ValueError, match='Config.freq_mask_layout'):
     freq_mask.encoding_masks(5, **{**kw, 'layout': 'interleaved'})
 
@@ -167,7 +172,8 @@ def _reference_paper(num_degrees, step, end):
     ('released', lambda s: freq_mask.released_mask(99, s, END), lambda s: _reference_released(99, s, END)),
     ('paper', lambda s: freq_mask.paper_mask(4, s, END), lambda s: _reference_paper(4, s, END)),
     ('encoding_masks', lambda s: freq_mask.encoding_masks(
-        s, freq_reg=True, freq_reg_end=END, layout='released', max_vis_freq_ratio=0.)[1],
+        s, freq_reg=True, freq_reg_end=END, layout='released', max_vis_freq_ratio=0., num_deg_point=16,
+        num_deg_view=4)[1],
      lambda s: _reference_released(27, s, END)),
 ])
 def test_jit_with_traced_step_compiles_once(name, fn, reference):

@@ -66,7 +66,8 @@ def test_no_mask_multiplication_in_graph_when_regularization_off():
   model, variables = _tiny()
   rays = random_rays(0, 4)
   masks = freq_mask.encoding_masks(jnp.asarray(5), freq_reg=True, freq_reg_end=10,
-                                   layout='released', max_vis_freq_ratio=0.)
+                                   layout='released', max_vis_freq_ratio=0.,
+                                   num_deg_point=16, num_deg_view=4)
   count = lambda *m: str(jax.make_jaxpr(lambda v: model.apply(v, None, rays, *m))(variables)).count(' mul ')
   # Point and view-direction masks, in each of the 2 levels.
   assert count(*masks) - count(None, None) == 4
@@ -168,3 +169,20 @@ def test_every_head_layer_is_created_and_used(bindings, heads):
   (renderings, _) = model.apply(variables, None, random_rays(1, 4))
   rgb = renderings[-1]['rgb']
   assert rgb.shape == (4, 3) and bool(jnp.all(jnp.isfinite(rgb)))
+
+
+def test_model_and_released_equivalent_mlp_take_the_mlp_bindings_and_their_degrees():
+  from bench import released_equivalent  # pylint: disable=import-outside-toplevel
+  gin.parse_config(TINY + ['MLP.max_deg_point = 10', 'MLP.deg_view = 2'])
+  model = models.MipNerfModel()
+  released = released_equivalent.ReleasedModel(num_samples=model.num_samples)  # Not gin-bound (bench-only).
+  assert isinstance(released.mlp, released_equivalent.ReleasedMLP)
+  assert model.mlp.encoding_degrees() == released.mlp.encoding_degrees() == (10, 2)
+  assert released.mlp.layer_shapes() == model.mlp.layer_shapes()
+  assert model.mlp.layer_shapes()[0] == ('Dense_0', encoding.width(10), 16) == ('Dense_0', 63, 16)
+  rays = random_rays(0, 2)
+  variables = models.construct_model(random.PRNGKey(0), rays, False)[1]
+  masks = (jnp.ones(63), jnp.ones(15))
+  ours = model.apply(variables, None, rays, *masks)[0][-1]['rgb']
+  theirs = released.apply(variables, None, rays, *masks, mutable=['intermediates'])[0][0][-1]['rgb']
+  np.testing.assert_allclose(theirs, ours, atol=1e-5)

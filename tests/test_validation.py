@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 
 import gin
 import numpy as np
@@ -9,6 +10,14 @@ import pytest
 
 from conftest import noise, save_png
 from internal import configs
+from internal import freq_mask
+from internal import gaussians
+from internal import lpips
+from internal import precision
+from internal import sampling
+from internal import train_step
+from internal.datasets import batching, image_io, loader, synthetic
+from internal.datasets import blender as blender_lib
 from internal.datasets import DatasetError, dtu, load_dataset
 from test_datasets_dtu_layouts import config as dtu_config, synthetic_projections, write_idr
 from test_datasets_errors import blender, llff
@@ -38,6 +47,21 @@ def test_bad_settings_raise_value_errors_naming_them(binding, message):
     _load(binding)
 
 
+@pytest.mark.parametrize('name, options', [
+    ('Config.dataset_loader', loader.LOADERS), ('Config.dtu_layout', dtu.LAYOUTS),
+    ('Config.blender_split', blender_lib.SPLIT_MODES), ('Config.downsample_mode', image_io.DOWNSAMPLE_MODES),
+    ('Config.batching', batching.BATCHING_MODES), ('Config.freq_mask_layout', freq_mask.LAYOUTS),
+    ('Config.nonfinite_grad_policy', train_step.NONFINITE_POLICIES), ('Config.lpips_input_range', lpips.INPUT_RANGES),
+    ('Config.generated_rig', synthetic.RIGS), ('Config.precision', precision.PRECISIONS),
+    ('MipNerfModel.ray_shape', gaussians.RAY_SHAPES), ('MipNerfModel.pdf_padding', sampling.PDF_PADDINGS)])
+def test_option_settings_use_the_list_of_the_module_that_implements_them(name, options):
+  with pytest.raises(ValueError, match=re.escape(f"{name} = 'nope'; expected one of {list(options)}")):
+    _load(f"{name} = 'nope'")
+  for option in options[1:]:  # Every listed option passes validation (the first is the default).
+    if name != 'Config.dataset_loader':  # The loaders' own settings (near > 0 ...) are tested apart.
+      _load(f'{name} = {option!r}')
+
+
 def test_non_finite_near_is_refused():
   with pytest.raises(ValueError, match='Config.near = nan; expected a finite number'):
     configs.validate(configs.Config(near=float('nan')))
@@ -45,9 +69,41 @@ def test_non_finite_near_is_refused():
 
 def test_near_zero_stays_accepted_for_ndc_scenes():
   assert _load("Config.dataset_loader = 'llff'", 'Config.near = 0.', 'Config.far = 1.').near == 0.
-  assert _load("Config.generated_rig = 'forward'", 'Config.near = 0.').near == 0.
+  assert _load("Config.generated_rig = 'forward'", 'Config.near = 0.', 'Config.far = 1.').near == 0.
   with pytest.raises(ValueError, match="'dtu' scenes"):
     _load("Config.dataset_loader = 'dtu'", 'Config.near = 0.')
+
+
+@pytest.mark.parametrize('bindings, message', [
+    (['Config.near = 0.5', 'Config.far = 1.'], r"^Config.near = 0.5: 'llff' scenes use NDC rays, which fix near = 0"),
+    (['Config.near = 0.', 'Config.far = 6.'], r'^Config.far = 6.0: .*fix near = 0 and far = 1;'),
+    (['Config.near = 0.'], r'^Config.far = 6.0: '),
+    (['Config.anneal_nearfar = True'], r'^Config.near = 2.0: .*\(Config.anneal_nearfar reads them\)')])
+def test_near_far_that_ndc_rays_would_ignore_are_refused(bindings, message):
+  with pytest.raises(ValueError, match=message):
+    _load("Config.dataset_loader = 'llff'", *bindings)
+  with pytest.raises(ValueError, match=message.replace("'llff'", "'generated'")):
+    _load("Config.generated_rig = 'forward'", *bindings)
+  assert _load("Config.dataset_loader = 'llff'").near == 2.  # Left unset: ignored, as the rays fix them.
+  assert _load("Config.dataset_loader = 'llff'", 'Config.near = 0.', 'Config.far = 1.',
+               'Config.anneal_nearfar = True').far == 1.
+
+
+def test_model_background_and_precision_are_bound_through_config_only():
+  with pytest.raises(ValueError, match=r'^MipNerfModel.white_background = False: .* bind Config.white_background'):
+    _load('MipNerfModel.white_background = False')
+  with pytest.raises(ValueError, match=r"^MLP.precision = 'bfloat16': .* bind Config.precision instead"):
+    _load("MLP.precision = 'bfloat16'")
+  assert not _load('Config.white_background = False').white_background
+
+
+def test_visible_ratio_without_the_frequency_regularizer_is_refused():
+  with pytest.raises(ValueError, match=r'^Config.max_vis_freq_ratio = 0.1 acts only under the frequency regularizer'):
+    _load('Config.max_vis_freq_ratio = 0.1', 'Config.freq_reg = False')
+  config = _load('Config.max_vis_freq_ratio = 0.1', 'Config.freq_reg = True', 'Config.freq_reg_end = 0')
+  point, view = train_step.masks_at(config, (16, 4), 0)
+  np.testing.assert_array_equal(point, freq_mask.fixed_ratio_mask(99, 0.1))
+  np.testing.assert_array_equal(view, freq_mask.fixed_ratio_mask(27, 0.1))
 
 
 def test_regularizers_that_cannot_act_warn():

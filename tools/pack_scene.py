@@ -19,7 +19,7 @@ from internal.datasets import base, load_dataset, packed
 
 def pack(config, out: str) -> dict:
   """Writes the pack of Config's scene to out after checking it loads back equal; returns {split: Dataset}."""
-  datasets = {split: load_dataset(split, config) for split in base.SPLITS}
+  datasets = {split: load_dataset(split, config, ground_truth=True) for split in base.SPLITS}
   packed.write_pack(out, packed.pack_arrays(config, datasets))
   reloaded = dataclasses.replace(config, dataset_loader='packed', data_dir=out)
   for split, data in datasets.items():

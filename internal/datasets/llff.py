@@ -91,9 +91,10 @@ def load_llff(split: str, config, scene_dir: str, name: str) -> base.Dataset:
   pixtocam = cameras.focal_pixtocam(focal / factor, height, width)
   rays = raygen.stack_rays((raygen.llff_rays(c2w[i], pixtocam, height, width, focal / factor) for i in ids),
                            len(ids))
+  near, far = raygen.NDC_NEAR_FAR
   return base.Dataset(images=images, camtoworlds=c2w[ids].astype(np.float32),
                       pixtocams=np.repeat(pixtocam[None], len(ids), 0).astype(np.float32), ids=list(ids),
-                      height=height, width=width, near=0., far=1., masks=None, rays=rays, split=split, name=name)
+                      height=height, width=width, near=near, far=far, masks=None, rays=rays, split=split, name=name)
 
 
 def render_path_rays(config, scene_dir: str):

@@ -9,8 +9,11 @@ from internal.datasets import base, blender, dtu, llff, packed, synthetic
 LOADERS = ('dtu', 'llff', 'blender', 'generated', 'packed')
 
 
-def load_generated(split: str, config) -> base.Dataset:
-  """Writes the generated scene into Config.data_dir if absent, then loads it through the Blender/LLFF loader."""
+def load_generated(split: str, config, ground_truth: bool = False) -> base.Dataset:
+  """Writes the generated scene into Config.data_dir if absent, then loads it through the Blender/LLFF loader.
+
+  The exact depths and object masks are read only when ground_truth is asked (depth metrics, packing).
+  """
   rig, scene_dir = config.generated_rig, config.data_dir
   synthetic.ensure_scene(scene_dir, rig, config.generated_seed, config.generated_size)
   if rig == 'object':
@@ -19,13 +22,18 @@ def load_generated(split: str, config) -> base.Dataset:
   else:
     data = llff.load_llff(split, config, scene_dir, 'generated/forward')
     scale = 1. / (.75 * llff.read_poses_bounds(scene_dir)[:, 15:17].min())
+  if not ground_truth:
+    return data
   depths, masks = synthetic.load_ground_truth(scene_dir, rig, split, data.ids, base.load_factor(config, split),
                                               config.downsample_mode)
   return dataclasses.replace(data, depths=(depths * scale).astype(np.float32), object_masks=masks)
 
 
-def load_dataset(split: str, config) -> base.Dataset:
-  """Loads split ('train' | 'test') of the scene Config selects, as a Dataset."""
+def load_dataset(split: str, config, ground_truth: bool = False) -> base.Dataset:
+  """Loads split ('train' | 'test') of the scene Config selects, as a Dataset.
+
+  ground_truth: also read the generated scene's exact depths and object masks (a pack holds them either way).
+  """
   base.check_split(split)
   base.check_choice('dataset_loader', config.dataset_loader, LOADERS)
   if config.dataset_loader == 'packed':
@@ -39,7 +47,7 @@ def load_dataset(split: str, config) -> base.Dataset:
     scene = base.scene_dir(config.data_dir, config.blender_scene, 'blender_scene')
     return blender.load_blender(split, config, scene, f'blender/{config.blender_scene}', config.blender_split,
                                 blender.TEST_STRIDE)
-  return load_generated(split, config)
+  return load_generated(split, config, ground_truth)
 
 
 def render_path_rays(config):

@@ -89,12 +89,15 @@ def dtu_rays(camtoworld, pixtocam, height, width, near, far, near_origin) -> Ray
   return rays._replace(origins=origins.astype(np.float32))
 
 
+NDC_NEAR_FAR = (0., 1.)  # LLFF's NDC rays span t in [0, 1] whatever Config.near/far say.
+
+
 def llff_rays(camtoworld, pixtocam, height, width, focal) -> Rays:
   """LLFF NDC rays [H,W,...]: NDC origins/directions, NDC radii, world (unnormalised) viewdirs, near 0, far 1."""
   dirs = world_directions(camtoworld, camera_directions(pixtocam, height, width, opengl=True))
   origins = np.broadcast_to(np.asarray(camtoworld, np.float64)[:3, 3], dirs.shape)
   ndc_o, ndc_d = convert_to_ndc(origins, dirs, focal, height, width)
-  return pack_rays(ndc_o, ndc_d, dirs, ndc_radii(ndc_o), 0., 1.)
+  return pack_rays(ndc_o, ndc_d, dirs, ndc_radii(ndc_o), *NDC_NEAR_FAR)
 
 
 def stack_rays(rays_iter, count: int) -> Rays:
