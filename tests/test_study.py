@@ -17,6 +17,7 @@ from tools import study as study_lib
 from tools import study_plots
 from tools import study_spec
 from tools import tables
+from internal import demo
 import train
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -105,6 +106,24 @@ def test_rerun_skips_finished_cells(ran):
   listing = subprocess.run([sys.executable, '-m', 'tools.study', str(path), '--out', out, '--list'], cwd=REPO,
                            capture_output=True, text=True, check=True).stdout
   assert listing.count('done') == 4
+
+
+def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
+  _, out, path = ran
+  dest = tmp_path / 'export'
+  assert study_lib.main([str(path), '--out', out, '--plots-only', '--export', str(dest)]) == 0
+  assert (dest / 'results.csv').read_text() == pathlib.Path(out, 'mini', 'results.csv').read_text()
+  assert (dest / 'mini.toml').read_text() == path.read_text() and (dest / 'psnr_vs_views.png').is_file()
+  assert not list(dest.rglob('checkpoints'))
+  provenance = json.loads((dest / 'provenance.json').read_text())
+  assert provenance['command'].startswith('python -m tools.study ') and '--export' in provenance['command']
+  for cell in provenance['cells']:
+    record = json.loads((dest / cell / 'metrics.json').read_text())
+    assert json.loads((dest / cell / 'cell.json').read_text())['means']['psnr'] == record['means']['psnr']
+    assert provenance['cells'][cell]['commit'] == study_lib.study_export.git_commit(str(REPO))
+  for scene, (h, w) in (('object', (12, 16)), ('forward', (12, 16))):
+    with Image.open(dest / f'side_by_side_{scene}.png') as picture:    # Two views x (truth + 2 methods).
+      assert picture.size == (demo.LABEL_WIDTH + 3 * (w + demo.GAP), demo.HEADER + 2 * (h + demo.GAP))
 
 
 def test_tables_gather_the_study(ran, tmp_path):

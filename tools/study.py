@@ -28,6 +28,7 @@ import time
 from typing import Dict, List, Optional
 
 from internal import run_dir
+from tools import study_export
 from tools import study_plots
 from tools import study_spec
 
@@ -107,7 +108,8 @@ def run_cell(path: str) -> dict:
           'means': record['means'], 'resumed_from_step': start_step, 'steps_trained': steps,
           'train_seconds': train_seconds, 'eval_seconds': eval_seconds,
           'steps_per_sec': steps / train_seconds if steps else None,
-          'gflops_per_step': flops.train_step_flops(config) / 1e9, **_peak_memory()}
+          'gflops_per_step': flops.train_step_flops(config) / 1e9, **_peak_memory(),
+          'commit': study_export.git_commit(REPO), 'machine': study_export.machine()}
   with open(os.path.join(path, CELL_FILE + '.tmp'), 'w') as f:
     json.dump(cell, f, indent=1)
   os.replace(os.path.join(path, CELL_FILE + '.tmp'), os.path.join(path, CELL_FILE))
@@ -224,6 +226,8 @@ def main(argv=None) -> int:
   parser.add_argument('--plots-only', action='store_true', help='only gather results.csv and the plots')
   parser.add_argument('--gin_bindings', action='extend', nargs='+', default=[], metavar='BINDING',
                       help='gin bindings appended to every cell (after the study file\'s own)')
+  parser.add_argument('--export', metavar='DIR', help='after the run, copy results, plots, per-cell metrics, '
+                      'side-by-side pictures and provenance (no checkpoints) into DIR, to be committed')
   parser.add_argument('--run-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
   args = parser.parse_args(argv)
   if args.run_cell:
@@ -242,12 +246,22 @@ def main(argv=None) -> int:
   if args.plots_only:
     for path in write_results(study, args.out):
       print(path)
+    _export(study, args, argv)
     return 0
   failed = run_study(study, args.out, args.data_root, args.jobs, args.gpus, args.shard,
                      extra_bindings=tuple(args.gin_bindings))
   for path, error in failed.items():
     print(f'FAILED {path}: {error}', file=sys.stderr)
+  _export(study, args, argv)
   return 1 if failed else 0
+
+
+def _export(study: study_spec.Study, args, argv) -> None:
+  """--export: copies the study's results into args.export, recording this command."""
+  if args.export:
+    command = ' '.join(['python -m tools.study'] + list(sys.argv[1:] if argv is None else argv))
+    for path in study_export.export(study, args.study, study_dir(study, args.out), args.export, command):
+      print(path)
 
 
 if __name__ == '__main__':

@@ -1,0 +1,117 @@
+"""Copies a study's results into a folder meant to be committed: what was run, on what, and what came out.
+
+<dest>/ gets results.csv and the plots, the study file, per cell <cell>/cell.json and the evaluation's
+metrics.json and metrics.csv (no checkpoints), a side-by-side picture per scene (ground truth, then each
+method's render of the first evaluated test views) and provenance.json: the command, the commit each cell ran
+at, the machine and the package versions.
+"""
+
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+from typing import Dict, List
+
+import numpy as np
+from PIL import Image
+
+from internal import vis
+from tools import study_spec
+
+PICTURE_VIEWS = 2     # Test views per scene in the side-by-side picture.
+PROVENANCE_FILE = 'provenance.json'
+
+
+def git_commit(repo: str) -> str:
+  """HEAD of the repository, with '+dirty' when tracked files differ from it ('unknown' outside git)."""
+  try:
+    head = subprocess.run(['git', '-C', repo, 'rev-parse', 'HEAD'], capture_output=True, text=True, check=True)
+    dirty = subprocess.run(['git', '-C', repo, 'status', '--porcelain', '--untracked-files=no'],
+                           capture_output=True, text=True, check=True)
+  except (OSError, subprocess.CalledProcessError):
+    return 'unknown'
+  return head.stdout.strip() + ('+dirty' if dirty.stdout.strip() else '')
+
+
+def machine() -> Dict[str, object]:
+  """The machine and the versions a result was measured with."""
+  import jax  # pylint: disable=import-outside-toplevel
+  devices = jax.devices()
+  return {'platform': platform.platform(), 'processor': platform.processor() or platform.machine(),
+          'cpu_count': os.cpu_count(), 'python': sys.version.split()[0], 'jax': jax.__version__,
+          'devices': f'{len(devices)} x {devices[0].device_kind}'}
+
+
+def eval_dir(cell_path: str, step: int) -> str:
+  """The evaluation folder of a finished cell's run (<cell>/run/test_preds_step_<step>)."""
+  return os.path.join(cell_path, 'run', f'test_preds_step_{step}')
+
+
+def _copy_cell(cell_path: str, cell: dict, dest: str) -> None:
+  """Copies a finished cell's cell.json and its evaluation's metrics files into dest/<cell id>/."""
+  target = os.path.join(dest, cell['cell'])
+  os.makedirs(target, exist_ok=True)
+  shutil.copy2(os.path.join(cell_path, 'cell.json'), target)
+  for name in ('metrics.json', 'metrics.csv'):
+    source = os.path.join(eval_dir(cell_path, cell['step']), name)
+    if os.path.isfile(source):
+      shutil.copy2(source, target)
+
+
+def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Dict[int, np.ndarray], path: str) -> None:
+  """Writes one scene's picture: per row a test view (by id), columns ground truth then each cell's render."""
+  from internal import demo  # pylint: disable=import-outside-toplevel
+  rows = []
+  for view_id, image in truth.items():
+    renders = [np.asarray(Image.open(os.path.join(eval_dir(paths[c['cell']], c['step']),
+                                                  f'color_{view_id:03d}.png')).convert('RGB')) / 255.
+               for c in cells]
+    rows.append([image] + renders)
+  picture = demo.grid(rows, ['ground truth'] + [c['method'] for c in cells],
+                      [f'test view {i}' for i in truth], scale=1)
+  vis.save_png(picture / 255., path)
+
+
+def _ground_truth(cell_path: str, cell: dict, count: int) -> Dict[int, np.ndarray]:
+  """{view id: image} of the first `count` test views the cell evaluated, loaded as its evaluation did."""
+  import gin  # pylint: disable=import-outside-toplevel
+  from internal import configs, datasets  # pylint: disable=import-outside-toplevel
+  with open(os.path.join(cell_path, 'cell_spec.json')) as f:
+    spec = json.load(f)
+  gin.clear_config()
+  config = configs.load_config(spec['gin_configs'], spec['gin_bindings'])
+  test_set = datasets.load_dataset('test', config)
+  gin.clear_config()
+  with open(os.path.join(eval_dir(cell_path, cell['step']), 'metrics.json')) as f:
+    ids = [entry['id'] for entry in json.load(f)['per_image'][:count]]
+  return {i: np.asarray(test_set.images[list(test_set.ids).index(i)]) for i in ids}
+
+
+def export(study: study_spec.Study, study_file: str, study_folder: str, dest: str, command: str) -> List[str]:
+  """Copies the study's finished cells, results and plots into dest; returns the pictures written."""
+  os.makedirs(dest, exist_ok=True)
+  for name in sorted(os.listdir(study_folder)):
+    if name.endswith(('.csv', '.png')):
+      shutil.copy2(os.path.join(study_folder, name), dest)
+  shutil.copy2(study_file, dest)
+  finished, paths = [], {}
+  for cell in study_spec.cells(study):
+    path = os.path.join(study_folder, cell.cell_id)
+    if os.path.isfile(os.path.join(path, 'cell.json')):
+      with open(os.path.join(path, 'cell.json')) as f:
+        finished.append(json.load(f))
+      paths[cell.cell_id] = path
+      _copy_cell(path, finished[-1], dest)
+  pictures = []
+  for scene in dict.fromkeys(c['scene'] for c in finished):
+    cells = [c for c in finished if c['scene'] == scene]
+    pictures.append(os.path.join(dest, f'side_by_side_{scene}.png'))
+    _scene_picture(cells, paths, _ground_truth(paths[cells[0]['cell']], cells[0], PICTURE_VIEWS), pictures[-1])
+  provenance = {'command': command, 'machine': machine(),
+                'cells': {c['cell']: {k: c.get(k) for k in ('commit', 'train_seconds', 'eval_seconds', 'step')}
+                          for c in finished}}
+  with open(os.path.join(dest, PROVENANCE_FILE), 'w') as f:
+    json.dump(provenance, f, indent=1)
+  return pictures
