@@ -121,6 +121,9 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
     record = json.loads((dest / cell / 'metrics.json').read_text())
     assert json.loads((dest / cell / 'cell.json').read_text())['means']['psnr'] == record['means']['psnr']
     assert provenance['cells'][cell]['commit'] == study_lib.study_export.git_commit(str(REPO))
+  table = (dest / 'table.md').read_text().splitlines()
+  assert table[0].startswith('| method | scene | views | step | psnr |') and len(table) == 2 + 4
+  assert all(f'| {float(r["psnr"]):.3f} |' in row for r, row in zip(_rows(dest / 'results.csv'), table[2:]))
   for scene, (h, w) in (('object', (12, 16)), ('forward', (12, 16))):
     with Image.open(dest / f'side_by_side_{scene}.png') as picture:    # Two views x (truth + 2 methods).
       assert picture.size == (demo.LABEL_WIDTH + 3 * (w + demo.GAP), demo.HEADER + 2 * (h + demo.GAP))

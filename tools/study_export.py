@@ -2,8 +2,8 @@
 
 <dest>/ gets results.csv and the plots, the study file, per cell <cell>/cell.json and the evaluation's
 metrics.json and metrics.csv (no checkpoints), a side-by-side picture per scene (ground truth, then each
-method's render of the first evaluated test views) and provenance.json: the command, the commit each cell ran
-at, the machine and the package versions.
+method's render of the first evaluated test views), table.md (per cell its metrics, wall times and commit) and
+provenance.json: the command, the commit each cell ran at, the machine and the package versions.
 """
 
 import json
@@ -22,6 +22,9 @@ from tools import study_spec
 
 PICTURE_VIEWS = 2     # Test views per scene in the side-by-side picture.
 PROVENANCE_FILE = 'provenance.json'
+TABLE_FILE = 'table.md'
+# Columns of table.md, where the cells report them: DTU's object-masked metrics first, as the paper's tables.
+TABLE_METRICS = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'psnr', 'ssim', 'lpips', 'depth_mae')
 
 
 def git_commit(repo: str) -> str:
@@ -89,6 +92,20 @@ def _ground_truth(cell_path: str, cell: dict, count: int) -> Dict[int, np.ndarra
   return {i: np.asarray(test_set.images[list(test_set.ids).index(i)]) for i in ids}
 
 
+def markdown_table(cells: List[dict]) -> str:
+  """table.md: a row per cell with its labels, metrics (3 decimals), wall times in minutes and short commit."""
+  metrics = [m for m in TABLE_METRICS if any(c['means'].get(m) is not None for c in cells)]
+  labels = list(dict.fromkeys(k for c in cells for k in c['labels']))
+  head = ['method', 'scene'] + labels + ['step'] + metrics + ['train min', 'eval min', 'commit']
+  lines = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+  for c in cells:
+    values = [c['method'], c['scene']] + [str(c['labels'].get(k, '')) for k in labels] + [str(c['step'])]
+    values += ['' if c['means'].get(m) is None else f'{c["means"][m]:.3f}' for m in metrics]
+    values += [f'{c["train_seconds"] / 60:.1f}', f'{c["eval_seconds"] / 60:.1f}', (c.get('commit') or '')[:8]]
+    lines.append('| ' + ' | '.join(values) + ' |')
+  return '\n'.join(lines) + '\n'
+
+
 def export(study: study_spec.Study, study_file: str, study_folder: str, dest: str, command: str) -> List[str]:
   """Copies the study's finished cells, results and plots into dest; returns the pictures written."""
   os.makedirs(dest, exist_ok=True)
@@ -109,8 +126,11 @@ def export(study: study_spec.Study, study_file: str, study_folder: str, dest: st
     cells = [c for c in finished if c['scene'] == scene]
     pictures.append(os.path.join(dest, f'side_by_side_{scene}.png'))
     _scene_picture(cells, paths, _ground_truth(paths[cells[0]['cell']], cells[0], PICTURE_VIEWS), pictures[-1])
+  with open(os.path.join(dest, TABLE_FILE), 'w') as f:
+    f.write(markdown_table(finished))
   provenance = {'command': command, 'machine': machine(),
-                'cells': {c['cell']: {k: c.get(k) for k in ('commit', 'train_seconds', 'eval_seconds', 'step')}
+                'cells': {c['cell']: {k: c.get(k) for k in ('commit', 'machine', 'train_seconds', 'eval_seconds',
+                                                            'step')}
                           for c in finished}}
   with open(os.path.join(dest, PROVENANCE_FILE), 'w') as f:
     json.dump(provenance, f, indent=1)
