@@ -62,6 +62,7 @@ class Method:
 
 @dataclasses.dataclass(frozen=True)
 class Plot:
+  """What to plot: each metric against each x (an axis or a recorded cost), optionally the Pareto front."""
   x: Tuple[str, ...]
   metrics: Tuple[str, ...]
   pareto: bool
@@ -72,13 +73,14 @@ class PaperCurve:
   """Values the paper reports for one method and metric against an axis (drawn beside ours)."""
   method: str
   metric: str
+  points: Tuple[Tuple[float, float], ...]  # (x, value) pairs along the axis named x.
   x: str
-  points: Tuple[Tuple[float, float], ...]
   source: str
 
 
 @dataclasses.dataclass(frozen=True)
 class Study:
+  """A parsed study file: its cells are the product methods x scenes x axis points."""
   name: str
   path: str
   bindings: Tuple[str, ...]
@@ -220,9 +222,9 @@ def _paper(r: _Reader, entries: list, axes) -> Tuple[PaperCurve, ...]:
     points = r.get(table, 'points', at, list)
     if not all(isinstance(p, list) and len(p) == 2 and all(_number(v) is not None for v in p) for p in points):
       r.fail(f'{at}.points', f'{points!r}; expected [[x, value], ...] numbers')
-    curve = PaperCurve(r.get(table, 'method', at, str), r.get(table, 'metric', at, str),
-                       r.get(table, 'x', at, str), tuple((float(x), float(y)) for x, y in points),
-                       r.get(table, 'source', at, str, ''))
+    curve = PaperCurve(method=r.get(table, 'method', at, str), metric=r.get(table, 'metric', at, str),
+                       points=tuple((float(x), float(y)) for x, y in points), x=r.get(table, 'x', at, str),
+                       source=r.get(table, 'source', at, str, ''))
     if curve.x not in axes:
       r.fail(f'{at}.x', f'{curve.x!r} is not an axis ({sorted(axes)})')
     curves.append(curve)
