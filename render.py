@@ -9,91 +9,17 @@ Pass the gin configs and bindings used for training (none: the demo, configs/dem
 --gin_bindings="Config.render_path_frames = 30" "Config.render_factor = 8".
 """
 
-import importlib.util
-import os
 import sys
-import warnings
 
-import jax
-import numpy as np
-import tqdm
-
-import eval as eval_lib
-from internal import checkpoints
 from internal import cli
-from internal import datasets
-from internal import inference
+from internal import render_path
 from internal import run_dir as run_dir_lib
-from internal import vis
-
-VIDEO_FPS = 30
-VIDEO_HINT = 'frames only; for mp4 videos: pip install imageio imageio-ffmpeg'
-
-
-def output_dir(run_dir: str, step: int) -> str:
-  """<run_dir>/path_renders_step_<step>."""
-  return os.path.join(run_dir, f'path_renders_step_{step}')
-
-
-def existing_renders(config) -> bool:
-  """True when the run's newest step has path renders already."""
-  run_dir = run_dir_lib.check_run_dir(config)
-  out_dir = output_dir(run_dir, checkpoints.latest_step(run_dir))
-  return os.path.isdir(out_dir) and bool(os.listdir(out_dir))
-
-
-def can_write_video() -> bool:
-  """True when imageio and its ffmpeg binary package are installed."""
-  return all(importlib.util.find_spec(name) is not None for name in ('imageio', 'imageio_ffmpeg'))
-
-
-def write_video(frames, path: str) -> None:
-  """Writes uint8 frames [F, H, W, 3] as an h264 mp4 at VIDEO_FPS."""
-  import imageio.v2 as imageio  # Optional dependency, imported only when videos are written.
-  with warnings.catch_warnings():
-    # The ffmpeg subprocess forks and then execs at once, which JAX's fork warning does not concern.
-    warnings.filterwarnings('ignore', message=r'os\.fork\(\) was called', category=RuntimeWarning)
-    with imageio.get_writer(path, fps=VIDEO_FPS, codec='libx264', quality=8, macro_block_size=2) as writer:
-      for frame in frames:
-        writer.append_data(frame)
-
-
-def render(config) -> str:
-  """Renders every frame of the path; returns the output folder (refuses to replace one unless Config.overwrite)."""
-  run_dir = run_dir_lib.check_run_dir(config)
-  path_rays = datasets.render_path_rays(config)
-  model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], path_rays))
-  step = int(state.step)  # The newest intact checkpoint's.
-  out_dir = output_dir(run_dir, step)
-  if os.path.isdir(out_dir) and os.listdir(out_dir) and not config.overwrite:
-    raise FileExistsError(f'{out_dir!r} holds renders of step {step} already; set Config.overwrite = True to '
-                          'replace them')
-  render_fn = inference.make_render_fn(config, model, state.params, step)
-  os.makedirs(out_dir, exist_ok=True)
-  frames = {'color': [], 'depth': [], 'opacity': []}
-  depth_range = None
-  num_frames = path_rays.origins.shape[0]
-  for f in tqdm.trange(num_frames, unit='frame', **cli.progress_kwargs()):
-    rendering = inference.render_image(render_fn, jax.tree.map(lambda x, f=f: x[f], path_rays),
-                                       config.render_chunk_size)
-    depth_range = depth_range or vis.depth_range(rendering['distance_mean'])
-    for name, image in vis.visualize(rendering, depth_range).items():
-      vis.save_png(image, os.path.join(out_dir, f'{name}_{f:03d}.png'))
-      frames[name].append(vis.to_uint8(image))
-  print(f'{num_frames} frames of step {step} in {out_dir!r}')
-  if can_write_video():
-    scene = eval_lib.dataset_and_scene(config)[1]
-    for name, images in frames.items():
-      write_video(np.stack(images), os.path.join(out_dir, f'{scene}_{config.expname}_{name}.mp4'))
-  else:
-    print(VIDEO_HINT)
-  return out_dir
 
 
 def main(argv=None) -> int:
   """CLI entry point; returns the exit status."""
   args = run_dir_lib.flag_parser(__doc__.split('\n')[0]).parse_args(argv)
-  render(run_dir_lib.config_from_flags(args))
+  render_path.render(run_dir_lib.config_from_flags(args))
   return 0
 
 

@@ -7,238 +7,16 @@ Training resumes from the newest checkpoint of Config.checkpoint_dir, and refuse
 other settings. SIGINT / SIGTERM save a checkpoint and exit (status 128 + signal); rerun the command to resume.
 """
 
-import contextlib
-import dataclasses
 import os
-import signal
 import sys
-import time
 
 import jax
-import numpy as np
-from jax import random
-import tensorboardX
-import tqdm
 
-import eval as eval_lib
-from internal import checkpoints
 from internal import cli
-from internal import datasets
 from internal import demo
-from internal import depth_smoothness
 from internal import distributed
-from internal import inference
-from internal import metrics
 from internal import run_dir as run_dir_lib
-from internal import sharding
-from internal import train_step as train_step_lib
-from internal import vis
-
-PREVIEW_INDEX = 0  # The test view rendered every Config.train_render_every steps.
-
-
-@dataclasses.dataclass
-class TrainResult:
-  """What a call of `train` ends with; signum is the signal that stopped it early (else None)."""
-  model: object
-  state: train_step_lib.TrainState
-  run_dir: str
-  signum: object = None
-  skipped: int = 0  # Updates skipped for non-finite values in this call.
-
-
-class StopFlag:
-  """A signal handler that only records the signal: the loop saves a checkpoint and stops at the next step."""
-
-  def __init__(self):
-    self.signum = None
-
-  def __call__(self, signum, frame):
-    self.signum = signum
-
-  def stopping(self, sync_point: bool) -> bool:
-    """True when the loop must stop after this step.
-
-    With several processes they must stop at the same step: they agree at sync points only, where a signal
-    that any of them got stops them all.
-    """
-    if jax.process_count() > 1:
-      if not sync_point:
-        return False
-      self.signum = distributed.max_over_processes(self.signum or 0) or None
-    return self.signum is not None
-
-
-class NullWriter:
-  """The tensorboard writer of processes other than process 0: logs nothing."""
-
-  def add_scalar(self, *args, **kwargs):
-    """Logs nothing."""
-
-  add_image = add_scalar
-
-  def __enter__(self):
-    return self
-
-  def __exit__(self, *exc):
-    return False
-
-
-@contextlib.contextmanager
-def stop_on_signals():
-  """Installs a StopFlag for SIGINT and SIGTERM for the duration of the block; yields it."""
-  flag = StopFlag()
-  previous = {s: signal.signal(s, flag) for s in (signal.SIGINT, signal.SIGTERM)}
-  try:
-    yield flag
-  finally:
-    for s, handler in previous.items():
-      signal.signal(s, handler)
-
-
-class Progress:
-  """Per-step stats kept on device and fetched every Config.print_every steps: tqdm bar and tensorboard.
-
-  The bar counts steps whose stats were fetched (so finished), not steps dispatched: with asynchronous dispatch
-  the latter run ahead of the device, and the bar's rate and ETA would race and then stall at every fetch.
-  """
-
-  def __init__(self, config, writer, first_step: int):
-    self.config, self.writer = config, writer
-    self.window = []
-    self.bar = tqdm.tqdm(total=config.max_steps, initial=first_step - 1, unit='step',
-                         disable=not distributed.is_primary(), **cli.progress_kwargs())
-    self.tic = time.time()
-    self.skips = train_step_lib.SkipCounter(config.nonfinite_grad_policy, config.max_skipped_steps)
-
-  def add(self, step: int, stats) -> None:
-    """Records a step's stats; under policy 'raise' it waits for the step to check it (no overlap of steps)."""
-    if self.config.nonfinite_grad_policy == 'raise':
-      self.skips.record(jax.device_get(stats), step)
-    self.window.append((step, stats))
-
-  def flush(self, step: int) -> None:
-    """Fetches the window's stats, counts skipped updates, logs window means and throughput, updates the bar."""
-    if not self.window:
-      return
-    host = jax.device_get(self.window)
-    self.bar.update(len(host))  # These steps are done now.
-    if self.config.nonfinite_grad_policy != 'raise':
-      for s, stats in host:
-        self.skips.record(stats, s)
-    skipped = [(s, stats) for s, stats in host if stats['skipped']]
-    if skipped:
-      window = f'step {step}' if host[0][0] == step else f'steps {host[0][0]}-{step}'
-      tqdm.tqdm.write(f'{window}: {len(skipped)} update(s) skipped (step {skipped[-1][0]}: '
-                      f'non-finite {train_step_lib.skip_reason(skipped[-1][1])}); {self.skips.total} in all')
-    elapsed = max(time.time() - self.tic, 1e-9)
-    means = {k: float(np.mean([stats[k] for _, stats in host])) for k in host[-1][1]}
-    means['rays_per_sec'] = self.config.batch_size * len(host) / elapsed
-    means['steps_per_sec'] = len(host) / elapsed
-    for k, v in means.items():
-      self.writer.add_scalar(f'train/{k}', v, step)
-    self.writer.add_scalar('train/skipped_steps', self.skips.total, step)
-    self.bar.set_postfix(loss=f'{means["loss"]:.4f}', psnr=f'{means["psnr"]:.2f}',
-                         rays_per_s=f'{means["rays_per_sec"]:.0f}', skipped=self.skips.total, refresh=False)
-    self.window, self.tic = [], time.time()
-
-  def close(self) -> None:
-    """Closes the progress bar."""
-    self.bar.close()
-
-
-def preview(config, model, state, step: int, test_set, writer) -> None:
-  """Renders one test view with the current parameters and logs its PSNR and images to tensorboard."""
-  render_fn = inference.make_render_fn(config, model, sharding.local_copy(state.params), step)
-  rays = jax.tree.map(lambda x: x[PREVIEW_INDEX], test_set.rays)
-  rendering = inference.render_image(render_fn, rays, config.render_chunk_size)
-  writer.add_scalar('test/psnr', metrics.psnr(rendering['rgb'], test_set.images[PREVIEW_INDEX]), step)
-  for name, image in vis.visualize(rendering).items():
-    writer.add_image(f'test/{name}', vis.to_uint8(image), step, dataformats='HWC')
-
-
-def _example_rays(batcher):
-  """A few rays of the first batch, to initialize the model's shapes."""
-  return jax.tree.map(lambda x: x[:8], batcher(0)['rays'])
-
-
-def _check_batch(config, mesh) -> None:
-  """Raises ValueError naming Config.batch_size when it does not split evenly over the devices."""
-  if config.batch_size % mesh.size:
-    raise ValueError(f'Config.batch_size = {config.batch_size} must be a multiple of the number of devices '
-                     f'({mesh.size})')
-  patches = config.batch_size_random // config.patch_size**2
-  if depth_smoothness.needs_patches(config) and patches % mesh.size:
-    raise ValueError(f'Config.batch_size_random = {config.batch_size_random} makes {patches} patches of '
-                     f'{config.patch_size}x{config.patch_size}; expected a multiple of the number of devices '
-                     f'({mesh.size}) so that every device gets whole patches')
-
-
-def train(config, stop_at_step: int = 0) -> TrainResult:
-  """Trains up to Config.max_steps (or stop_at_step, if smaller and > 0), resuming from the newest checkpoint.
-
-  The run directory is locked against a second training meanwhile (by process 0, when several processes train
-  together). The final state is saved whether the loop ends or a signal stops it.
-  """
-  with contextlib.ExitStack() as stack:
-    distributed.on_primary(lambda: stack.enter_context(run_dir_lib.open_run(config)), 'opening the run directory')
-    return _train_in(config, config.checkpoint_dir, stop_at_step)
-
-
-def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
-  """train() inside the locked run directory; the settings are recorded once data and model are ready."""
-  mesh = sharding.data_mesh()
-  _check_batch(config, mesh)
-  dataset = distributed.primary_first(lambda: datasets.load_dataset('train', config), 'loading the data')
-  batcher = datasets.make_batcher(dataset, config)
-  eval_lib.check_eval_inputs(config)
-  init_key, train_key = random.split(random.PRNGKey(config.jax_rng_seed))
-  model, state = train_step_lib.create_train_state(config, init_key, _example_rays(batcher))
-  distributed.on_primary(lambda: run_dir_lib.record_settings(run_dir, config), 'recording the settings')
-  mngr = checkpoints.manager(run_dir, config.checkpoint_keep)
-  state = sharding.replicate(state, mesh)
-  restored = checkpoints.restore_latest(mngr, state)
-  state = restored if restored is not None else state
-  primary = distributed.is_primary()
-  writer = tensorboardX.SummaryWriter(os.path.join(run_dir, 'tensorboard')) if primary else NullWriter()
-  last = min(config.max_steps, stop_at_step) if stop_at_step > 0 else config.max_steps
-  try:
-    with writer, stop_on_signals() as stop:
-      state, skipped = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last)
-    checkpoints.save(mngr, state)
-  finally:
-    mngr.wait_until_finished()
-    mngr.close()
-  return TrainResult(model, state, run_dir, stop.signum, skipped)
-
-
-def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: int):
-  """Steps from state.step + 1 to last (or until a signal); saves every Config.checkpoint_every steps.
-
-  Returns (state, number of skipped updates). The stats are fetched and checked before every save.
-  """
-  step_fn = train_step_lib.make_train_step(config, model)
-  first = int(state.step) + 1
-  progress = Progress(config, writer, first)
-  test_set = None
-  try:
-    for step in range(first, last + 1):
-      state, stats = step_fn(state, sharding.shard_batch(batcher(step), mesh), key)
-      progress.add(step, stats)
-      stopping = stop.stopping(step % config.print_every == 0 or step == last)
-      if step % config.print_every == 0 or step == last or stopping:
-        progress.flush(step)
-      if stopping:
-        break
-      if config.train_render_every > 0 and step % config.train_render_every == 0 and distributed.is_primary():
-        test_set = test_set if test_set is not None else datasets.load_dataset('test', config)
-        preview(config, model, state, step, test_set, writer)
-      if step % config.checkpoint_every == 0 and step < last:
-        progress.flush(step)
-        checkpoints.save(mngr, state)
-  finally:
-    progress.close()
-  return state, progress.skips.total
+from internal import training
 
 
 def run_demo(bindings, stop_at_step: int = 0) -> int:
@@ -272,7 +50,7 @@ def main(argv=None) -> int:
 
 def train_and_report(config, stop_at_step: int = 0) -> int:
   """Trains one run and prints how it ended; returns the exit status (128 + signal when stopped)."""
-  result = train(config, stop_at_step)
+  result = training.train(config, stop_at_step)
   step = int(result.state.step)
   if result.signum is not None:
     print(f'Stopped by signal {result.signum} at step {step}; checkpoint saved in {result.run_dir!r}. '

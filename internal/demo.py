@@ -13,14 +13,14 @@ import jax
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-import eval as eval_lib
 from internal import checkpoints
 from internal import configs
 from internal import datasets
+from internal import evaluation
 from internal import inference
+from internal import render_path
 from internal import run_dir as run_dir_lib
 from internal import vis
-import render as render_lib
 
 CONFIG_DIR = os.path.dirname(run_dir_lib.DEMO_CONFIG)
 METHODS = {'mip-NeRF': [run_dir_lib.DEMO_CONFIG, os.path.join(CONFIG_DIR, 'demo_mipnerf.gin')],
@@ -55,9 +55,9 @@ def output_dir(method_cfgs: dict) -> str:
 
 def evaluate_and_render(config) -> dict:
   """Evaluates and renders the orbit of a trained run, each unless done for its newest step; metrics record."""
-  record = eval_lib.existing_record(config) or eval_lib.evaluate(config)
-  if not render_lib.existing_renders(config):
-    render_lib.render(config)
+  record = evaluation.existing_record(config) or evaluation.evaluate(config)
+  if not render_path.existing_renders(config):
+    render_path.render(config)
   return record
 
 
@@ -133,9 +133,9 @@ def write_picture(truth, records: dict, renderings: dict, n_input_views: int, pa
 
 def write_orbit_video(method_cfgs: dict, path: str) -> bool:
   """Writes both methods' orbit renders side by side (colour row, depth row) as an mp4; False without ffmpeg."""
-  if not render_lib.can_write_video():
+  if not render_path.can_write_video():
     return False
-  folders = {name: render_lib.output_dir(cfg.checkpoint_dir, checkpoints.latest_step(cfg.checkpoint_dir))
+  folders = {name: render_path.output_dir(cfg.checkpoint_dir, checkpoints.latest_step(cfg.checkpoint_dir))
              for name, cfg in method_cfgs.items()}
   num_frames = next(iter(method_cfgs.values())).render_path_frames
 
@@ -144,7 +144,7 @@ def write_orbit_video(method_cfgs: dict, path: str) -> bool:
              for kind in ('color', 'depth')]
     picture = grid(tiles, list(folders), ['colour', 'depth'])
     return picture[:picture.shape[0] // 2 * 2, :picture.shape[1] // 2 * 2]  # Even sizes for h264.
-  render_lib.write_video(np.stack([frame(f) for f in range(num_frames)]), path)
+  render_path.write_video(np.stack([frame(f) for f in range(num_frames)]), path)
   return True
 
 
@@ -154,12 +154,12 @@ def finish(bindings=()) -> dict:
   for name in METHODS:
     method_cfgs[name] = config = method_config(name, bindings)
     records[name] = evaluate_and_render(config)
-    test_set = datasets.load_dataset('test', config)
+    test_set = datasets.load_dataset('test', config, ground_truth=True)
     positions = [p for p in SHOWN_VIEWS if p < len(test_set.ids)]
     renderings[name] = render_views(config, test_set, positions)
   out_dir = output_dir(method_cfgs)
   truth = [test_set.images[p] for p in positions], [test_set.depths[p] for p in positions]
   write_picture(truth, records, renderings, config.n_input_views, os.path.join(out_dir, PICTURE))
   if not write_orbit_video(method_cfgs, os.path.join(out_dir, ORBIT_VIDEO)):
-    print(render_lib.VIDEO_HINT)
+    print(render_path.VIDEO_HINT)
   return {name: record['means']['psnr'] for name, record in records.items()}

@@ -20,7 +20,7 @@ from internal import configs
 from internal import datasets
 from internal import run_dir as run_dir_lib
 from internal import train_step
-import train
+from internal import training
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DEMO = str(ROOT / 'configs' / 'demo.gin')
@@ -84,11 +84,11 @@ def test_eval_side_check_names_the_differences(tmp_path):
 def test_resumed_training_equals_uninterrupted_training(tmp_path, scene_dir):
   n = 6
   bindings = (f'Config.max_steps = {2 * n}', f'Config.checkpoint_every = {n // 2}')
-  first = train.train(tiny_config(scene_dir, tmp_path / 'resumed', *bindings), stop_at_step=n)
+  first = training.train(tiny_config(scene_dir, tmp_path / 'resumed', *bindings), stop_at_step=n)
   assert int(first.state.step) == n
   assert checkpoints.latest_step(first.run_dir) == n
-  resumed = train.train(tiny_config(scene_dir, tmp_path / 'resumed', *bindings)).state
-  straight = train.train(tiny_config(scene_dir, tmp_path / 'straight', *bindings)).state
+  resumed = training.train(tiny_config(scene_dir, tmp_path / 'resumed', *bindings)).state
+  straight = training.train(tiny_config(scene_dir, tmp_path / 'straight', *bindings)).state
   assert int(resumed.step) == int(straight.step) == 2 * n
   for a, b in zip(_leaves(resumed), _leaves(straight)):
     np.testing.assert_array_equal(a, b)

@@ -13,7 +13,7 @@ from internal import datasets
 from internal import models
 from internal import run_dir
 from internal import train_step
-import train
+from internal import training
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 COMMON = ROOT / 'configs' / 'common'  # Blocks shared by `include`, not configs of their own.
@@ -81,7 +81,7 @@ def test_released_gin_files_parse_unchanged(name):
 def test_released_gin_files_train_two_steps_on_the_shared_scenes(tmp_path, name):
   config = configs.load_config([_released(name)], _run_bindings(name, tmp_path / 'run'))
   try:
-    result = train.train(config)
+    result = training.train(config)
   except datasets.DatasetNotFoundError as err:
     if 'training image' not in str(err):
       raise

@@ -5,8 +5,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-import eval as eval_lib
 from conftest import SHARED_DATA
+from internal import evaluation
 from internal.configs import Config
 from internal.datasets import DatasetError, DatasetNotFoundError, load_dataset, packed, render_path_rays
 from tools import pack_scene
@@ -124,4 +124,5 @@ def test_eval_files_a_pack_under_its_source(tmp_path):
   config = generated_config(tmp_path, 'object')
   pack_scene.pack(config, str(tmp_path / 'scene.npz'))
   reloaded = dataclasses.replace(config, dataset_loader='packed', data_dir=str(tmp_path / 'scene.npz'))
-  assert eval_lib.dataset_and_scene(reloaded) == eval_lib.dataset_and_scene(config) == ('blender', 'generated_object')
+  assert (evaluation.dataset_and_scene(reloaded) == evaluation.dataset_and_scene(config) ==
+          ('blender', 'generated_object'))

@@ -9,9 +9,10 @@ import numpy as np
 from PIL import Image
 import pytest
 
-import eval as eval_lib
 from internal import configs
 from internal import demo
+from internal import evaluation
+from internal import training
 from test_checkpoints import TINY
 import train
 
@@ -77,7 +78,7 @@ def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch,
   cfgs = demo.method_configs(bindings)
   for name, run in (('FreeNeRF', 'freenerf'), ('mip-NeRF', 'mipnerf')):
     assert cfgs[name].checkpoint_dir == f'out/demo/{run}'
-    record = eval_lib.existing_record(cfgs[name])
+    record = evaluation.existing_record(cfgs[name])
     assert record['step'] == 4 and record['method'] == run
     gin_text = (tmp_path / 'out' / 'demo' / run / 'config.gin').read_text()
     assert f"Config.expname = '{run}'" in gin_text and f'freq_reg = {run == "freenerf"}' in gin_text
@@ -97,6 +98,6 @@ def test_demo_settings_reconstruct_the_scene_from_all_views(tmp_path):
       f"Config.data_dir = '{tmp_path / 'scene'}'", f"Config.checkpoint_dir = '{tmp_path / 'run'}'"])
   assert config.n_input_views == 0 and not config.freq_reg and config.lr_final == demo.method_configs()[
       'FreeNeRF'].lr_final
-  train.train(config)
-  record = eval_lib.evaluate(config)
+  training.train(config)
+  record = evaluation.evaluate(config)
   assert record['complete'] and record['means']['psnr'] >= PIPELINE_MIN_PSNR, record['means']

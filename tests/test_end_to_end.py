@@ -14,17 +14,17 @@ import pytest
 from jax import random
 
 from conftest import SHARED_DATA
-import eval as eval_lib
 from internal import configs
 from internal import datasets
+from internal import evaluation
 from internal import inference
 from internal import metrics
+from internal import render_path
+from internal import results
 from internal import train_step
+from internal import training
 from internal import vis
-import render as render_lib
 from test_checkpoints import ROOT, tiny_config
-from tools import tables
-import train
 
 STEPS = 300
 
@@ -51,19 +51,19 @@ def _config(run, scene, *bindings):
 def trained(tmp_path_factory, scene_dir):  # pylint: disable=redefined-outer-name
   """(run dir, scene dir) of the e2e config trained for STEPS steps."""
   run = tmp_path_factory.mktemp('e2e') / 'run'
-  train.train(_config(run, scene_dir))
+  training.train(_config(run, scene_dir))
   return run, scene_dir
 
 
 def test_training_beats_the_untrained_model_and_eval_writes_everything(trained):
   run, _ = trained
   config = _config(*trained)
-  record = eval_lib.evaluate(config)
-  out_dir = eval_lib.output_dir(str(run), STEPS)
+  record = evaluation.evaluate(config)
+  out_dir = evaluation.output_dir(str(run), STEPS)
   test_set = datasets.load_dataset('test', config)
   assert record['step'] == STEPS and record['complete'] and len(record['per_image']) == len(test_set.ids)
   assert record['means']['psnr'] > _untrained_psnr(config, test_set) + 3.
-  assert tables.read_record(os.path.join(out_dir, tables.METRICS_FILENAME)) == json.loads(json.dumps(record))
+  assert results.read_record(os.path.join(out_dir, results.METRICS_FILENAME)) == json.loads(json.dumps(record))
   assert record['means']['lpips'] is None and 'no_such.pkl' in record['lpips_missing_reason']
   with open(os.path.join(out_dir, 'metrics.csv')) as f:
     rows = list(csv.DictReader(f))
@@ -77,34 +77,34 @@ def test_training_beats_the_untrained_model_and_eval_writes_everything(trained):
 
 def test_eval_never_replaces_a_finished_evaluation(trained):
   config = _config(*trained)
-  if eval_lib.existing_record(config) is None:
-    eval_lib.evaluate(config)
+  if evaluation.existing_record(config) is None:
+    evaluation.evaluate(config)
   with pytest.raises(FileExistsError, match='Config.overwrite'):
-    eval_lib.evaluate(config)
+    evaluation.evaluate(config)
 
 
 def test_eval_subset_at_lower_resolution_is_marked_incomplete(trained):
   config = _config(*trained, 'Config.eval_test_ids = [1, 3]', 'Config.eval_factor = 2',
                    'Config.compute_lpips = False', 'Config.overwrite = True')
-  record = eval_lib.evaluate(config)
+  record = evaluation.evaluate(config)
   assert not record['complete'] and [p['id'] for p in record['per_image']] == [1, 3]
   assert record['lpips_missing_reason'] == 'Config.compute_lpips = False'
-  image = np.asarray(Image.open(os.path.join(eval_lib.output_dir(config.checkpoint_dir, STEPS),
+  image = np.asarray(Image.open(os.path.join(evaluation.output_dir(config.checkpoint_dir, STEPS),
                                                           'color_001.png')))
   assert image.shape == (16, 20, 3)
   with pytest.raises(ValueError, match='Config.eval_test_ids'):
-    eval_lib.select_positions(dataclasses.replace(config, eval_test_ids=[99]), 8)
+    evaluation.select_positions(dataclasses.replace(config, eval_test_ids=[99]), 8)
 
 
 def test_render_writes_the_frames_and_refuses_to_replace_them(trained):
   config = _config(*trained)
-  out_dir = render_lib.render(config)
-  assert out_dir == render_lib.output_dir(config.checkpoint_dir, STEPS)
+  out_dir = render_path.render(config)
+  assert out_dir == render_path.output_dir(config.checkpoint_dir, STEPS)
   for f in range(3):
     for name in ('color', 'depth', 'opacity'):
       assert os.path.isfile(os.path.join(out_dir, f'{name}_{f:03d}.png'))
   with pytest.raises(FileExistsError, match='Config.overwrite'):
-    render_lib.render(config)
+    render_path.render(config)
 
 
 def test_dtu_eval_reports_full_and_object_metrics(tmp_path):
@@ -117,8 +117,8 @@ def test_dtu_eval_reports_full_and_object_metrics(tmp_path):
       'Config.allow_missing_test_views = True', 'Config.factor = 16', 'Config.max_steps = 2',
       f"Config.checkpoint_dir = '{tmp_path / 'run'}'", 'Config.batch_size = 64', 'Config.eval_test_ids = [0, 1]',
       'Config.compute_lpips = False', 'MLP.net_depth = 2', 'MLP.net_width = 16', 'MipNerfModel.num_samples = 8'])
-  train.train(config)
-  record = eval_lib.evaluate(config)
+  training.train(config)
+  record = evaluation.evaluate(config)
   assert (record['dataset'], record['scene'], record['n_input_views']) == ('dtu', 'dtu_scan24', 3)
   assert not record['complete'] and [p['id'] for p in record['per_image']] == [1, 9]
   for name in metrics.FULL_METRICS + metrics.MASKED_METRICS:
@@ -131,7 +131,7 @@ def test_nonfinite_gradients_raise_under_the_raise_policy(tmp_path, scene_dir): 
   config = tiny_config(scene_dir, tmp_path / 'run', 'Config.max_steps = 3',
                        "Config.nonfinite_grad_policy = 'raise'")
   with pytest.raises(train_step.NonFiniteError, match='^step 1: non-finite learning rate'):
-    train.train(dataclasses.replace(config, lr_init=float('nan')))  # Caught at step 1, before any update.
+    training.train(dataclasses.replace(config, lr_init=float('nan')))  # Caught at step 1, before any update.
 
 
 def test_png_truncates_as_released_and_depth_is_turbo_near_red(tmp_path):

@@ -11,6 +11,7 @@ from internal import configs
 from internal import datasets
 from internal import schedule
 from internal import train_step
+from internal import training
 from test_checkpoints import DEMO, TINY, tiny_config
 import train
 
@@ -62,7 +63,7 @@ def test_raise_policy_stops_at_the_offending_step_before_saving_it(tmp_path, sce
   config = tiny_config(scene_dir, tmp_path / 'run', 'Config.max_steps = 6', 'Config.checkpoint_every = 1',
                        "Config.nonfinite_grad_policy = 'raise'")
   with pytest.raises(train_step.NonFiniteError, match=r'^step 3: non-finite loss, gradients, new parameters'):
-    train.train(config)
+    training.train(config)
   assert _saved_steps(tmp_path / 'run') == [1, 2]
 
 
@@ -72,7 +73,7 @@ def test_max_skipped_steps_in_a_row_stop_the_run(tmp_path, scene_dir, monkeypatc
                        'Config.print_every = 2', 'Config.max_skipped_steps = 4')
   with pytest.raises(train_step.NonFiniteError, match=r'^steps 3-6: 4 consecutive updates skipped \(last: '
                      r'non-finite learning rate, .*Config.max_skipped_steps = 4'):
-    train.train(config)
+    training.train(config)
   assert _saved_steps(tmp_path / 'run') == [1, 2, 3, 4, 5]
 
 

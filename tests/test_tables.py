@@ -8,11 +8,12 @@ import sys
 
 import pytest
 
+from internal import results
 from tools import tables
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
-LLFF = tables.EXPECTED_SCENES['llff']
-DTU = tables.EXPECTED_SCENES['dtu']
+LLFF = results.EXPECTED_SCENES['llff']
+DTU = results.EXPECTED_SCENES['dtu']
 
 
 def _llff_values(i):
@@ -30,9 +31,9 @@ def _write(root, dataset, scene, views, method, values, step=1000, complete=True
   """Writes a one-image metrics.json under root/<method>/<dataset><views>/<scene>/ and returns its path."""
   run = root / method / f'{dataset}{views}' / scene / f'step{step}'
   run.mkdir(parents=True)
-  record = tables.make_record(dataset, scene, views, method, step, [{'id': 0, **values}], complete)
-  tables.write_record(run / tables.METRICS_FILENAME, record)
-  return run / tables.METRICS_FILENAME
+  record = results.make_record(dataset, scene, views, method, step, [{'id': 0, **values}], complete)
+  results.write_record(run / results.METRICS_FILENAME, record)
+  return run / results.METRICS_FILENAME
 
 
 def _read_csv(path):
@@ -62,11 +63,11 @@ def fixture_runs(tmp_path):
 
 
 def test_make_record_means_over_images():
-  record = tables.make_record('llff', 'fern', 3, 'freenerf', 7,
-                              [{'id': 0, 'psnr': 20., 'lpips': None}, {'id': 8, 'psnr': 23., 'lpips': None}], True)
+  record = results.make_record('llff', 'fern', 3, 'freenerf', 7,
+                               [{'id': 0, 'psnr': 20., 'lpips': None}, {'id': 8, 'psnr': 23., 'lpips': None}], True)
   assert record['means'] == {'psnr': 21.5, 'lpips': None}
   with pytest.raises(ValueError, match='n_input_views'):
-    tables.make_record('llff', 'fern', '3', 'freenerf', 7, [], True)
+    results.make_record('llff', 'fern', '3', 'freenerf', 7, [], True)
 
 
 def test_complete_llff_means_and_incomplete_method(runs, tmp_path, capsys):
@@ -137,10 +138,10 @@ def test_same_step_twice_is_an_error(tmp_path):
 
 
 def test_bad_record_names_the_file(tmp_path):
-  path = tmp_path / tables.METRICS_FILENAME
+  path = tmp_path / results.METRICS_FILENAME
   path.write_text(json.dumps({'dataset': 'llff'}))
   with pytest.raises(ValueError, match=str(path)):
-    tables.read_record(path)
+    results.read_record(path)
 
 
 def test_command_line(runs, tmp_path):

@@ -82,9 +82,7 @@ def _peak_memory() -> dict:
 def run_cell(path: str) -> dict:
   """Trains (resuming) and evaluates the cell in folder path from its cell_spec.json; writes cell.json."""
   import gin  # pylint: disable=import-outside-toplevel
-  import eval as eval_lib  # pylint: disable=import-outside-toplevel
-  from internal import checkpoints, configs, flops  # pylint: disable=import-outside-toplevel
-  import train  # pylint: disable=import-outside-toplevel
+  from internal import checkpoints, configs, evaluation, flops, training  # pylint: disable=import-outside-toplevel
   with open(os.path.join(path, SPEC_FILE)) as f:
     spec = json.load(f)
   gin.clear_config()
@@ -94,12 +92,12 @@ def run_cell(path: str) -> dict:
   except checkpoints.NoCheckpointError:
     start_step = None
   tic = time.perf_counter()
-  result = train.train(config)
+  result = training.train(config)
   train_seconds = time.perf_counter() - tic
   if result.signum is not None:
     raise RuntimeError(f'training of {path!r} stopped by signal {result.signum}; rerun to resume')
   tic = time.perf_counter()
-  record = eval_lib.existing_record(config) or eval_lib.evaluate(config)
+  record = evaluation.existing_record(config) or evaluation.evaluate(config)
   eval_seconds = time.perf_counter() - tic
   steps = config.max_steps - (start_step or 0)
   cell = {**{k: spec[k] for k in ('study', 'cell', 'method', 'scene', 'labels')},

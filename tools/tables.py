@@ -2,13 +2,7 @@
 
 Usage: python -m tools.tables RUN_ROOT... --out DIR [--allow-incomplete]
 
-metrics.json (written by eval.py through `make_record` / `write_record`; see RECORD_FIELDS):
-  {"dataset": "dtu" | "llff" | "blender", "scene": str (e.g. "scan8", "fern", "lego"), "n_input_views": int,
-   "method": str (e.g. "freenerf", "mipnerf"), "step": int,
-   "means": {metric: float or null}, the mean over test views of each per-image value (null: not available),
-   "per_image": [{"id": int, metric: float or null, ...}], one entry per evaluated test view, in test order,
-   "complete": bool, true when every test view was evaluated at full resolution}
-Metric names are internal.metrics.FULL_METRICS (+ MASKED_METRICS for DTU object metrics).
+metrics.json: the record of internal/results.py (written by eval.py; see results.RECORD_FIELDS).
 
 A table's mean over scenes is the mean of the per-scene means, each the mean over test views (the paper's
 convention, also for the 'Avg' column: the mean of per-image avg_error). A mean is only given over the full
@@ -20,24 +14,13 @@ averages what exists instead and marks such means with '*'.
 import argparse
 import csv
 import dataclasses
-import json
-import math
 import pathlib
 import sys
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from internal import atomic
+from internal import results
 from internal.metrics import FULL_METRICS, MASKED_METRICS
 
-METRICS_FILENAME = 'metrics.json'
-RECORD_FIELDS = {'dataset': str, 'scene': str, 'n_input_views': int, 'method': str, 'step': int,
-                 'means': dict, 'per_image': list, 'complete': bool}
-EXPECTED_SCENES = {
-    'dtu': tuple(f'scan{i}' for i in (8, 21, 30, 31, 34, 38, 40, 41, 45, 55, 63, 82, 103, 110, 114)),
-    'llff': ('fern', 'flower', 'fortress', 'horns', 'leaves', 'orchids', 'room', 'trex'),
-    'blender': ('chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship'),
-}
-DATASETS = tuple(EXPECTED_SCENES)
 # Column groups of the paper's tables: (label, metric keys).
 METRIC_GROUPS = {
     'dtu': (('object', MASKED_METRICS), ('full', FULL_METRICS)),
@@ -48,53 +31,13 @@ _DISPLAY = {'psnr': 'PSNR', 'ssim': 'SSIM', 'lpips': 'LPIPS', 'avg_error': 'Avg'
 Key = Tuple[str, str, int, str]  # (dataset, method, n_input_views, scene)
 
 
-def _mean(values: Sequence[Optional[float]]) -> Optional[float]:
-  """Mean of the values; None when there are none or one is None."""
-  if not values or any(v is None for v in values):
-    return None
-  return float(math.fsum(values) / len(values))
-
-
-def check_record(record: dict, where: str) -> None:
-  """Raises ValueError naming `where` and the field when a record does not follow the schema."""
-  for field, kind in RECORD_FIELDS.items():
-    if not isinstance(record.get(field), kind) or (kind is int and isinstance(record[field], bool)):
-      raise ValueError(f'{where}: field {field!r} = {record.get(field)!r}; expected {kind.__name__}')
-  if record['dataset'] not in DATASETS:
-    raise ValueError(f'{where}: dataset {record["dataset"]!r}; expected one of {list(DATASETS)}')
-
-
-def make_record(dataset: str, scene: str, n_input_views: int, method: str, step: int,
-                per_image: List[dict], complete: bool) -> dict:
-  """A metrics.json record; means[m] = mean of per_image[i][m] (None if any image lacks m)."""
-  names = [name for name in (per_image[0] if per_image else {}) if name != 'id']
-  record = {'dataset': dataset, 'scene': scene, 'n_input_views': n_input_views, 'method': method,
-            'step': step, 'means': {name: _mean([img.get(name) for img in per_image]) for name in names},
-            'per_image': per_image, 'complete': complete}
-  check_record(record, f'record {dataset}/{scene}')
-  return record
-
-
-def write_record(path, record: dict) -> None:
-  """Writes a record as JSON (after checking it)."""
-  check_record(record, str(path))
-  atomic.write_text(path, json.dumps(record, indent=1))
-
-
-def read_record(path) -> dict:
-  """Reads and checks a metrics.json file."""
-  record = json.loads(pathlib.Path(path).read_text())
-  check_record(record, str(path))
-  return record
-
-
 def find_metrics_files(roots: Sequence[str]) -> List[pathlib.Path]:
   """metrics.json files under each root (a directory, searched recursively, or a file), without repeats."""
   found = []
   for root in map(pathlib.Path, roots):
     if not root.exists():
       raise FileNotFoundError(f'run root {str(root)!r} does not exist')
-    found += [root] if root.is_file() else sorted(root.rglob(METRICS_FILENAME))
+    found += [root] if root.is_file() else sorted(root.rglob(results.METRICS_FILENAME))
   return list(dict.fromkeys(path.resolve() for path in found))
 
 
@@ -102,7 +45,7 @@ def collect(paths: Sequence[pathlib.Path]) -> Tuple[Dict[Key, dict], List[str]]:
   """Records by (dataset, method, views, scene); of several runs the highest step is kept, with a warning."""
   chosen, sources, warnings = {}, {}, []
   for path in paths:
-    record = read_record(path)
+    record = results.read_record(path)
     key = (record['dataset'], record['method'], record['n_input_views'], record['scene'])
     if key in chosen:
       if chosen[key]['step'] == record['step']:
@@ -140,7 +83,7 @@ def _label(group: Tuple[str, str, int]) -> str:
 
 def _gaps(scenes: Dict[str, dict], dataset: str) -> List[str]:
   """What keeps a group's means from covering the protocol's scene list, complete runs, every metric."""
-  expected = EXPECTED_SCENES[dataset]
+  expected = results.EXPECTED_SCENES[dataset]
   present = [s for s in expected if s in scenes]
   gaps = []
   if len(present) < len(expected):
@@ -158,13 +101,13 @@ def _gaps(scenes: Dict[str, dict], dataset: str) -> List[str]:
 
 def _scene_mean(scenes: Dict[str, dict], dataset: str, metric: str, allow_incomplete: bool) -> Value:
   """Mean over the protocol's scenes of a metric; empty when incomplete, or marked '*' if allowed."""
-  expected = EXPECTED_SCENES[dataset]
+  expected = results.EXPECTED_SCENES[dataset]
   values = [scenes[s]['means'].get(metric) for s in expected if s in scenes]
   usable = [v for v in values if v is not None]
   if len(usable) == len(expected) and all(scenes[s]['complete'] for s in expected):
-    return Value(_mean(usable), metric)
+    return Value(results.mean(usable), metric)
   if allow_incomplete and usable:
-    return Value(_mean(usable), metric, '*')
+    return Value(results.mean(usable), metric, '*')
   return Value(None, metric)
 
 
@@ -184,9 +127,9 @@ def _scene_table(group: Tuple[str, str, int], scenes: Dict[str, dict], allow_inc
   """Per-scene rows and the mean row of one (dataset, method, views) group."""
   dataset = group[0]
   columns = _metric_columns(dataset)
-  extras = sorted(s for s in scenes if s not in EXPECTED_SCENES[dataset])
+  extras = sorted(s for s in scenes if s not in results.EXPECTED_SCENES[dataset])
   rows = []
-  for scene in EXPECTED_SCENES[dataset] + tuple(extras):
+  for scene in results.EXPECTED_SCENES[dataset] + tuple(extras):
     record = scenes.get(scene)
     if record is None:
       rows.append([scene, '', 'missing'] + [Value(None, m) for _, m in columns])
@@ -290,7 +233,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
   args = parser.parse_args(argv)
   paths = find_metrics_files(args.roots)
   if not paths:
-    print(f'WARNING: no {METRICS_FILENAME} under {args.roots}', file=sys.stderr)
+    print(f'WARNING: no {results.METRICS_FILENAME} under {args.roots}', file=sys.stderr)
     return 1
   records, warnings = collect(paths)
   tables, table_warnings = build_tables(records, args.allow_incomplete)

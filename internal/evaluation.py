@@ -1,0 +1,136 @@
+"""Evaluation of a run's newest checkpoint on its test views: the metrics.json record, a per-image CSV, images."""
+
+import csv
+import io
+import os
+import warnings
+
+import jax
+
+from internal import atomic
+from internal import checkpoints
+from internal import datasets
+from internal import depth_metrics
+from internal.datasets import packed
+from internal import inference
+from internal import lpips
+from internal import metrics
+from internal import results
+from internal import run_dir as run_dir_lib
+from internal import vis
+
+
+def output_dir(run_dir: str, step: int) -> str:
+  """<run_dir>/test_preds_step_<step>."""
+  return os.path.join(run_dir, f'test_preds_step_{step}')
+
+
+def existing_record(config):
+  """The metrics.json record of the run's newest step if that step was evaluated, else None."""
+  run_dir = run_dir_lib.check_run_dir(config)
+  path = os.path.join(output_dir(run_dir, checkpoints.latest_step(run_dir)), results.METRICS_FILENAME)
+  return results.read_record(path) if os.path.isfile(path) else None
+
+
+def dataset_and_scene(config) -> tuple:
+  """(dataset, scene) naming a run in metrics.json.
+
+  A generated scene is filed under the layout it is written in (blender for the object rig, llff for the
+  forward rig) as scene 'generated_<rig>', which tools.tables shows but never averages.
+  """
+  loader = config.dataset_loader
+  if loader == 'packed':  # Filed like the scene it was packed from (its settings are checked on load).
+    loader = packed.source_loader(config.data_dir)
+  if loader == 'generated':
+    return ('blender' if config.generated_rig == 'object' else 'llff'), f'generated_{config.generated_rig}'
+  scene = {'dtu': config.dtu_scan, 'llff': config.llff_scan, 'blender': config.blender_scene}
+  return loader, scene[loader]
+
+
+def load_lpips_fn(config):
+  """(lpips function or None, reason it is None): LPIPS-VGG unless Config.compute_lpips is False."""
+  if not config.compute_lpips:
+    return None, 'Config.compute_lpips = False'
+  try:
+    return lpips.load_lpips('vgg', config.lpips_weights_path, config.lpips_input_range), None
+  except lpips.LpipsUnavailable as e:
+    return None, str(e)
+
+
+def check_eval_inputs(config) -> None:
+  """Before training: loads the test split once (images, DTU masks) so that a missing file raises now, not
+  after training; warns when LPIPS will be reported as null."""
+  datasets.load_dataset('test', config)
+  if config.compute_lpips:
+    _, reason = load_lpips_fn(config)
+    if reason:
+      warnings.warn(f'LPIPS will be null in metrics.json: {reason} (Config.compute_lpips = False silences this)',
+                    stacklevel=2)
+
+
+def select_positions(config, num_views: int) -> list:
+  """Positions of the test views to evaluate: Config.eval_test_ids (checked) or all."""
+  if config.eval_test_ids is None:
+    return list(range(num_views))
+  positions = [int(i) for i in config.eval_test_ids]
+  bad = [i for i in positions if not 0 <= i < num_views]
+  if bad:
+    raise ValueError(f'Config.eval_test_ids = {list(config.eval_test_ids)}: positions {bad} are outside the '
+                     f'{num_views} test views (0..{num_views - 1})')
+  return positions
+
+
+def is_complete(config) -> bool:
+  """True when every test view is evaluated at full resolution (a dropped missing view counts as incomplete)."""
+  return config.eval_test_ids is None and config.eval_factor == 1 and not config.allow_missing_test_views
+
+
+def save_images(rendering, out_dir: str, view_id: int) -> None:
+  """Writes color_, depth_ and opacity_<view_id>.png of one rendered view."""
+  for name, image in vis.visualize(rendering).items():
+    vis.save_png(image, os.path.join(out_dir, f'{name}_{view_id:03d}.png'))
+
+
+def write_csv(per_image: list, path: str) -> None:
+  """One row per evaluated view: id and every metric (empty when unavailable)."""
+  text = io.StringIO()
+  writer = csv.DictWriter(text, fieldnames=list(per_image[0]))
+  writer.writeheader()
+  writer.writerows({k: ('' if v is None else v) for k, v in row.items()} for row in per_image)
+  atomic.write_text(path, text.getvalue())
+
+
+def evaluate(config) -> dict:
+  """Renders and scores the test views of the run's newest checkpoint; returns the metrics.json record."""
+  run_dir = run_dir_lib.check_run_dir(config)
+  test_set = datasets.load_dataset('test', config, ground_truth=True)  # Exact depths for the depth metrics.
+  positions = select_positions(config, len(test_set.ids))
+  model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], test_set.rays))
+  step = int(state.step)  # The newest intact checkpoint's.
+  out_dir = output_dir(run_dir, step)
+  metrics_path = os.path.join(out_dir, results.METRICS_FILENAME)
+  if os.path.exists(metrics_path) and not config.overwrite:
+    raise FileExistsError(f'{metrics_path!r} exists (step {step} was evaluated already); set '
+                          'Config.overwrite = True to evaluate again and replace it')
+  render_fn = inference.make_render_fn(config, model, state.params, step)
+  lpips_fn, lpips_reason = load_lpips_fn(config)
+  depth_score = depth_metrics.scorer(test_set, ndc=dataset_and_scene(config)[0] == 'llff')  # Exact depths.
+  os.makedirs(out_dir, exist_ok=True)
+  per_image = []
+  for i in positions:
+    rendering = inference.render_image(render_fn, jax.tree.map(lambda x, i=i: x[i], test_set.rays),
+                                       config.render_chunk_size)
+    mask = None if test_set.masks is None else test_set.masks[i]
+    values = metrics.image_metrics(rendering['rgb'], test_set.images[i], lpips_fn, mask)
+    if depth_score is not None:
+      values.update(depth_score(i, rendering['distance_mean']))
+    per_image.append({'id': int(test_set.ids[i]), **values})
+    save_images(rendering, out_dir, int(test_set.ids[i]))
+    print(f'view {test_set.ids[i]}: ' + ', '.join(f'{k} {v:.4f}' for k, v in values.items() if v is not None))
+  record = results.make_record(*dataset_and_scene(config), config.n_input_views, config.expname, step,
+                              per_image, is_complete(config))
+  record.update(lpips_missing_reason=lpips_reason, eval_factor=config.eval_factor,
+                test_positions=positions, run_dir=os.path.abspath(run_dir))
+  write_csv(per_image, os.path.join(out_dir, 'metrics.csv'))
+  results.write_record(metrics_path, record)
+  return record
