@@ -75,7 +75,7 @@ def test_refuses_a_foreign_non_empty_directory_even_with_overwrite(tmp_path):
 def test_eval_side_check_names_the_differences(tmp_path):
   run_dir_lib.record_settings(run_dir_lib.prepare_run_dir(tiny_config('s', tmp_path / 'run')),
                               tiny_config('s', tmp_path / 'run'))
-  with pytest.raises(run_dir_lib.RunDirError, match='Config.freq_reg_end: 630 -> 0'):
+  with pytest.raises(run_dir_lib.RunDirError, match='Config.freq_reg_end: 350 -> 0'):
     run_dir_lib.check_run_dir(tiny_config('s', tmp_path / 'run', 'Config.freq_reg_end = 0'))
   with pytest.raises(run_dir_lib.RunDirError, match='holds no run'):
     run_dir_lib.check_run_dir(tiny_config('s', tmp_path / 'other'))

@@ -88,7 +88,7 @@ def test_a_failed_first_start_records_nothing_and_the_corrected_retry_runs(tmp_p
   with pytest.warns(UserWarning, match=r"LPIPS will be null.*no_such\.pkl"):
     training.train(tiny_config(scene_dir, run, 'Config.max_steps = 2',
                             f"Config.lpips_weights_path = '{tmp_path / 'no_such.pkl'}'"))
-  assert run_dir_lib.read_fingerprint(str(run))['Config.n_input_views'] == 3
+  assert run_dir_lib.read_fingerprint(str(run))['Config.n_input_views'] == 8
   assert checkpoints.latest_step(str(run)) == 2 and not (run / run_dir_lib.LOCK_FILE).exists()
   assert sorted(os.listdir(run)) == ['checkpoints', 'config.gin', 'config.json', 'tensorboard']
 
