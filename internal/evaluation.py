@@ -6,6 +6,7 @@ import os
 import warnings
 
 import jax
+import numpy as np
 
 from internal import atomic
 from internal import checkpoints
@@ -86,9 +87,12 @@ def is_complete(config) -> bool:
 
 
 def save_images(rendering, out_dir: str, view_id: int) -> None:
-  """Writes color_, depth_ and opacity_<view_id>.png of one rendered view."""
+  """Writes color_, depth_ and opacity_<view_id>.png of one rendered view, and its raw depth_<view_id>.npz."""
   for name, image in vis.visualize(rendering).items():
     vis.save_png(image, os.path.join(out_dir, f'{name}_{view_id:03d}.png'))
+  np.savez_compressed(depth_metrics.depth_file(out_dir, view_id),
+                      distance=np.asarray(rendering['distance_mean'], np.float32),
+                      acc=np.asarray(rendering['acc'], np.float32))
 
 
 def write_csv(per_image: list, path: str) -> None:
@@ -114,7 +118,10 @@ def evaluate(config) -> dict:
                           'Config.overwrite = True to evaluate again and replace it')
   render_fn = inference.make_render_fn(config, model, state.params, step)
   lpips_fn, lpips_reason = load_lpips_fn(config)
-  depth_score = depth_metrics.scorer(test_set, ndc=dataset_and_scene(config)[0] == 'llff')  # Exact depths.
+  ndc = dataset_and_scene(config)[0] == 'llff'
+  depth_scores = [depth_metrics.scorer(test_set, ndc)]  # Exact depths (generated scenes).
+  if config.depth_reference_dir:
+    depth_scores.append(depth_metrics.reference_scorer(test_set, ndc, config.depth_reference_dir, positions))
   os.makedirs(out_dir, exist_ok=True)
   per_image = []
   for i in positions:
@@ -122,7 +129,7 @@ def evaluate(config) -> dict:
                                        config.render_chunk_size)
     mask = None if test_set.masks is None else test_set.masks[i]
     values = metrics.image_metrics(rendering['rgb'], test_set.images[i], lpips_fn, mask)
-    if depth_score is not None:
+    for depth_score in filter(None, depth_scores):
       values.update(depth_score(i, rendering['distance_mean']))
     per_image.append({'id': int(test_set.ids[i]), **values})
     save_images(rendering, out_dir, int(test_set.ids[i]))

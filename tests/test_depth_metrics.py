@@ -1,12 +1,16 @@
 """Depth metrics: hand-computed errors, the generated scene's depths in ray units, NDC back to world depth."""
 
+import dataclasses
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from internal import datasets
 from internal import depth_metrics
+from internal import evaluation
+from internal import training
 from test_checkpoints import tiny_config
 
 
@@ -64,3 +68,45 @@ def test_ndc_distance_maps_back_to_the_forward_rig_depth(tmp_path):
   score = depth_metrics.scorer(test_set, ndc=True)
   assert score(i, t_ndc)['depth_within_1pct'] == 1.
   assert score(i, t_ndc * 0.)['depth_within_5pct'] < 1.
+
+
+def _reference(run_dir, step, depths, accs):
+  """Writes depth_<id>.npz files (ids 0, 1, ...) of a fake evaluation at step into run_dir."""
+  out = run_dir / f'test_preds_step_{step}'
+  out.mkdir(parents=True)
+  for view_id, (distance, acc) in enumerate(zip(depths, accs)):
+    np.savez(depth_metrics.depth_file(str(out), view_id), distance=distance, acc=acc)
+
+
+def test_pseudo_depth_against_the_newest_reference_by_hand(tmp_path):
+  test_set = SimpleNamespace(ids=[0, 1], images=np.zeros((2, 1, 2, 3)))
+  _reference(tmp_path, 5, [np.full((1, 2), 9.)] * 2, [np.ones((1, 2))] * 2)   # Older: must not be used.
+  _reference(tmp_path, 10, [np.array([[2., 3.]]), np.array([[6., 4.]])], [np.array([[1., .2]]), np.ones((1, 2))])
+  score = depth_metrics.reference_scorer(test_set, False, str(tmp_path), positions=[0, 1])
+  # Opaque reference depths 2, 6, 4: range 4, so 1% = 0.04 and 5% = 0.2; view 0's second pixel is not opaque.
+  assert score(0, np.array([[2.1, 0.]])) == pytest.approx(
+      {'pseudo_depth_mae': .1, 'pseudo_depth_within_1pct': 0., 'pseudo_depth_within_5pct': 1.})
+  assert score(1, np.array([[6.03, 5.]])) == pytest.approx(
+      {'pseudo_depth_mae': (.03 + 1.) / 2, 'pseudo_depth_within_1pct': .5, 'pseudo_depth_within_5pct': .5})
+
+
+def test_pseudo_depth_reference_errors_name_the_problem(tmp_path):
+  test_set = SimpleNamespace(ids=[0, 3], images=np.zeros((2, 1, 2, 3)))
+  with pytest.raises(ValueError, match='holds no evaluation with depths'):
+    depth_metrics.reference_scorer(test_set, False, str(tmp_path), positions=[0])
+  _reference(tmp_path, 7, [np.ones((1, 2))], [np.ones((1, 2))])
+  with pytest.raises(ValueError, match=r'depth_003\.npz.*same test views'):
+    depth_metrics.reference_scorer(test_set, False, str(tmp_path), positions=[1])
+  test_set.images = np.zeros((2, 4, 4, 3))
+  with pytest.raises(ValueError, match=r'\(1, 2\) depth map.*\(4, 4\)'):
+    depth_metrics.reference_scorer(test_set, False, str(tmp_path), positions=[0])
+
+
+def test_a_run_against_its_own_depths_has_zero_pseudo_error(tmp_path, scene_dir):
+  config = tiny_config(scene_dir, tmp_path / 'run', 'Config.max_steps = 2', 'Config.compute_lpips = False',
+                       'Config.eval_test_ids = [0, 1]')
+  training.train(config)
+  evaluation.evaluate(config)
+  again = dataclasses.replace(config, depth_reference_dir=str(tmp_path / 'run'), overwrite=True)
+  means = evaluation.evaluate(again)['means']
+  assert means['pseudo_depth_mae'] == 0. and means['pseudo_depth_within_1pct'] == 1.
