@@ -31,7 +31,7 @@ VIEWS_AXIS = 'views'
 # Recorded per-cell numbers that can serve as a plot's x besides the axes.
 RECORDED_X = ('train_seconds', 'eval_seconds', 'steps_per_sec', 'gflops_per_step', 'peak_rss_mb')
 # Metrics where lower is better (the Pareto front keeps the low ones).
-LOWER_IS_BETTER = ('lpips', 'avg_error', 'depth_mae', 'lpips_masked', 'avg_error_masked')
+LOWER_IS_BETTER = ('lpips', 'avg_error', 'depth_mae', 'pseudo_depth_mae', 'lpips_masked', 'avg_error_masked')
 
 
 class StudyError(ValueError):
