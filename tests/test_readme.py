@@ -24,7 +24,7 @@ from test_checkpoints import ROOT
 README = ROOT / 'README.md'
 BLOCKS = re.findall(r'^```bash\n(.*?)^```', README.read_text(), re.S | re.M)
 INSTALL_STEP = re.compile(r'^(python3 -m venv .*|\. \.venv/bin/activate|pip install .*)$')
-LOOP_VARIABLES = {'DTU_SCANS': 'scan8', 'LLFF_SCENES': 'fern', 'BLENDER_SCENES': 'lego', 'VIEWS': '3',
+LOOP_VARIABLES = {'DATA_ROOT': str(SHARED_DATA), 'DTU_SCANS': 'scan8', 'LLFF_SCENES': 'fern', 'BLENDER_SCENES': 'lego', 'VIEWS': '3',
                   'METHODS': 'mipnerf', 'T_VALUES': '4395'}
 TINY = ['MLP.net_depth = 2', 'MLP.net_width = 16', 'MLP.net_width_viewdirs = 16', 'MipNerfModel.num_samples = 8',
         'Config.max_steps = 2', 'Config.batch_size = 64', 'Config.print_every = 1', 'Config.train_render_every = 0',

@@ -124,6 +124,9 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   table = (dest / 'table.md').read_text().splitlines()
   assert table[0].startswith('| method | scene | views | step | psnr |') and len(table) == 2 + 4
   assert all(f'| {float(r["psnr"]):.3f} |' in row for r, row in zip(_rows(dest / 'results.csv'), table[2:]))
+  with pytest.raises(SystemExit):                                         # Never over an earlier export.
+    study_lib.main([str(path), '--out', out, '--plots-only', '--export', str(dest)])
+  assert json.loads((dest / 'provenance.json').read_text()) == provenance
   for scene, (h, w) in (('object', (12, 16)), ('forward', (12, 16))):
     with Image.open(dest / f'side_by_side_{scene}.png') as picture:    # Two views x (truth + 2 methods).
       assert picture.size == (demo.LABEL_WIDTH + 3 * (w + demo.GAP), demo.HEADER + 2 * (h + demo.GAP))

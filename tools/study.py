@@ -235,6 +235,9 @@ def main(argv=None) -> int:
     parser.error('a study file is required')
   if args.jobs < 1:
     parser.error(f'--jobs {args.jobs}; expected >= 1')
+  if args.export and os.path.isdir(args.export) and os.listdir(args.export):
+    parser.error(f'--export {args.export}: the folder exists and is not empty; export into a new folder (or '
+                 'delete that one) so that earlier results are not overwritten')
   study = study_spec.load(args.study)
   if args.list:
     for cell in study_spec.cells(study):
