@@ -83,6 +83,7 @@ def run_cell(path: str) -> dict:
   """Trains (resuming) and evaluates the cell in folder path from its cell_spec.json; writes cell.json."""
   import gin  # pylint: disable=import-outside-toplevel
   from internal import checkpoints, configs, evaluation, flops, training  # pylint: disable=import-outside-toplevel
+  commit = study_export.git_commit(REPO)  # The code this cell starts with.
   with open(os.path.join(path, SPEC_FILE)) as f:
     spec = json.load(f)
   gin.clear_config()
@@ -107,7 +108,7 @@ def run_cell(path: str) -> dict:
           'train_seconds': train_seconds, 'eval_seconds': eval_seconds,
           'steps_per_sec': steps / train_seconds if steps else None,
           'gflops_per_step': flops.train_step_flops(config) / 1e9, **_peak_memory(),
-          'commit': study_export.git_commit(REPO), 'machine': study_export.machine()}
+          'commit': commit, 'machine': study_export.machine()}
   with open(os.path.join(path, CELL_FILE + '.tmp'), 'w') as f:
     json.dump(cell, f, indent=1)
   os.replace(os.path.join(path, CELL_FILE + '.tmp'), os.path.join(path, CELL_FILE))
