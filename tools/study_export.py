@@ -72,7 +72,8 @@ def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Dict[int, np
                                                   f'color_{view_id:03d}.png')).convert('RGB')) / 255.
                for c in cells]
     rows.append([image] + renders)
-  picture = demo.grid(rows, ['ground truth'] + [c['method'] for c in cells],
+  titles = [' '.join([c['method']] + [f'{k}={v}' for k, v in c['labels'].items()]) for c in cells]
+  picture = demo.grid(rows, ['ground truth'] + titles,
                       [f'test view {i}' for i in truth], scale=1)
   vis.save_png(picture / 255., path)
 
