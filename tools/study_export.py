@@ -24,7 +24,8 @@ PICTURE_VIEWS = 2     # Test views per scene in the side-by-side picture.
 PROVENANCE_FILE = 'provenance.json'
 TABLE_FILE = 'table.md'
 # Columns of table.md, where the cells report them: DTU's object-masked metrics first, as the paper's tables.
-TABLE_METRICS = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'psnr', 'ssim', 'lpips', 'depth_mae')
+TABLE_METRICS = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'psnr', 'ssim', 'lpips', 'depth_mae',
+                 'pseudo_depth_mae', 'pseudo_depth_within_5pct')
 
 
 def git_commit(repo: str) -> str:
