@@ -21,6 +21,7 @@ from internal import vis
 from tools import study_spec
 
 PICTURE_VIEWS = 2     # Test views per scene in the side-by-side picture.
+MIN_TILE_WIDTH = 160  # Narrower renders are upscaled (nearest) so that the column titles fit.
 PROVENANCE_FILE = 'provenance.json'
 TABLE_FILE = 'table.md'
 # Columns of table.md, where the cells report them: DTU's object-masked metrics first, as the paper's tables.
@@ -73,9 +74,11 @@ def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Dict[int, np
                                                   f'color_{view_id:03d}.png')).convert('RGB')) / 255.
                for c in cells]
     rows.append([image] + renders)
-  titles = [' '.join([c['method']] + [f'{k}={v}' for k, v in c['labels'].items()]) for c in cells]
-  picture = demo.grid(rows, ['ground truth'] + titles,
-                      [f'test view {i}' for i in truth], scale=1)
+  one_method = len({c['method'] for c in cells}) == 1
+  titles = [' '.join(([] if one_method and c['labels'] else [c['method']]) +
+                     [f'{k}={v}' for k, v in c['labels'].items()]) for c in cells]
+  scale = -(-MIN_TILE_WIDTH // rows[0][0].shape[1])
+  picture = demo.grid(rows, ['ground truth'] + titles, [f'test view {i}' for i in truth], scale=scale)
   vis.save_png(picture / 255., path)
 
 
