@@ -14,14 +14,13 @@ import json
 import sys
 
 from internal import cli
-from internal import evaluation
-from internal import run_dir as run_dir_lib
+from internal.evaluation import evaluate
 
 
 def main(argv=None) -> int:
   """CLI entry point; returns the exit status."""
-  args = run_dir_lib.flag_parser(__doc__.split('\n')[0]).parse_args(argv)
-  record = evaluation.evaluate(run_dir_lib.config_from_flags(args))
+  args = cli.flag_parser(__doc__.split('\n')[0]).parse_args(argv)
+  record = evaluate.evaluate(cli.config_from_flags(args))
   means = {k: v for k, v in record['means'].items() if v is not None}
   print(f'step {record["step"]}, {len(record["per_image"])} views: {json.dumps(means)}')
   if record['lpips_missing_reason']:

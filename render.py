@@ -12,14 +12,13 @@ Pass the gin configs and bindings used for training (none: the demo, configs/dem
 import sys
 
 from internal import cli
-from internal import render_path
-from internal import run_dir as run_dir_lib
+from internal.evaluation import render_path
 
 
 def main(argv=None) -> int:
   """CLI entry point; returns the exit status."""
-  args = run_dir_lib.flag_parser(__doc__.split('\n')[0]).parse_args(argv)
-  render_path.render(run_dir_lib.config_from_flags(args))
+  args = cli.flag_parser(__doc__.split('\n')[0]).parse_args(argv)
+  render_path.render(cli.config_from_flags(args))
   return 0
 
 

@@ -14,9 +14,8 @@ import jax
 
 from internal import cli
 from internal import demo
-from internal import distributed
-from internal import run_dir as run_dir_lib
-from internal import training
+from internal.training import distributed
+from internal.training import loop
 
 
 def run_demo(bindings, stop_at_step: int = 0) -> int:
@@ -37,7 +36,7 @@ def run_demo(bindings, stop_at_step: int = 0) -> int:
 
 def main(argv=None) -> int:
   """CLI entry point; returns the exit status."""
-  parser = run_dir_lib.flag_parser(__doc__.split('\n')[0])
+  parser = cli.flag_parser(__doc__.split('\n')[0])
   parser.add_argument('--stop_at_step', type=int, default=0,
                       help='save a checkpoint and exit after this step (resume later with the same command)')
   distributed.add_flags(parser)
@@ -45,12 +44,12 @@ def main(argv=None) -> int:
   distributed.initialize(args)
   if not args.gin_configs:
     return run_demo(args.gin_bindings, args.stop_at_step)
-  return train_and_report(run_dir_lib.config_from_flags(args), args.stop_at_step)
+  return train_and_report(cli.config_from_flags(args), args.stop_at_step)
 
 
 def train_and_report(config, stop_at_step: int = 0) -> int:
   """Trains one run and prints how it ended; returns the exit status (128 + signal when stopped)."""
-  result = training.train(config, stop_at_step)
+  result = loop.train(config, stop_at_step)
   step = int(result.state.step)
   if result.signum is not None:
     print(f'Stopped by signal {result.signum} at step {step}; checkpoint saved in {result.run_dir!r}. '

@@ -8,8 +8,8 @@ import jax
 import jax.numpy as jnp
 from jax import random
 
-from internal import flops
-from internal import train_step as ts
+from internal.training import flops
+from internal.training import train_step as ts
 
 
 def block(tree):

@@ -28,10 +28,11 @@ import numpy as np
 
 from bench import common
 from bench import train_step as bench_train_step
+from internal import config_loader
 from internal import configs
-from internal import inference
-from internal import models
-from internal import precision
+from internal.evaluation import inference
+from internal.models import mip_nerf
+from internal.models import precision
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 METHOD_CONFIGS = {'mipnerf': 'configs/mipnerf/dtu3_mipnerf.gin',
@@ -49,9 +50,9 @@ def available_methods():
 def method_config(method: str, precision_name: str, batch_size: int, bindings) -> configs.Config:
   """The validated Config of method's gin file (parsed now, replacing any earlier bindings) at a precision."""
   gin.clear_config()
-  configs.parse_gin([os.path.join(ROOT, METHOD_CONFIGS[method])], bindings)
+  config_loader.parse_gin([os.path.join(ROOT, METHOD_CONFIGS[method])], bindings)
   config = dataclasses.replace(configs.Config(), precision=precision_name, batch_size=batch_size)
-  configs.validate(config)
+  config_loader.validate(config)
   return config
 
 
@@ -71,13 +72,13 @@ def measure_precision(name, methods, args, bindings):
   for method in methods:
     # The model's gin bindings are read when it is traced, so each method is compiled right after its parse.
     config = method_config(method, name, args.batch_size, bindings)
-    model = models.MipNerfModel(white_background=config.white_background, precision=name)
+    model = mip_nerf.MipNerfModel(white_background=config.white_background, precision=name)
     steps[method] = common.step_runner(config, model, batch)
     params = jax.tree.map(jnp.copy, steps[method][1][0].params)  # The timed steps donate the state's.
     renders[method] = bench_train_step.render_runner(
         inference.make_render_fn(config, model, params, config.max_steps), args.render_rays,
         config.render_chunk_size)
-    width, samples = models.MLP().net_width, model.num_samples
+    width, samples = mip_nerf.MLP().net_width, model.num_samples
   dtype, matmul_precision = precision.settings(name)
   rows = args.batch_size * samples
   shapes = ((args.batch_size, width, width), (rows, width, width), (min(args.batch_size, 4096),) * 3)

@@ -24,10 +24,10 @@ import numpy as np
 from bench import common
 from bench import released_equivalent
 from internal import configs
-from internal import inference
-from internal.models import MipNerfModel
+from internal.evaluation import inference
+from internal.models.mip_nerf import MipNerfModel
 from internal import rays as rays_lib
-from internal import train_step as ts
+from internal.training import train_step as ts
 
 PAPER_DTU3 = dict(near=0.5, far=3.5, white_background=False, max_steps=43945, lr_init=2e-3,
                   lr_final=2e-5, lr_delay_steps=512, lr_delay_mult=0.01, grad_max_norm=0.1,

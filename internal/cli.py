@@ -8,14 +8,18 @@ Anything else is a bug and keeps its traceback (exit status 1). FREENERF_DEBUG=1
 environment shows the traceback of user errors too.
 """
 
+import argparse
 import os
 import sys
 
-from internal import checkpoints
-from internal import distributed
-from internal import run_dir
-from internal import train_step
+from internal import config_loader
+from internal import progress
+from internal.training import checkpoints
+from internal.training import distributed
+from internal.training import run_dir
+from internal.training import train_step
 
+DEMO_CONFIG = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'configs', 'demo.gin')
 USAGE_ERROR_STATUS = 2
 NONFINITE_STATUS = 3
 DEBUG_ENV = 'FREENERF_DEBUG'
@@ -26,13 +30,6 @@ USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryErro
                checkpoints.NoCheckpointError, distributed.PrimaryFailed)
 
 
-def robust_streams() -> None:
-  """Makes stdout/stderr print any text (e.g. a path of non-UTF-8 bytes) with backslash escapes, never fail."""
-  for stream in (sys.stdout, sys.stderr):
-    if hasattr(stream, 'reconfigure'):
-      stream.reconfigure(errors='backslashreplace')
-
-
 def one_line(err: BaseException) -> str:
   """The error's message on one line (gin's multi-line messages joined)."""
   return ' '.join(line.strip() for line in str(err).splitlines() if line.strip()) or type(err).__name__
@@ -40,7 +37,7 @@ def one_line(err: BaseException) -> str:
 
 def run(main) -> int:
   """Calls main() -> exit status; a user error prints one line on stderr (status 2, or 3 for non-finite values)."""
-  robust_streams()
+  progress.robust_streams()
   try:
     return main()
   except (*USER_ERRORS, train_step.NonFiniteError) as err:
@@ -50,24 +47,36 @@ def run(main) -> int:
     return NONFINITE_STATUS if isinstance(err, train_step.NonFiniteError) else USAGE_ERROR_STATUS
 
 
-class LineFile:
-  """A text stream for tqdm when stderr is not a terminal: each refresh becomes one line, no carriage returns."""
-
-  def __init__(self, stream):
-    self.stream = stream
-
-  def write(self, text: str) -> None:
-    text = text.replace('\r', '').strip()
-    if text:
-      self.stream.write(text + '\n')
-
-  def flush(self) -> None:
-    self.stream.flush()
+MULTI_VALUE_FLAGS = ('--gin_configs', '--gin_bindings')
 
 
-def progress_kwargs(stream=None) -> dict:
-  """tqdm arguments: a live bar on a terminal; a line at most every 5 s in a log file or pipe."""
-  stream = sys.stderr if stream is None else stream
-  if stream.isatty():
-    return {'file': stream, 'dynamic_ncols': True}
-  return {'file': LineFile(stream), 'mininterval': 5., 'ncols': 100}
+def split_flag_values(argv):
+  """argv with '--gin_bindings=A' split into '--gin_bindings', 'A', so that values after it join it."""
+  out = []
+  for arg in argv:
+    name, sep, value = arg.partition('=')
+    out.extend([name, value] if sep and name in MULTI_VALUE_FLAGS else [arg])
+  return out
+
+
+class FlagParser(argparse.ArgumentParser):
+  """An ArgumentParser that accepts `--flag=A B` for the multi-value flags (argparse alone takes only A)."""
+
+  def parse_known_args(self, args=None, namespace=None):
+    args = sys.argv[1:] if args is None else args
+    return super().parse_known_args(split_flag_values(args), namespace)
+
+
+def flag_parser(description: str) -> argparse.ArgumentParser:
+  """An argument parser with --gin_configs / --gin_bindings, each repeatable and taking one or more values."""
+  parser = FlagParser(description=description)
+  parser.add_argument('--gin_configs', action='extend', nargs='+', default=[], metavar='FILE',
+                      help='gin config files, applied in order')
+  parser.add_argument('--gin_bindings', action='extend', nargs='+', default=[], metavar='BINDING',
+                      help='gin bindings applied after the files, e.g. "Config.freq_reg_end = 20000"')
+  return parser
+
+
+def config_from_flags(args: argparse.Namespace):
+  """The validated Config of parsed flags; configs/demo.gin when no --gin_configs was given."""
+  return config_loader.load_config(args.gin_configs or [DEMO_CONFIG], args.gin_bindings)

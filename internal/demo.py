@@ -13,18 +13,18 @@ import jax
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from internal import checkpoints
-from internal import configs
+from internal.training import checkpoints
+from internal import config_loader
 from internal import datasets
-from internal import evaluation
-from internal import inference
-from internal import render_path
-from internal import run_dir as run_dir_lib
-from internal import vis
+from internal.evaluation import evaluate
+from internal.evaluation import inference
+from internal.evaluation import render_path
+from internal.evaluation import vis
+from internal import cli
 
-CONFIG_DIR = os.path.dirname(run_dir_lib.DEMO_CONFIG)
-METHODS = {'mip-NeRF': [run_dir_lib.DEMO_CONFIG, os.path.join(CONFIG_DIR, 'demo_mipnerf.gin')],
-           'FreeNeRF': [run_dir_lib.DEMO_CONFIG]}
+CONFIG_DIR = os.path.dirname(cli.DEMO_CONFIG)
+METHODS = {'mip-NeRF': [cli.DEMO_CONFIG, os.path.join(CONFIG_DIR, 'demo_mipnerf.gin')],
+           'FreeNeRF': [cli.DEMO_CONFIG]}
 SHOWN_VIEWS = (0, 2, 4, 6)     # Positions in the test split: every 90 degrees of the test orbit.
 BLOCKS_PER_ROW = 2             # Test views side by side in the picture.
 SCALE = 2                      # Nearest-neighbour upscaling of the small renders.
@@ -35,7 +35,7 @@ PICTURE, ORBIT_VIDEO = 'demo.png', 'demo_orbit.mp4'
 def method_config(name: str, bindings=()):
   """Parses gin afresh for one method (gin then holds its bindings, as its model needs) and returns its Config."""
   gin.clear_config()
-  return configs.load_config(METHODS[name], bindings)
+  return config_loader.load_config(METHODS[name], bindings)
 
 
 def method_configs(bindings=()) -> dict:
@@ -55,7 +55,7 @@ def output_dir(method_cfgs: dict) -> str:
 
 def evaluate_and_render(config) -> dict:
   """Evaluates and renders the orbit of a trained run, each unless done for its newest step; metrics record."""
-  record = evaluation.existing_record(config) or evaluation.evaluate(config)
+  record = evaluate.existing_record(config) or evaluate.evaluate(config)
   if not render_path.existing_renders(config):
     render_path.render(config)
   return record

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from conftest import JAX_CACHE
-from internal import checkpoints
-from internal import configs
+from internal.training import checkpoints
+from internal import config_loader
 from internal import datasets
-from internal import run_dir as run_dir_lib
-from internal import train_step
-from internal import training
+from internal.training import run_dir as run_dir_lib
+from internal.training import train_step
+from internal.training import loop
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DEMO = str(ROOT / 'configs' / 'demo.gin')
@@ -33,7 +33,7 @@ TINY = ['MLP.net_depth = 2', 'MLP.net_width = 32', 'MLP.net_width_viewdirs = 16'
 def tiny_config(scene_dir, run_dir, *bindings):
   """The demo config shrunk by TINY, on scene_dir, training into run_dir, plus extra bindings."""
   gin.clear_config()
-  return configs.load_config([DEMO], TINY + [f"Config.data_dir = '{scene_dir}'",
+  return config_loader.load_config([DEMO], TINY + [f"Config.data_dir = '{scene_dir}'",
                                              f"Config.checkpoint_dir = '{run_dir}'"] + list(bindings))
 
 
@@ -84,11 +84,11 @@ def test_eval_side_check_names_the_differences(tmp_path):
 def test_resumed_training_equals_uninterrupted_training(tmp_path, scene_dir):
   n = 6
   bindings = (f'Config.max_steps = {2 * n}', f'Config.checkpoint_every = {n // 2}')
-  first = training.train(tiny_config(scene_dir, tmp_path / 'resumed', *bindings), stop_at_step=n)
+  first = loop.train(tiny_config(scene_dir, tmp_path / 'resumed', *bindings), stop_at_step=n)
   assert int(first.state.step) == n
   assert checkpoints.latest_step(first.run_dir) == n
-  resumed = training.train(tiny_config(scene_dir, tmp_path / 'resumed', *bindings)).state
-  straight = training.train(tiny_config(scene_dir, tmp_path / 'straight', *bindings)).state
+  resumed = loop.train(tiny_config(scene_dir, tmp_path / 'resumed', *bindings)).state
+  straight = loop.train(tiny_config(scene_dir, tmp_path / 'straight', *bindings)).state
   assert int(resumed.step) == int(straight.step) == 2 * n
   for a, b in zip(_leaves(resumed), _leaves(straight)):
     np.testing.assert_array_equal(a, b)

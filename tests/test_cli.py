@@ -7,10 +7,11 @@ import sys
 import pytest
 import tqdm
 
-from internal import checkpoints
+from internal.training import checkpoints
 from internal import cli
-from internal import run_dir
-from internal import train_step
+from internal.training import run_dir
+from internal.training import train_step
+from internal import progress
 from test_checkpoints import DEMO, ROOT
 
 
@@ -21,12 +22,12 @@ from test_checkpoints import DEMO, ROOT
     ['--gin_configs', 'x.gin', '--gin_bindings=A = 1', '--gin_configs=y.gin', '--gin_bindings', 'B = 2'],
 ])
 def test_every_form_of_the_multi_value_flags(argv):
-  args = run_dir.flag_parser('test').parse_args(argv)
+  args = cli.flag_parser('test').parse_args(argv)
   assert args.gin_configs == ['x.gin', 'y.gin'] and args.gin_bindings == ['A = 1', 'B = 2']
 
 
 def test_other_flags_keep_their_equals_form():
-  parser = run_dir.flag_parser('test')
+  parser = cli.flag_parser('test')
   parser.add_argument('--stop_at_step', type=int, default=0)
   args = parser.parse_args(['--stop_at_step=5', '--gin_bindings=Config.near = 1.'])
   assert args.stop_at_step == 5 and args.gin_bindings == ['Config.near = 1.']
@@ -73,7 +74,7 @@ def test_one_line_joins_multi_line_messages():
 
 def test_progress_off_a_terminal_writes_whole_lines():
   stream = io.StringIO()
-  bar = tqdm.tqdm(total=3, unit='step', **cli.progress_kwargs(stream))
+  bar = tqdm.tqdm(total=3, unit='step', **progress.progress_kwargs(stream))
   for _ in range(3):
     bar.update(1)
   bar.close()

@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 from conftest import SHARED_DATA
+from internal import config_loader
 from internal import configs
 from internal import datasets
-from internal import models
-from internal import run_dir
-from internal import train_step
-from internal import training
+from internal.models import mip_nerf
+from internal.training import train_step
+from internal.training import loop
+from internal import cli
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 COMMON = ROOT / 'configs' / 'common'  # Blocks shared by `include`, not configs of their own.
@@ -67,11 +68,11 @@ def _run_bindings(name: str, run) -> list:
 
 @pytest.mark.parametrize('name', RELEASED)
 def test_released_gin_files_parse_unchanged(name):
-  config = configs.load_config([_released(name)], ["Config.data_dir = 'elsewhere'"])
-  models.MipNerfModel(), models.MLP()  # Applies (and so checks) every model binding.
-  assert config.data_dir == 'elsewhere' and models.MLP().density_noise == 1.0
+  config = config_loader.load_config([_released(name)], ["Config.data_dir = 'elsewhere'"])
+  mip_nerf.MipNerfModel(), mip_nerf.MLP()  # Applies (and so checks) every model binding.
+  assert config.data_dir == 'elsewhere' and mip_nerf.MLP().density_noise == 1.0
   assert config.freq_reg == name.startswith('freenerf')
-  assert models.MipNerfModel().ray_shape == ('cylinder' if '/llff' in name else 'cone')
+  assert mip_nerf.MipNerfModel().ray_shape == ('cylinder' if '/llff' in name else 'cone')
   assert config.load_random_rays == name.startswith('regnerf')  # Unset (released default True) in RegNeRF's.
   assert (config.depth_tvnorm_loss_mult, config.depth_tvnorm_decay) == (
       (0.1, True) if name.startswith('regnerf') else (0., False))
@@ -79,9 +80,9 @@ def test_released_gin_files_parse_unchanged(name):
 
 @pytest.mark.parametrize('name', RELEASED)
 def test_released_gin_files_train_two_steps_on_the_shared_scenes(tmp_path, name):
-  config = configs.load_config([_released(name)], _run_bindings(name, tmp_path / 'run'))
+  config = config_loader.load_config([_released(name)], _run_bindings(name, tmp_path / 'run'))
   try:
-    result = training.train(config)
+    result = loop.train(config)
   except datasets.DatasetNotFoundError as err:
     if 'training image' not in str(err):
       raise
@@ -91,14 +92,14 @@ def test_released_gin_files_train_two_steps_on_the_shared_scenes(tmp_path, name)
 
 
 def test_released_llff9_regnerf_warmup_end_is_the_old_name_of_freq_reg_end(tmp_path):
-  config = configs.load_config([_released('regnerf/llff9_regnerf.gin')])
+  config = config_loader.load_config([_released('regnerf/llff9_regnerf.gin')])
   assert (config.warmup_end, config.freq_reg_end, config.freq_reg) == (0, 0, False)
   path = _write(tmp_path, 'Config.freq_reg = True\nConfig.warmup_end = 500')
   gin.clear_config()
-  assert configs.load_config([path]).freq_reg_end == 500
+  assert config_loader.load_config([path]).freq_reg_end == 500
   gin.clear_config()
   with pytest.raises(ValueError, match='warmup_end'):
-    configs.load_config([path], ['Config.freq_reg_end = 400'])
+    config_loader.load_config([path], ['Config.freq_reg_end = 400'])
 
 
 def test_released_all_views_value_selects_every_training_view(capsys):
@@ -111,25 +112,25 @@ def test_released_all_views_value_selects_every_training_view(capsys):
 def test_unknown_binding_is_an_error_naming_it(tmp_path):
   path = _write(tmp_path, 'Config.max_steps = 3\nConfig.warmup_start = 0\n')
   with pytest.raises(ValueError, match='warmup_start'):
-    configs.load_config([path])
+    config_loader.load_config([path])
 
 
 def test_flow_loss_is_a_clear_error():
   with pytest.raises(ValueError, match='flow_loss_mult.*never released'):
-    configs.load_config([], ['Config.flow_loss_mult = 0.1'])
+    config_loader.load_config([], ['Config.flow_loss_mult = 0.1'])
 
 
 @pytest.mark.parametrize('path', CONFIG_FILES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_every_config_file_parses_and_validates(path):
   gin.clear_config()
-  config = configs.load_config([str(path)])
-  models.MipNerfModel(), models.MLP()  # Applies (and so checks) every model binding.
+  config = config_loader.load_config([str(path)])
+  mip_nerf.MipNerfModel(), mip_nerf.MLP()  # Applies (and so checks) every model binding.
   assert config.checkpoint_dir.startswith('out/')
 
 
 def _ours(method: str, dataset: str, n: int):
   """Our config of a paper setting."""
-  return configs.load_config([str(ROOT / 'configs' / method / f'{dataset}{n}_{method}.gin')])
+  return config_loader.load_config([str(ROOT / 'configs' / method / f'{dataset}{n}_{method}.gin')])
 
 
 @pytest.mark.parametrize('dataset,n', sorted(STEPS))
@@ -141,21 +142,21 @@ def test_freenerf_configs_hold_the_released_values(dataset, n):
   assert config.occ_reg_loss_mult == 0.01 and config.n_input_views == n
   assert (config.occ_reg_range, config.occ_wb_prior) == ((10, True) if dataset == 'dtu' else (20, False))
   assert (config.near, config.far, config.factor) == ((0.5, 3.5, 4) if dataset == 'dtu' else (0., 1., 8))
-  assert not config.white_background and models.MLP().density_noise == 1.0
-  assert models.MipNerfModel().ray_shape == ('cone' if dataset == 'dtu' else 'cylinder')
+  assert not config.white_background and mip_nerf.MLP().density_noise == 1.0
+  assert mip_nerf.MipNerfModel().ray_shape == ('cone' if dataset == 'dtu' else 'cylinder')
 
 
 @pytest.mark.parametrize('dataset,n', sorted(STEPS))
 def test_mipnerf_configs_are_freenerf_without_regularizers(dataset, n):
   config = _ours('mipnerf', dataset, n)
   assert config.max_steps == STEPS[dataset, n][0] and config.n_input_views == n
-  assert train_step.masks_at(config, models.MLP().encoding_degrees(), 0) == (None, None) and config.occ_reg_loss_mult == 0.
+  assert train_step.masks_at(config, mip_nerf.MLP().encoding_degrees(), 0) == (None, None) and config.occ_reg_loss_mult == 0.
   assert {k: getattr(config, k) for k in LR_BLOCK} == LR_BLOCK
 
 
 @pytest.mark.parametrize('dataset', ['dtu', 'llff'])
 def test_mipnerf_all_configs_use_the_default_schedule(dataset):
-  config = configs.load_config([str(ROOT / 'configs' / 'mipnerf' / f'{dataset}_mipnerf_all.gin')])
+  config = config_loader.load_config([str(ROOT / 'configs' / 'mipnerf' / f'{dataset}_mipnerf_all.gin')])
   default = configs.Config()
   assert config.max_steps == 500000 and config.n_input_views == 0  # Every training view.
   assert (config.lr_init, config.lr_final, config.lr_delay_steps, config.grad_max_norm) == (
@@ -163,7 +164,7 @@ def test_mipnerf_all_configs_use_the_default_schedule(dataset):
 
 
 def test_blender_config_follows_the_dietnerf_protocol():
-  config = configs.load_config([str(ROOT / 'configs' / 'freenerf' / 'blender8_freenerf.gin')])
+  config = config_loader.load_config([str(ROOT / 'configs' / 'freenerf' / 'blender8_freenerf.gin')])
   assert (config.dataset_loader, config.blender_split, config.n_input_views) == ('blender', 'dietnerf', 8)
   assert (config.factor, config.downsample_mode, config.white_background) == (2, 'area', True)
   assert (config.near, config.far, config.freq_mask_layout) == (2., 6., 'paper')
@@ -172,7 +173,7 @@ def test_blender_config_follows_the_dietnerf_protocol():
 
 def test_freenerf_mask_of_the_dtu3_config_opens_as_released():
   config = _ours('freenerf', 'dtu', 3)
-  point, view = train_step.masks_at(config, models.MLP().encoding_degrees(), config.freq_reg_end // 2)
+  point, view = train_step.masks_at(config, mip_nerf.MLP().encoding_degrees(), config.freq_reg_end // 2)
   point = np.asarray(point)
   assert point.shape == (99,) and np.asarray(view).shape == (27,)
   assert np.all(point[:51] == 1.) and np.all(point[54:] < 1e-6)  # t/T = 0.5: every sin band, no cos.
@@ -181,11 +182,11 @@ def test_freenerf_mask_of_the_dtu3_config_opens_as_released():
 def test_flags_repeat_and_take_several_values(tmp_path):
   first, second = _write(tmp_path, 'Config.max_steps = 7'), str(tmp_path / 'second.gin')
   pathlib.Path(second).write_text('Config.batch_size = 64')
-  args = run_dir.flag_parser('test').parse_args(
+  args = cli.flag_parser('test').parse_args(
       ['--gin_configs', first, f'--gin_configs={second}', '--gin_bindings', 'Config.print_every = 3',
        'Config.n_input_views = 6', '--gin_bindings=Config.max_steps = 9'])
   assert args.gin_configs == [first, second]
-  config = run_dir.config_from_flags(args)
+  config = cli.config_from_flags(args)
   assert (config.max_steps, config.batch_size, config.print_every, config.n_input_views) == (9, 64, 3, 6)
 
 
@@ -216,8 +217,8 @@ def _effective(path) -> dict:
   The model's own MLP (MipNerfModel.mlp) is compared through the MLP.* settings.
   """
   gin.clear_config()
-  values = {f'Config.{k}': v for k, v in dataclasses.asdict(configs.load_config([str(path)])).items()}
-  for module in (models.MLP(), models.MipNerfModel()):
+  values = {f'Config.{k}': v for k, v in dataclasses.asdict(config_loader.load_config([str(path)])).items()}
+  for module in (mip_nerf.MLP(), mip_nerf.MipNerfModel()):
     values.update({f'{type(module).__name__}.{f.name}': getattr(module, f.name)
                    for f in dataclasses.fields(module) if f.name not in ('parent', 'name', 'mlp')})
   return values

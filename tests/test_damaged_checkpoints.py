@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from conftest import random_rays
-from internal import checkpoints
-from internal import evaluation
-from internal import train_step
-from internal import training
+from internal.training import checkpoints
+from internal.evaluation import evaluate
+from internal.training import train_step
+from internal.training import loop
 from test_checkpoints import tiny_config
 
 BINDINGS = ('Config.max_steps = 8', 'Config.checkpoint_every = 2', 'Config.compute_lpips = False',
@@ -24,7 +24,7 @@ BINDINGS = ('Config.max_steps = 8', 'Config.checkpoint_every = 2', 'Config.compu
 def stopped_run(tmp_path_factory, scene_dir):  # pylint: disable=redefined-outer-name
   """A run stopped at step 6 with checkpoints 2, 4, 6."""
   run = tmp_path_factory.mktemp('damaged') / 'run'
-  training.train(tiny_config(scene_dir, run, *BINDINGS), stop_at_step=6)
+  loop.train(tiny_config(scene_dir, run, *BINDINGS), stop_at_step=6)
   return run
 
 
@@ -73,7 +73,7 @@ def test_readers_report_the_damaged_step_in_one_line_and_use_the_newest_intact(h
 
 def test_eval_falls_back_to_the_newest_intact_checkpoint(stopped_run, scene_dir, tmp_path, capfd):
   run = _copy(stopped_run, tmp_path, 'delete')
-  record = evaluation.evaluate(tiny_config(scene_dir, run, *BINDINGS))
+  record = evaluate.evaluate(tiny_config(scene_dir, run, *BINDINGS))
   assert record['step'] == 4 and (run / 'test_preds_step_4' / 'metrics.json').is_file()
   assert 'checkpoint step 6 in' in capfd.readouterr().err
 
@@ -81,7 +81,7 @@ def test_eval_falls_back_to_the_newest_intact_checkpoint(stopped_run, scene_dir,
 def test_training_moves_the_damaged_step_aside_and_resumes_from_the_intact_one(stopped_run, scene_dir, tmp_path,
                                                                                capfd):
   run = _copy(stopped_run, tmp_path, 'truncate')
-  result = training.train(tiny_config(scene_dir, run, *BINDINGS))
+  result = loop.train(tiny_config(scene_dir, run, *BINDINGS))
   err = [line for line in capfd.readouterr().err.splitlines() if 'damaged' in line]
   aside = glob.glob(str(run / 'checkpoints' / 'damaged_6_*'))
   assert len(err) == 1 and len(aside) == 1 and f'moved it to {aside[0]!r}; resuming from step 4' in err[0]
@@ -96,7 +96,7 @@ def test_no_intact_checkpoint_is_a_clear_error(stopped_run, scene_dir, tmp_path)
   with pytest.raises(checkpoints.NoIntactCheckpointError, match=f'no intact checkpoint in {folder}'):
     checkpoints.latest_step(str(run))
   with pytest.raises(checkpoints.NoIntactCheckpointError, match=f'no intact checkpoint in {folder}: step 6: '):
-    training.train(tiny_config(scene_dir, run, *BINDINGS))
+    loop.train(tiny_config(scene_dir, run, *BINDINGS))
   assert sorted(os.listdir(run / 'checkpoints')) == ['2', '4', '6']  # Nothing moved when nothing is intact.
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import SHARED_DATA
-from internal import evaluation
+from internal.evaluation import evaluate
 from internal.configs import Config
 from internal.datasets import DatasetError, DatasetNotFoundError, load_dataset, packed, render_path_rays
 from tools import pack_scene
@@ -124,5 +124,5 @@ def test_eval_files_a_pack_under_its_source(tmp_path):
   config = generated_config(tmp_path, 'object')
   pack_scene.pack(config, str(tmp_path / 'scene.npz'))
   reloaded = dataclasses.replace(config, dataset_loader='packed', data_dir=str(tmp_path / 'scene.npz'))
-  assert (evaluation.dataset_and_scene(reloaded) == evaluation.dataset_and_scene(config) ==
+  assert (evaluate.dataset_and_scene(reloaded) == evaluate.dataset_and_scene(config) ==
           ('blender', 'generated_object'))

@@ -9,10 +9,10 @@ import numpy as np
 from PIL import Image
 import pytest
 
-from internal import configs
+from internal import config_loader
 from internal import demo
-from internal import evaluation
-from internal import training
+from internal.evaluation import evaluate
+from internal.training import loop
 from test_checkpoints import TINY
 import train
 
@@ -78,7 +78,7 @@ def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch,
   cfgs = demo.method_configs(bindings)
   for name, run in (('FreeNeRF', 'freenerf'), ('mip-NeRF', 'mipnerf')):
     assert cfgs[name].checkpoint_dir == f'out/demo/{run}'
-    record = evaluation.existing_record(cfgs[name])
+    record = evaluate.existing_record(cfgs[name])
     assert record['step'] == 4 and record['method'] == run
     gin_text = (tmp_path / 'out' / 'demo' / run / 'config.gin').read_text()
     assert f"Config.expname = '{run}'" in gin_text and f'freq_reg = {run == "freenerf"}' in gin_text
@@ -94,10 +94,10 @@ def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch,
 
 def test_demo_settings_reconstruct_the_scene_from_all_views(tmp_path):
   gin.clear_config()
-  config = configs.load_config(demo.METHODS['mip-NeRF'], PIPELINE + [
+  config = config_loader.load_config(demo.METHODS['mip-NeRF'], PIPELINE + [
       f"Config.data_dir = '{tmp_path / 'scene'}'", f"Config.checkpoint_dir = '{tmp_path / 'run'}'"])
   assert config.n_input_views == 0 and not config.freq_reg and config.lr_final == demo.method_configs()[
       'FreeNeRF'].lr_final
-  training.train(config)
-  record = evaluation.evaluate(config)
+  loop.train(config)
+  record = evaluate.evaluate(config)
   assert record['complete'] and record['means']['psnr'] >= PIPELINE_MIN_PSNR, record['means']

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from internal import datasets
-from internal import depth_metrics
-from internal import evaluation
-from internal import training
+from internal.evaluation import depth_metrics
+from internal.evaluation import evaluate
+from internal.training import loop
 from test_checkpoints import tiny_config
 
 
@@ -105,8 +105,8 @@ def test_pseudo_depth_reference_errors_name_the_problem(tmp_path):
 def test_a_run_against_its_own_depths_has_zero_pseudo_error(tmp_path, scene_dir):
   config = tiny_config(scene_dir, tmp_path / 'run', 'Config.max_steps = 2', 'Config.compute_lpips = False',
                        'Config.eval_test_ids = [0, 1]')
-  training.train(config)
-  evaluation.evaluate(config)
+  loop.train(config)
+  evaluate.evaluate(config)
   again = dataclasses.replace(config, depth_reference_dir=str(tmp_path / 'run'), overwrite=True)
-  means = evaluation.evaluate(again)['means']
+  means = evaluate.evaluate(again)['means']
   assert means['pseudo_depth_mae'] == 0. and means['pseudo_depth_within_1pct'] == 1.

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from tensorboardX.proto import event_pb2
 
-from internal import checkpoints
+from internal.training import checkpoints
 from internal import datasets
-from internal import distributed
-from internal import training
+from internal.training import distributed
+from internal.training import loop
 from conftest import JAX_CACHE
 from test_checkpoints import DEMO, ROOT, TINY, _leaves, tiny_config
 
@@ -91,7 +91,7 @@ def _state(scene_dir, run):
 def one_process(tmp_path_factory, scene_dir):
   """(final TrainState, losses) of the run trained by this process alone (it also writes the scene)."""
   run = tmp_path_factory.mktemp('one') / 'run'
-  state = training.train(tiny_config(scene_dir, run, *BINDINGS)).state
+  state = loop.train(tiny_config(scene_dir, run, *BINDINGS)).state
   return jax.device_get(state), _losses(run)
 
 

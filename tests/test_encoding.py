@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from internal import encoding
+from internal.models import encoding
 
 
 def test_lengths():

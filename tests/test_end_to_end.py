@@ -14,16 +14,16 @@ import pytest
 from jax import random
 
 from conftest import SHARED_DATA
-from internal import configs
+from internal import config_loader
 from internal import datasets
-from internal import evaluation
-from internal import inference
-from internal import metrics
-from internal import render_path
-from internal import results
-from internal import train_step
-from internal import training
-from internal import vis
+from internal.evaluation import evaluate
+from internal.evaluation import inference
+from internal.evaluation import metrics
+from internal.evaluation import render_path
+from internal.evaluation import results
+from internal.training import train_step
+from internal.training import loop
+from internal.evaluation import vis
 from test_checkpoints import ROOT, tiny_config
 
 STEPS = 300
@@ -51,15 +51,15 @@ def _config(run, scene, *bindings):
 def trained(tmp_path_factory, scene_dir):  # pylint: disable=redefined-outer-name
   """(run dir, scene dir) of the e2e config trained for STEPS steps."""
   run = tmp_path_factory.mktemp('e2e') / 'run'
-  training.train(_config(run, scene_dir))
+  loop.train(_config(run, scene_dir))
   return run, scene_dir
 
 
 def test_training_beats_the_untrained_model_and_eval_writes_everything(trained):
   run, _ = trained
   config = _config(*trained)
-  record = evaluation.evaluate(config)
-  out_dir = evaluation.output_dir(str(run), STEPS)
+  record = evaluate.evaluate(config)
+  out_dir = evaluate.output_dir(str(run), STEPS)
   test_set = datasets.load_dataset('test', config)
   assert record['step'] == STEPS and record['complete'] and len(record['per_image']) == len(test_set.ids)
   assert record['means']['psnr'] > _untrained_psnr(config, test_set) + 3.
@@ -77,23 +77,23 @@ def test_training_beats_the_untrained_model_and_eval_writes_everything(trained):
 
 def test_eval_never_replaces_a_finished_evaluation(trained):
   config = _config(*trained)
-  if evaluation.existing_record(config) is None:
-    evaluation.evaluate(config)
+  if evaluate.existing_record(config) is None:
+    evaluate.evaluate(config)
   with pytest.raises(FileExistsError, match='Config.overwrite'):
-    evaluation.evaluate(config)
+    evaluate.evaluate(config)
 
 
 def test_eval_subset_at_lower_resolution_is_marked_incomplete(trained):
   config = _config(*trained, 'Config.eval_test_ids = [1, 3]', 'Config.eval_factor = 2',
                    'Config.compute_lpips = False', 'Config.overwrite = True')
-  record = evaluation.evaluate(config)
+  record = evaluate.evaluate(config)
   assert not record['complete'] and [p['id'] for p in record['per_image']] == [1, 3]
   assert record['lpips_missing_reason'] == 'Config.compute_lpips = False'
-  image = np.asarray(Image.open(os.path.join(evaluation.output_dir(config.checkpoint_dir, STEPS),
+  image = np.asarray(Image.open(os.path.join(evaluate.output_dir(config.checkpoint_dir, STEPS),
                                                           'color_001.png')))
   assert image.shape == (16, 20, 3)
   with pytest.raises(ValueError, match='Config.eval_test_ids'):
-    evaluation.select_positions(dataclasses.replace(config, eval_test_ids=[99]), 8)
+    evaluate.select_positions(dataclasses.replace(config, eval_test_ids=[99]), 8)
 
 
 def test_render_writes_the_frames_and_refuses_to_replace_them(trained):
@@ -112,13 +112,13 @@ def test_dtu_eval_reports_full_and_object_metrics(tmp_path):
   if not scan.is_dir():
     pytest.skip(f'no DTU scan under {scan}')
   gin.clear_config()
-  config = configs.load_config([str(ROOT / 'configs' / 'freenerf' / 'dtu3_freenerf.gin')], [
+  config = config_loader.load_config([str(ROOT / 'configs' / 'freenerf' / 'dtu3_freenerf.gin')], [
       f"Config.data_dir = '{scan.parent}'", "Config.dtu_scan = 'dtu_scan24'", "Config.dtu_mask_path = ''",
       'Config.allow_missing_test_views = True', 'Config.factor = 16', 'Config.max_steps = 2',
       f"Config.checkpoint_dir = '{tmp_path / 'run'}'", 'Config.batch_size = 64', 'Config.eval_test_ids = [0, 1]',
       'Config.compute_lpips = False', 'MLP.net_depth = 2', 'MLP.net_width = 16', 'MipNerfModel.num_samples = 8'])
-  training.train(config)
-  record = evaluation.evaluate(config)
+  loop.train(config)
+  record = evaluate.evaluate(config)
   assert (record['dataset'], record['scene'], record['n_input_views']) == ('dtu', 'dtu_scan24', 3)
   assert not record['complete'] and [p['id'] for p in record['per_image']] == [1, 9]
   for name in metrics.FULL_METRICS + metrics.MASKED_METRICS:
@@ -131,7 +131,7 @@ def test_nonfinite_gradients_raise_under_the_raise_policy(tmp_path, scene_dir): 
   config = tiny_config(scene_dir, tmp_path / 'run', 'Config.max_steps = 3',
                        "Config.nonfinite_grad_policy = 'raise'")
   with pytest.raises(train_step.NonFiniteError, match='^step 1: non-finite learning rate'):
-    training.train(dataclasses.replace(config, lr_init=float('nan')))  # Caught at step 1, before any update.
+    loop.train(dataclasses.replace(config, lr_init=float('nan')))  # Caught at step 1, before any update.
 
 
 def test_png_truncates_as_released_and_depth_is_turbo_near_red(tmp_path):

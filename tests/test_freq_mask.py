@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from internal import freq_mask
+from internal.models import freq_mask
 
 LOW = np.float32(1e-8)
 END = 1000

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from internal import gaussians
+from internal.models import gaussians
 
 NUM_MC = 2_000_000
 

@@ -6,9 +6,9 @@ import pytest
 from jax import random
 
 from conftest import random_rays
-from internal import configs
-from internal import inference
-from internal import models
+from internal import config_loader
+from internal.evaluation import inference
+from internal.models import mip_nerf
 from internal import rays as rays_lib
 
 TINY = ['MLP.net_depth = 2', 'MLP.net_width = 16', 'MLP.net_width_viewdirs = 8',
@@ -18,9 +18,9 @@ TINY = ['MLP.net_depth = 2', 'MLP.net_width = 16', 'MLP.net_width_viewdirs = 8',
 @pytest.fixture
 def render_setup():
   """(render_fn, rays [2, 5, ...], unchunked fine-level outputs [10, ...]) of a tiny model at step 4."""
-  config = configs.load_config([], TINY)
+  config = config_loader.load_config([], TINY)
   flat = random_rays(0, 10)
-  model, variables = models.construct_model(random.PRNGKey(0), flat, white_background=False)
+  model, variables = mip_nerf.construct_model(random.PRNGKey(0), flat, white_background=False)
   render_fn = inference.make_render_fn(config, model, variables['params'], step=4)
   whole = jax.device_get(render_fn(flat))
   return render_fn, rays_lib.map_rays(lambda x: x.reshape(2, 5, -1), flat), whole

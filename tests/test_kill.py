@@ -9,10 +9,10 @@ import time
 import jax
 import numpy as np
 
-from internal import checkpoints
+from internal.training import checkpoints
 from internal import datasets
-from internal import train_step
-from internal import training
+from internal.training import train_step
+from internal.training import loop
 from conftest import JAX_CACHE
 from test_checkpoints import DEMO, ROOT, TINY, _leaves, _read_stderr, tiny_config
 
@@ -46,7 +46,7 @@ def test_sigkill_at_random_moments_then_resume_equals_a_straight_run(tmp_path, s
   bindings = TINY + [f"Config.data_dir = '{scene_dir}'", f"Config.checkpoint_dir = '{run}'", *BINDINGS]
   cmd = [sys.executable, 'train.py', '--gin_configs', DEMO, '--gin_bindings', *bindings]
   env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=JAX_CACHE, JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS='0')
-  straight = training.train(tiny_config(scene_dir, tmp_path / 'straight', *BINDINGS)).state
+  straight = loop.train(tiny_config(scene_dir, tmp_path / 'straight', *BINDINGS)).state
   rng = np.random.default_rng(7)
   kills, mid_save, damaged_reports, tic = 0, 0, 0, time.time()
   while True:

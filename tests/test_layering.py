@@ -1,5 +1,5 @@
-"""Layering: the scripts are thin shells over internal/; internal/ and tools/ never import the scripts, and
-internal/ never imports tools/."""
+"""Layering: the scripts are thin shells over internal/; internal/ and tools/ never import the scripts,
+internal/ never imports tools/, and inside internal/ each stage of the pipeline imports only earlier stages."""
 
 import ast
 import pathlib
@@ -43,7 +43,48 @@ def test_internal_does_not_import_tools(path):
   assert 'tools' not in imported_modules(path)
 
 
+# The pipeline's stages in order (docs/design.md). A module imports its own stage and earlier ones; the
+# orchestrators above every stage (the training loop, the demo, the command line, config loading) import any.
+STAGES = ('records', 'datasets', 'models', 'losses', 'training', 'evaluation')
+RECORDS = {'rays', 'configs', 'atomic', 'progress'}  # Plain data and utilities that import nothing of internal/.
+ORCHESTRATORS = {'internal/training/loop.py', 'internal/demo.py', 'internal/cli.py', 'internal/config_loader.py'}
+
+
+def stage(module: str) -> str:
+  """The stage of a dotted internal module name, e.g. 'internal.models.encoding' -> 'models'."""
+  part = module.split('.')[1]
+  return 'records' if part in RECORDS else part
+
+
+def internal_imports(path: pathlib.Path) -> set:
+  """Dotted names of the internal modules a file imports (`from internal import x` gives 'internal.x')."""
+  names = set()
+  for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module.startswith('internal'):
+      names.update(f'internal.{a.name}' for a in node.names) if node.module == 'internal' else names.add(node.module)
+  return names
+
+
+def test_stage_of_a_module():
+  assert stage('internal.configs') == 'records' and stage('internal.models.encoding') == 'models'
+  assert stage('internal.datasets') == 'datasets'
+
+
+def _staged_modules() -> list:
+  """The modules of internal/ that belong to a stage (not the orchestrators)."""
+  return [p for p in _modules('internal') if p.relative_to(ROOT).as_posix() not in ORCHESTRATORS
+          and (p.parent != ROOT / 'internal' or p.stem in RECORDS)]
+
+
+@pytest.mark.parametrize('path', _staged_modules(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_stages_import_only_earlier_stages(path):
+  name = path.relative_to(ROOT).as_posix()
+  own = STAGES.index(stage(name.removesuffix('.py').replace('/', '.')))
+  later = {m for m in internal_imports(path) if STAGES.index(stage(m)) > own}
+  assert not later, f'{name} ({STAGES[own]}) imports later stages: {sorted(later)}'
+
+
 def test_every_module_is_checked():
   checked = {p.relative_to(ROOT).as_posix() for p in _modules('internal') + _modules('tools')}
-  assert {'internal/training.py', 'internal/evaluation.py', 'internal/render_path.py', 'internal/demo.py',
-          'tools/study.py', 'tools/tables.py'} <= checked
+  assert {'internal/training/loop.py', 'internal/evaluation/evaluate.py', 'internal/evaluation/render_path.py',
+          'internal/demo.py', 'internal/models/mip_nerf.py', 'tools/study.py', 'tools/tables.py'} <= checked

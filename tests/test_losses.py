@@ -5,8 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from internal import losses
-from internal import occlusion
+from internal.losses import reconstruction
+from internal.losses import occlusion
 
 
 def test_data_loss_is_three_times_channel_mse_and_true_psnr_is_not():
@@ -14,15 +14,15 @@ def test_data_loss_is_three_times_channel_mse_and_true_psnr_is_not():
   rgb, target = rng.uniform(size=(2, 64, 3))
   lossmult = np.ones((64, 1))
   mse = np.mean((rgb - target)**2)
-  assert float(losses.data_loss(rgb, target, lossmult)) == pytest.approx(3 * mse, rel=1e-5)
-  assert float(losses.true_psnr(rgb, target, lossmult)) == pytest.approx(-10 * np.log10(mse), rel=1e-5)
+  assert float(reconstruction.data_loss(rgb, target, lossmult)) == pytest.approx(3 * mse, rel=1e-5)
+  assert float(reconstruction.true_psnr(rgb, target, lossmult)) == pytest.approx(-10 * np.log10(mse), rel=1e-5)
 
 
 def test_data_loss_respects_lossmult():
   rgb = np.zeros((2, 3))
   target = np.array([[1., 1., 1.], [0., 0., 0.]])
-  assert float(losses.data_loss(rgb, target, np.array([[1.], [0.]]))) == pytest.approx(3.)
-  assert float(losses.data_loss(rgb, target, np.array([[0.], [1.]]))) == pytest.approx(0.)
+  assert float(reconstruction.data_loss(rgb, target, np.array([[1.], [0.]]))) == pytest.approx(3.)
+  assert float(reconstruction.data_loss(rgb, target, np.array([[0.], [1.]]))) == pytest.approx(0.)
 
 
 def _occ_inputs():
@@ -71,9 +71,9 @@ def test_distortion_loss_brute_force():
     total = sum(w[b, i] * w[b, j] * abs(mids[i] - mids[j]) for i in range(5) for j in range(5))
     total += sum(w[b, i]**2 * (s[b, i + 1] - s[b, i]) for i in range(5)) / 3
     expected.append(total)
-  assert float(losses.distortion_loss(s, w)) == pytest.approx(np.mean(expected), rel=1e-5)
+  assert float(reconstruction.distortion_loss(s, w)) == pytest.approx(np.mean(expected), rel=1e-5)
 
 
 def test_weight_l2():
   params = {'a': jnp.ones((2, 2)) * 2., 'b': jnp.zeros(4)}
-  assert float(losses.weight_l2(params)) == pytest.approx(16. / 8.)
+  assert float(reconstruction.weight_l2(params)) == pytest.approx(16. / 8.)

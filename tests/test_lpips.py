@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from internal import lpips
+from internal.evaluation import lpips
 
 
 def _parity_pair():

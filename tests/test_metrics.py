@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from numpy.lib.stride_tricks import sliding_window_view
 
-from internal import metrics
+from internal.evaluation import metrics
 
 
 def _smooth_pair(seed=0, h=20, w=24):

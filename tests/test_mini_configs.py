@@ -5,10 +5,10 @@ import os
 import pytest
 
 from conftest import SHARED_DATA
-from internal import configs
-from internal import evaluation
-from internal import models
-from internal import training
+from internal import config_loader
+from internal.evaluation import evaluate
+from internal.models import mip_nerf
+from internal.training import loop
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA = {'dtu': ["Config.data_dir = '{root}/dtu'", "Config.dtu_scan = 'dtu_scan24'", "Config.dtu_mask_path = ''",
@@ -19,14 +19,14 @@ PAPER_STEPS = {'dtu': 43945, 'llff': 69768}  # The 3-view configs' step counts, 
 
 def _config(dataset: str, method: str, *bindings):
   path = os.path.join(REPO, 'configs', 'mini', f'{dataset}3_{method}.gin')
-  return configs.load_config([path], [b.format(root=SHARED_DATA) for b in DATA[dataset]] + list(bindings))
+  return config_loader.load_config([path], [b.format(root=SHARED_DATA) for b in DATA[dataset]] + list(bindings))
 
 
 @pytest.mark.parametrize('dataset', ['dtu', 'llff'])
 @pytest.mark.parametrize('method', ['freenerf', 'mipnerf', 'regnerf'])
 def test_mini_config_is_the_paper_config_at_the_mini_scale(dataset, method):
   config = _config(dataset, method)
-  mlp, model = models.MLP(), models.MipNerfModel()
+  mlp, model = mip_nerf.MLP(), mip_nerf.MipNerfModel()
   assert (mlp.net_depth, mlp.net_width, model.num_samples, config.batch_size) == (4, 128, 32, 512)
   assert config.max_steps == 2000 and config.n_input_views == 3 and config.expname == method
   assert config.lr_delay_steps == round(512 * 2000 / PAPER_STEPS[dataset])    # Warm-up scaled as the steps.
@@ -44,6 +44,6 @@ def test_mini_config_trains_and_evaluates_on_the_shared_scene(tmp_path, dataset,
   config = _config(dataset, method, f"Config.checkpoint_dir = '{tmp_path / 'run'}'", 'Config.max_steps = 3',
                    'Config.batch_size = 64', 'Config.batch_size_random = 64', 'Config.compute_lpips = False',
                    'Config.eval_test_ids = [0]')
-  assert int(training.train(config).state.step) == 3
-  record = evaluation.evaluate(config)
+  assert int(loop.train(config).state.step) == 3
+  record = evaluate.evaluate(config)
   assert record['step'] == 3 and len(record['per_image']) == 1 and record['means']['psnr'] > 0.

@@ -8,9 +8,9 @@ import pytest
 from jax import random
 
 from conftest import random_rays
-from internal import encoding
-from internal import freq_mask
-from internal import models
+from internal.models import encoding
+from internal.models import freq_mask
+from internal.models import mip_nerf
 
 TINY = ['MLP.net_depth = 2', 'MLP.net_width = 16', 'MLP.net_width_viewdirs = 8',
         'MipNerfModel.num_samples = 8']
@@ -18,13 +18,13 @@ TINY = ['MLP.net_depth = 2', 'MLP.net_width = 16', 'MLP.net_width_viewdirs = 8',
 
 def _tiny(bindings=()):
   gin.parse_config(TINY + list(bindings))
-  return models.construct_model(random.PRNGKey(0), random_rays(0, 4), white_background=False)
+  return mip_nerf.construct_model(random.PRNGKey(0), random_rays(0, 4), white_background=False)
 
 
 def test_default_parameter_count_and_layer_names():
-  _, variables = models.construct_model(random.PRNGKey(0), random_rays(0, 2), True)
+  _, variables = mip_nerf.construct_model(random.PRNGKey(0), random_rays(0, 2), True)
   params = variables['params']['mlp']
-  assert models.num_params(params) == 614276
+  assert mip_nerf.num_params(params) == 614276
   assert sorted(params, key=lambda n: int(n.split('_')[1])) == [f'Dense_{i}' for i in range(12)]
   assert params['Dense_5']['kernel'].shape == (256 + 99, 256)  # Skip after trunk layer 4.
   assert params['Dense_10']['kernel'].shape == (256 + 27, 128)
@@ -45,11 +45,11 @@ def test_outputs_per_level_and_ranges():
 def _noise_shift(bindings):
   """Pre-activation density with noise minus without, at fixed Gaussians [2, 16]."""
   gin.parse_config(TINY + bindings)
-  mlp = models.MLP()
+  mlp = mip_nerf.MLP()
   means = random.normal(random.PRNGKey(0), (2, 16, 3))
   covs = jnp.full((2, 16, 3), 1e-3)
-  params = mlp.init(random.PRNGKey(1), None, means, covs, None, method=models.MLP.predict_density)
-  density = lambda key: mlp.apply(params, key, means, covs, None, method=models.MLP.predict_density)
+  params = mlp.init(random.PRNGKey(1), None, means, covs, None, method=mip_nerf.MLP.predict_density)
+  density = lambda key: mlp.apply(params, key, means, covs, None, method=mip_nerf.MLP.predict_density)
   raw = lambda d: np.log(np.expm1(np.asarray(d, np.float64)))  # Inverse softplus.
   return raw(density(random.PRNGKey(3))) - raw(density(None))
 
@@ -105,12 +105,12 @@ def test_normals_only_when_asked_and_unit_length():
 
 def test_normals_match_gradient_of_applied_density():
   model, variables = _tiny()
-  mlp = models.MLP()
+  mlp = mip_nerf.MLP()
   params = {'params': variables['params']['mlp']}
   means = random.normal(random.PRNGKey(5), (2, 4, 3))
   covs = jnp.full((2, 4, 3), 1e-4)
-  normals = np.asarray(mlp.apply(params, means, covs, None, method=models.MLP.normals))
-  density = lambda m: mlp.apply(params, None, m, covs, None, method=models.MLP.predict_density).sum()
+  normals = np.asarray(mlp.apply(params, means, covs, None, method=mip_nerf.MLP.normals))
+  density = lambda m: mlp.apply(params, None, m, covs, None, method=mip_nerf.MLP.predict_density).sum()
   grad = np.asarray(jax.grad(density)(means))
   np.testing.assert_allclose(normals, -grad / np.linalg.norm(grad, axis=-1, keepdims=True), atol=1e-5)
 
@@ -127,7 +127,7 @@ def test_mlp_matches_concatenating_reference():
   rng = np.random.default_rng(0)
   means, covs = rng.normal(size=(2, 3, 8, 3)).astype(np.float32) * [[[[1.]]], [[[1e-2]]]]
   viewdirs = rng.normal(size=(3, 3)).astype(np.float32)
-  rgb, density = models.MLP().apply({'params': layers}, None, means, covs, viewdirs, None, None)
+  rgb, density = mip_nerf.MLP().apply({'params': layers}, None, means, covs, viewdirs, None, None)
   x = encoding.integrated_pos_enc(means, covs, 0, 16)
   dense = lambda i, x: x @ layers[f'Dense_{i}']['kernel'] + layers[f'Dense_{i}']['bias']
   x = jax.nn.relu(dense(1, jax.nn.relu(dense(0, x))))  # net_depth 2: no skip.
@@ -139,10 +139,10 @@ def test_mlp_matches_concatenating_reference():
 
 def test_skip_connection_reuses_masked_encoding():
   gin.parse_config(TINY + ['MLP.net_depth = 3', 'MLP.skip_layer = 1'])
-  mlp = models.MLP()
+  mlp = mip_nerf.MLP()
   means = np.random.default_rng(1).normal(size=(4, 3)).astype(np.float32)
   covs = np.full((4, 3), 1e-2, np.float32)
-  params = mlp.init(random.PRNGKey(0), None, means, covs, None, method=models.MLP.predict_density)
+  params = mlp.init(random.PRNGKey(0), None, means, covs, None, method=mip_nerf.MLP.predict_density)
   layers = params['params']
   assert layers['Dense_2']['kernel'].shape == (16 + 99, 16)
   mask = freq_mask.fixed_ratio_mask(99, 3 / 99)
@@ -152,7 +152,7 @@ def test_skip_connection_reuses_masked_encoding():
   x = jax.nn.relu(dense(1, jax.nn.relu(dense(0, enc))))
   x = jax.nn.relu(dense(2, jnp.concatenate([x, enc], -1)))
   expected = jax.nn.softplus(dense(3, jnp.concatenate([x, enc], -1))[:, 0] - 1.)
-  np.testing.assert_allclose(mlp.apply(params, None, means, covs, mask, method=models.MLP.predict_density),
+  np.testing.assert_allclose(mlp.apply(params, None, means, covs, mask, method=mip_nerf.MLP.predict_density),
                              expected, rtol=1e-5, atol=1e-6)
 
 
@@ -174,14 +174,14 @@ def test_every_head_layer_is_created_and_used(bindings, heads):
 def test_model_and_released_equivalent_mlp_take_the_mlp_bindings_and_their_degrees():
   from bench import released_equivalent  # pylint: disable=import-outside-toplevel
   gin.parse_config(TINY + ['MLP.max_deg_point = 10', 'MLP.deg_view = 2'])
-  model = models.MipNerfModel()
+  model = mip_nerf.MipNerfModel()
   released = released_equivalent.ReleasedModel(num_samples=model.num_samples)  # Not gin-bound (bench-only).
   assert isinstance(released.mlp, released_equivalent.ReleasedMLP)
   assert model.mlp.encoding_degrees() == released.mlp.encoding_degrees() == (10, 2)
   assert released.mlp.layer_shapes() == model.mlp.layer_shapes()
   assert model.mlp.layer_shapes()[0] == ('Dense_0', encoding.width(10), 16) == ('Dense_0', 63, 16)
   rays = random_rays(0, 2)
-  variables = models.construct_model(random.PRNGKey(0), rays, False)[1]
+  variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False)[1]
   masks = (jnp.ones(63), jnp.ones(15))
   ours = model.apply(variables, None, rays, *masks)[0][-1]['rgb']
   theirs = released.apply(variables, None, rays, *masks, mutable=['intermediates'])[0][0][-1]['rgb']

@@ -6,12 +6,13 @@ import numpy as np
 import orbax.checkpoint as ocp
 import pytest
 
-from internal import checkpoints
+from internal.training import checkpoints
+from internal import config_loader
 from internal import configs
 from internal import datasets
-from internal import schedule
-from internal import train_step
-from internal import training
+from internal.training import schedule
+from internal.training import train_step
+from internal.training import loop
 from test_checkpoints import DEMO, TINY, tiny_config
 import train
 
@@ -63,7 +64,7 @@ def test_raise_policy_stops_at_the_offending_step_before_saving_it(tmp_path, sce
   config = tiny_config(scene_dir, tmp_path / 'run', 'Config.max_steps = 6', 'Config.checkpoint_every = 1',
                        "Config.nonfinite_grad_policy = 'raise'")
   with pytest.raises(train_step.NonFiniteError, match=r'^step 3: non-finite loss, gradients, new parameters'):
-    training.train(config)
+    loop.train(config)
   assert _saved_steps(tmp_path / 'run') == [1, 2]
 
 
@@ -73,7 +74,7 @@ def test_max_skipped_steps_in_a_row_stop_the_run(tmp_path, scene_dir, monkeypatc
                        'Config.print_every = 2', 'Config.max_skipped_steps = 4')
   with pytest.raises(train_step.NonFiniteError, match=r'^steps 3-6: 4 consecutive updates skipped \(last: '
                      r'non-finite learning rate, .*Config.max_skipped_steps = 4'):
-    training.train(config)
+    loop.train(config)
   assert _saved_steps(tmp_path / 'run') == [1, 2, 3, 4, 5]
 
 
@@ -89,4 +90,4 @@ def test_a_state_with_nan_is_never_saved(tmp_path):
 
 def test_max_skipped_steps_must_be_positive():
   with pytest.raises(ValueError, match=r'Config.max_skipped_steps = 0; expected >= 1'):
-    configs.validate(configs.Config(max_skipped_steps=0))
+    config_loader.validate(configs.Config(max_skipped_steps=0))

@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from internal import optim
+from internal.training import optim
 
 
 def _grads():

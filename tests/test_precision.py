@@ -8,11 +8,12 @@ import pytest
 from jax import random
 
 from conftest import random_rays
+from internal import config_loader
 from internal import configs
-from internal import models
-from internal import precision
-from internal import run_dir
-from internal import train_step as ts
+from internal.models import mip_nerf
+from internal.models import precision
+from internal.training import run_dir
+from internal.training import train_step as ts
 
 TINY = ['MLP.net_depth = 3', 'MLP.net_width = 32', 'MLP.skip_layer = 2', 'MLP.net_width_viewdirs = 16',
         'MipNerfModel.num_samples = 8', 'MLP.density_noise = 1.0']
@@ -25,7 +26,7 @@ def _config(name):
 
 def _render(name, params, rays):
   """Fine-level outputs of the tiny model at one precision, with given (float32) params."""
-  model = models.MipNerfModel(white_background=False, precision=name)
+  model = mip_nerf.MipNerfModel(white_background=False, precision=name)
   return model.apply({'params': params}, None, rays)[0][-1]
 
 
@@ -33,7 +34,7 @@ def _dot_precisions(name):
   """(matmul precision, operand dtype) of every dot_general in the tiny model's forward pass."""
   gin.parse_config(TINY)
   rays = random_rays(0, 4)
-  model, variables = models.construct_model(random.PRNGKey(0), rays, False, name)
+  model, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False, name)
   jaxpr = jax.make_jaxpr(lambda v: model.apply(v, None, rays))(variables)
   return {(str(e.params['precision']), str(e.invars[0].aval.dtype))
           for e in jaxpr.jaxpr.eqns if e.primitive.name == 'dot_general'}
@@ -66,7 +67,7 @@ def test_float32_equals_the_backend_default_path_on_cpu():
   # On CPU the default matmul precision is full float32, the path of the code before Config.precision.
   gin.parse_config(TINY)
   rays = random_rays(1, 32)
-  _, variables = models.construct_model(random.PRNGKey(0), rays, False)
+  _, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False)
   f32, default = (_render(n, variables['params'], rays) for n in ('float32', 'default'))
   for key in ('rgb', 'acc', 'distance_mean'):
     np.testing.assert_array_equal(f32[key], default[key])
@@ -75,7 +76,7 @@ def test_float32_equals_the_backend_default_path_on_cpu():
 def test_bfloat16_close_to_float32_with_float32_outputs():
   gin.parse_config(TINY)
   rays = random_rays(2, 32)
-  _, variables = models.construct_model(random.PRNGKey(0), rays, False)
+  _, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False)
   f32, bf16 = (_render(n, variables['params'], rays) for n in ('float32', 'bfloat16'))
   for key in ('rgb', 'acc', 'weights', 'distance_mean'):
     assert bf16[key].dtype == jnp.float32, key
@@ -86,9 +87,9 @@ def test_bfloat16_close_to_float32_with_float32_outputs():
 
 def test_bad_precision_is_a_clear_error():
   with pytest.raises(ValueError, match=r"Config.precision = 'fp16'; expected one of \['float32'"):
-    configs.validate(configs.Config(precision='fp16'))
+    config_loader.validate(configs.Config(precision='fp16'))
   with pytest.raises(ValueError, match='Config.precision'):
-    models.construct_model(random.PRNGKey(0), random_rays(0, 2), False, 'fp16')
+    mip_nerf.construct_model(random.PRNGKey(0), random_rays(0, 2), False, 'fp16')
 
 
 def test_precision_comes_from_config_only_and_is_fingerprinted():

@@ -1,4 +1,4 @@
-"""training.Progress: the bar counts steps whose stats were fetched (done), not steps dispatched."""
+"""loop.Progress: the bar counts steps whose stats were fetched (done), not steps dispatched."""
 
 import io
 import types
@@ -6,7 +6,7 @@ import types
 import jax.numpy as jnp
 import pytest
 
-from internal import training
+from internal.training import loop
 
 
 class Writer:
@@ -27,10 +27,10 @@ def _stats(skipped=False):
 
 @pytest.mark.parametrize('policy', ['skip', 'raise'])
 def test_bar_advances_by_the_fetched_steps_at_each_flush(policy, monkeypatch):
-  monkeypatch.setattr(training.cli, 'progress_kwargs', lambda: {'file': io.StringIO()})
+  monkeypatch.setattr(loop.cli, 'progress_kwargs', lambda: {'file': io.StringIO()})
   config = types.SimpleNamespace(max_steps=10, nonfinite_grad_policy=policy, max_skipped_steps=5, batch_size=64)
   writer = Writer()
-  progress = training.Progress(config, writer, first_step=3)  # Resumed after step 2.
+  progress = loop.Progress(config, writer, first_step=3)  # Resumed after step 2.
   assert progress.bar.n == 2
   for step in (3, 4, 5):
     progress.add(step, _stats(skipped=step == 4 and policy == 'skip'))  # 'raise' would stop the run.

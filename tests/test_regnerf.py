@@ -9,10 +9,10 @@ import pytest
 from jax import random
 
 from conftest import random_rays
-from internal import anneal
+from internal.models import anneal
 from internal import configs
-from internal import depth_smoothness
-from internal import train_step
+from internal.losses import depth_smoothness
+from internal.training import train_step
 from internal.datasets import cameras, raygen, random_poses
 
 

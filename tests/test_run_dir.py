@@ -9,9 +9,9 @@ import subprocess
 import pytest
 
 from internal import atomic
-from internal import checkpoints
-from internal import run_dir as run_dir_lib
-from internal import training
+from internal.training import checkpoints
+from internal.training import run_dir as run_dir_lib
+from internal.training import loop
 from test_checkpoints import tiny_config
 
 
@@ -83,10 +83,10 @@ def test_an_empty_or_corrupt_config_json_is_a_clear_error(tmp_path, content):
 def test_a_failed_first_start_records_nothing_and_the_corrected_retry_runs(tmp_path, scene_dir):
   run = tmp_path / 'run'
   with pytest.raises(ValueError, match='Config.n_input_views = 99'):
-    training.train(tiny_config(scene_dir, run, 'Config.n_input_views = 99', 'Config.max_steps = 2'))
+    loop.train(tiny_config(scene_dir, run, 'Config.n_input_views = 99', 'Config.max_steps = 2'))
   assert os.listdir(run) == []
   with pytest.warns(UserWarning, match=r"LPIPS will be null.*no_such\.pkl"):
-    training.train(tiny_config(scene_dir, run, 'Config.max_steps = 2',
+    loop.train(tiny_config(scene_dir, run, 'Config.max_steps = 2',
                             f"Config.lpips_weights_path = '{tmp_path / 'no_such.pkl'}'"))
   assert run_dir_lib.read_fingerprint(str(run))['Config.n_input_views'] == 8
   assert checkpoints.latest_step(str(run)) == 2 and not (run / run_dir_lib.LOCK_FILE).exists()
@@ -94,12 +94,12 @@ def test_a_failed_first_start_records_nothing_and_the_corrected_retry_runs(tmp_p
 
 
 def test_training_checks_the_test_split_before_it_starts(tmp_path, scene_dir):
-  training.train(tiny_config(scene_dir, tmp_path / 'first', 'Config.max_steps = 1'))  # Writes the scene.
+  loop.train(tiny_config(scene_dir, tmp_path / 'first', 'Config.max_steps = 1'))  # Writes the scene.
   missing = scene_dir / 'test' / 'r_5.png'
   os.rename(missing, tmp_path / 'r_5.png')
   try:
     with pytest.raises(FileNotFoundError, match=r'test images are missing.*r_5\.png'):
-      training.train(tiny_config(scene_dir, tmp_path / 'run', 'Config.max_steps = 2'))
+      loop.train(tiny_config(scene_dir, tmp_path / 'run', 'Config.max_steps = 2'))
   finally:
     os.rename(tmp_path / 'r_5.png', missing)
   assert os.listdir(tmp_path / 'run') == []

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from internal import sampling
+from internal.models import sampling
 
 sample_pdf = jax.jit(sampling.sample_pdf, static_argnums=3)  # one compile per shape, also checks jit
 resample_t_vals = jax.jit(sampling.resample_t_vals)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from internal import configs
-from internal import schedule
+from internal.training import schedule
 
 REGNERF_LR = dict(lr_init=2e-3, lr_final=2e-5, lr_delay_steps=512, lr_delay_mult=0.01)
 

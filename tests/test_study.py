@@ -12,9 +12,9 @@ import gin
 from PIL import Image
 import pytest
 
-from internal import configs
+from internal import config_loader
 from internal import demo
-from internal import training
+from internal.training import loop
 from tools import study as study_lib
 from tools import study_plots
 from tools import study_spec
@@ -69,7 +69,7 @@ def fixture_ran(tmp_path_factory):
   half = study_lib.write_spec(study, study_spec.cells(study)[0], out, 'data')
   spec = json.loads(pathlib.Path(half, study_lib.SPEC_FILE).read_text())
   gin.clear_config()
-  training.train(configs.load_config(spec['gin_configs'], spec['gin_bindings']), stop_at_step=10)
+  loop.train(config_loader.load_config(spec['gin_configs'], spec['gin_bindings']), stop_at_step=10)
   assert study_lib.run_study(study, out, in_process=True) == {}
   return study, out, path
 

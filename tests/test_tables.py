@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from internal import results
+from internal.evaluation import results
 from tools import tables
 
 REPO = pathlib.Path(__file__).resolve().parents[1]

@@ -14,9 +14,9 @@ from jax import random
 
 from conftest import random_rays
 from internal import configs
-from internal import losses
-from internal import schedule
-from internal import train_step as ts
+from internal.losses import reconstruction
+from internal.training import schedule
+from internal.training import train_step as ts
 
 TINY = ['MLP.net_depth = 2', 'MLP.net_width = 16', 'MLP.net_width_viewdirs = 8',
         'MipNerfModel.num_samples = 8', 'MLP.density_noise = 1.0']
@@ -89,7 +89,7 @@ def test_guard_skips_the_update_and_names_the_cause(cause, flags, monkeypatch):
   if cause == 'data':
     batch['rgb'][0, 0] = np.nan
   elif cause == 'gradients':
-    monkeypatch.setattr(losses, 'data_loss', _nan_gradients(losses.data_loss))
+    monkeypatch.setattr(reconstruction, 'data_loss', _nan_gradients(reconstruction.data_loss))
   else:
     lr = {'nan_lr': np.nan, 'negative_lr': -1e-3}[cause]
     monkeypatch.setattr(schedule, 'config_learning_rate', lambda config, step: jnp.float32(lr))
@@ -143,7 +143,7 @@ SHARDED = textwrap.dedent('''
     import jax, numpy as np
     from jax import random
     import test_train_step as t
-    from internal import sharding
+    from internal.training import sharding
     assert len(jax.devices()) == 2
     results = []
     for mesh in (None, sharding.data_mesh()):

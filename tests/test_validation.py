@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 
 from conftest import noise, save_png
+from internal import config_loader
 from internal import configs
-from internal import freq_mask
-from internal import gaussians
-from internal import lpips
-from internal import precision
-from internal import sampling
-from internal import train_step
+from internal.models import freq_mask
+from internal.models import gaussians
+from internal.evaluation import lpips
+from internal.models import precision
+from internal.models import sampling
+from internal.training import train_step
 from internal.datasets import batching, image_io, loader, synthetic
 from internal.datasets import blender as blender_lib
 from internal.datasets import DatasetError, dtu, load_dataset
@@ -25,7 +26,7 @@ from test_datasets_errors import blender, llff
 
 def _load(*bindings):
   gin.clear_config()
-  return configs.load_config([], list(bindings))
+  return config_loader.load_config([], list(bindings))
 
 
 @pytest.mark.parametrize('binding, message', [
@@ -64,7 +65,7 @@ def test_option_settings_use_the_list_of_the_module_that_implements_them(name, o
 
 def test_non_finite_near_is_refused():
   with pytest.raises(ValueError, match='Config.near = nan; expected a finite number'):
-    configs.validate(configs.Config(near=float('nan')))
+    config_loader.validate(configs.Config(near=float('nan')))
 
 
 def test_near_zero_stays_accepted_for_ndc_scenes():

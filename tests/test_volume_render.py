@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from internal import volume_render
+from internal.models import volume_render
 
 render = jax.jit(volume_render.volumetric_rendering, static_argnums=(4, 5))  # one compile per shape
 

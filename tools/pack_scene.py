@@ -13,8 +13,8 @@ import dataclasses
 import os
 import sys
 
-from internal import run_dir
 from internal.datasets import base, load_dataset, packed
+from internal import cli
 
 
 def pack(config, out: str) -> dict:
@@ -31,12 +31,12 @@ def pack(config, out: str) -> dict:
 
 
 def main(argv=None) -> int:
-  parser = run_dir.flag_parser(__doc__.splitlines()[0])
+  parser = cli.flag_parser(__doc__.splitlines()[0])
   parser.add_argument('--out', required=True, metavar='FILE.npz', help='the pack to write')
   args = parser.parse_args(argv)
   if not args.out.endswith('.npz'):
     parser.error(f'--out {args.out!r}: expected a file name ending in .npz')
-  config = run_dir.config_from_flags(args)
+  config = cli.config_from_flags(args)
   datasets = pack(config, args.out)
   views = ', '.join(f'{split} {len(d.ids)} views {d.height}x{d.width}' for split, d in datasets.items())
   print(f'{args.out}: {os.path.getsize(args.out) / 2**20:.2f} MiB ({config.dataset_loader}, {views})')

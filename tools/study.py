@@ -27,7 +27,7 @@ import sys
 import time
 from typing import Dict, List, Optional
 
-from internal import run_dir
+from internal import cli
 from tools import study_export
 from tools import study_plots
 from tools import study_spec
@@ -82,23 +82,26 @@ def _peak_memory() -> dict:
 def run_cell(path: str) -> dict:
   """Trains (resuming) and evaluates the cell in folder path from its cell_spec.json; writes cell.json."""
   import gin  # pylint: disable=import-outside-toplevel
-  from internal import checkpoints, configs, evaluation, flops, training  # pylint: disable=import-outside-toplevel
+  # pylint: disable=import-outside-toplevel
+  from internal import config_loader
+  from internal.evaluation import evaluate
+  from internal.training import checkpoints, flops, loop
   commit = study_export.git_commit(REPO)  # The code this cell starts with.
   with open(os.path.join(path, SPEC_FILE)) as f:
     spec = json.load(f)
   gin.clear_config()
-  config = configs.load_config(spec['gin_configs'], spec['gin_bindings'])
+  config = config_loader.load_config(spec['gin_configs'], spec['gin_bindings'])
   try:
     start_step = checkpoints.latest_step(config.checkpoint_dir)
   except checkpoints.NoCheckpointError:
     start_step = None
   tic = time.perf_counter()
-  result = training.train(config)
+  result = loop.train(config)
   train_seconds = time.perf_counter() - tic
   if result.signum is not None:
     raise RuntimeError(f'training of {path!r} stopped by signal {result.signum}; rerun to resume')
   tic = time.perf_counter()
-  record = evaluation.existing_record(config) or evaluation.evaluate(config)
+  record = evaluate.existing_record(config) or evaluate.evaluate(config)
   eval_seconds = time.perf_counter() - tic
   steps = config.max_steps - (start_step or 0)
   cell = {**{k: spec[k] for k in ('study', 'cell', 'method', 'scene', 'labels')},
@@ -214,7 +217,7 @@ def run_study(study: study_spec.Study, out: str, data_root: str = 'data', jobs: 
 
 def main(argv=None) -> int:
   """CLI entry point; returns the exit status (1 when a cell failed)."""
-  parser = run_dir.FlagParser(description=__doc__.split('\n')[0])
+  parser = cli.FlagParser(description=__doc__.split('\n')[0])
   parser.add_argument('study', nargs='?', help='study file (TOML)')
   parser.add_argument('--out', default='out/studies', help='root of the study folders')
   parser.add_argument('--data_root', default='data', help='fills {data_root} in the study file')

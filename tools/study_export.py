@@ -17,7 +17,7 @@ from typing import Dict, List
 import numpy as np
 from PIL import Image
 
-from internal import vis
+from internal.evaluation import vis
 from tools import study_spec
 
 PICTURE_VIEWS = 2     # Test views per scene in the side-by-side picture.
@@ -86,11 +86,11 @@ def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Dict[int, np
 def _ground_truth(cell_path: str, cell: dict, count: int) -> Dict[int, np.ndarray]:
   """{view id: image} of the first `count` test views the cell evaluated, loaded as its evaluation did."""
   import gin  # pylint: disable=import-outside-toplevel
-  from internal import configs, datasets  # pylint: disable=import-outside-toplevel
+  from internal import config_loader, datasets  # pylint: disable=import-outside-toplevel
   with open(os.path.join(cell_path, 'cell_spec.json')) as f:
     spec = json.load(f)
   gin.clear_config()
-  config = configs.load_config(spec['gin_configs'], spec['gin_bindings'])
+  config = config_loader.load_config(spec['gin_configs'], spec['gin_bindings'])
   test_set = datasets.load_dataset('test', config)
   gin.clear_config()
   with open(os.path.join(eval_dir(cell_path, cell['step']), 'metrics.json')) as f:

@@ -18,8 +18,8 @@ import pathlib
 import sys
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from internal import results
-from internal.metrics import FULL_METRICS, MASKED_METRICS
+from internal.evaluation import results
+from internal.evaluation.metrics import FULL_METRICS, MASKED_METRICS
 
 # Column groups of the paper's tables: (label, metric keys).
 METRIC_GROUPS = {

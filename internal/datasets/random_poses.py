@@ -6,13 +6,17 @@ np.random.default_rng([Config.np_rng_seed, s, PATCHES_STREAM]), so a resumed run
 
 import numpy as np
 
-from internal import depth_smoothness
 from internal.datasets import base, cameras, dtu, llff, raygen
 from internal.rays import Rays
 
 POSES_STREAM = 1
 PATCHES_STREAM = 2
 FOCUS_JITTER_STD = 0.125
+
+
+def needs_patches(config) -> bool:
+  """Whether Config asks for the depth-smoothness loss (as released: a nonzero mult or the decay schedule)."""
+  return config.depth_tvnorm_loss_mult != 0 or config.depth_tvnorm_decay
 
 
 def _box_positions(poses: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -98,7 +102,7 @@ def check_supported(config) -> None:
 
 def make_patch_sampler(dataset: base.Dataset, config):
   """callable(step) -> Rays [P, ps, ps, ...] f32 of P random-pose patches, or None when no loss needs them."""
-  if not depth_smoothness.needs_patches(config):
+  if not needs_patches(config):
     return None
   check_supported(config)
   poses, pixtocam, ndc_focal = _scene_cameras(dataset, config, np.random.default_rng([config.np_rng_seed,

@@ -5,23 +5,19 @@ A run directory holds `config.json` (the settings that change training, compared
 `tensorboard/`, and the outputs of eval.py (`test_preds_step_<step>/`) and render.py (`path_renders_step_<step>/`).
 """
 
-import argparse
 import contextlib
 import dataclasses
 import json
 import os
 import shutil
 import socket
-import sys
 import time
 
 import gin
 
 from internal import atomic
-from internal import configs
-from internal import models
+from internal.models import mip_nerf
 
-DEMO_CONFIG = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'configs', 'demo.gin')
 FINGERPRINT_FILE = 'config.json'
 GIN_FILE = 'config.gin'
 LOCK_FILE = 'train.lock'  # Held by the training process: {'pid', 'host', 'started'}.
@@ -53,8 +49,8 @@ def _settings(config) -> list:
   """(prefix, object, fingerprinted fields) of Config and of the model modules as gin configures them now."""
   return [(prefix, obj, [f for f in dataclasses.fields(obj) if f.name not in skip])
           for prefix, obj, skip in (('Config', config, NOT_FINGERPRINTED),
-                                    ('MLP', models.MLP(), MODULE_NOT_FINGERPRINTED),
-                                    ('MipNerfModel', models.MipNerfModel(), MODEL_NOT_FINGERPRINTED))]
+                                    ('MLP', mip_nerf.MLP(), MODULE_NOT_FINGERPRINTED),
+                                    ('MipNerfModel', mip_nerf.MipNerfModel(), MODEL_NOT_FINGERPRINTED))]
 
 
 def fingerprint(config) -> dict:
@@ -229,38 +225,3 @@ def check_run_dir(config) -> str:
     raise RunDirError(f'Config.checkpoint_dir {run_dir!r} was trained with different settings ({diff}); pass '
                       'the gin configs and bindings used for training')
   return run_dir
-
-
-MULTI_VALUE_FLAGS = ('--gin_configs', '--gin_bindings')
-
-
-def split_flag_values(argv):
-  """argv with '--gin_bindings=A' split into '--gin_bindings', 'A', so that values after it join it."""
-  out = []
-  for arg in argv:
-    name, sep, value = arg.partition('=')
-    out.extend([name, value] if sep and name in MULTI_VALUE_FLAGS else [arg])
-  return out
-
-
-class FlagParser(argparse.ArgumentParser):
-  """An ArgumentParser that accepts `--flag=A B` for the multi-value flags (argparse alone takes only A)."""
-
-  def parse_known_args(self, args=None, namespace=None):
-    args = sys.argv[1:] if args is None else args
-    return super().parse_known_args(split_flag_values(args), namespace)
-
-
-def flag_parser(description: str) -> argparse.ArgumentParser:
-  """An argument parser with --gin_configs / --gin_bindings, each repeatable and taking one or more values."""
-  parser = FlagParser(description=description)
-  parser.add_argument('--gin_configs', action='extend', nargs='+', default=[], metavar='FILE',
-                      help='gin config files, applied in order')
-  parser.add_argument('--gin_bindings', action='extend', nargs='+', default=[], metavar='BINDING',
-                      help='gin bindings applied after the files, e.g. "Config.freq_reg_end = 20000"')
-  return parser
-
-
-def config_from_flags(args: argparse.Namespace):
-  """The validated Config of parsed flags; configs/demo.gin when no --gin_configs was given."""
-  return configs.load_config(args.gin_configs or [DEMO_CONFIG], args.gin_bindings)

@@ -8,11 +8,11 @@ import jax
 import jax.numpy as jnp
 from jax import random
 
-from internal import encoding
-from internal import gaussians
-from internal import precision as precision_lib
-from internal import sampling
-from internal import volume_render
+from internal.models import encoding
+from internal.models import gaussians
+from internal.models import precision as precision_lib
+from internal.models import sampling
+from internal.models import volume_render
 
 gin.config.external_configurable(nn.relu, name='relu', module='flax.nn')
 gin.config.external_configurable(nn.softplus, name='softplus', module='flax.nn')

@@ -4,7 +4,7 @@ import jax
 from jax import random
 
 from internal import datasets
-from internal import train_step as train_step_lib
+from internal.training import train_step as train_step_lib
 
 
 def compiled_cost(jitted, *args) -> dict:

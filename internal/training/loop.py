@@ -12,18 +12,18 @@ from jax import random
 import tensorboardX
 import tqdm
 
-from internal import checkpoints
-from internal import cli
+from internal.training import checkpoints
 from internal import datasets
-from internal import depth_smoothness
-from internal import distributed
-from internal import evaluation
-from internal import inference
-from internal import metrics
-from internal import run_dir as run_dir_lib
-from internal import sharding
-from internal import train_step as train_step_lib
-from internal import vis
+from internal.training import distributed
+from internal.evaluation import evaluate
+from internal.evaluation import inference
+from internal.evaluation import metrics
+from internal.training import run_dir as run_dir_lib
+from internal.training import sharding
+from internal.training import train_step as train_step_lib
+from internal.evaluation import vis
+from internal import progress
+from internal.datasets import random_poses
 
 PREVIEW_INDEX = 0  # The test view rendered every Config.train_render_every steps.
 
@@ -98,7 +98,7 @@ class Progress:
     self.config, self.writer = config, writer
     self.window = []
     self.bar = tqdm.tqdm(total=config.max_steps, initial=first_step - 1, unit='step',
-                         disable=not distributed.is_primary(), **cli.progress_kwargs())
+                         disable=not distributed.is_primary(), **progress.progress_kwargs())
     self.tic = time.time()
     self.skips = train_step_lib.SkipCounter(config.nonfinite_grad_policy, config.max_skipped_steps)
 
@@ -159,7 +159,7 @@ def _check_batch(config, mesh) -> None:
     raise ValueError(f'Config.batch_size = {config.batch_size} must be a multiple of the number of devices '
                      f'({mesh.size})')
   patches = config.batch_size_random // config.patch_size**2
-  if depth_smoothness.needs_patches(config) and patches % mesh.size:
+  if random_poses.needs_patches(config) and patches % mesh.size:
     raise ValueError(f'Config.batch_size_random = {config.batch_size_random} makes {patches} patches of '
                      f'{config.patch_size}x{config.patch_size}; expected a multiple of the number of devices '
                      f'({mesh.size}) so that every device gets whole patches')
@@ -182,7 +182,7 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
   _check_batch(config, mesh)
   dataset = distributed.primary_first(lambda: datasets.load_dataset('train', config), 'loading the data')
   batcher = datasets.make_batcher(dataset, config)
-  evaluation.check_eval_inputs(config)
+  evaluate.check_eval_inputs(config)
   init_key, train_key = random.split(random.PRNGKey(config.jax_rng_seed))
   model, state = train_step_lib.create_train_state(config, init_key, _example_rays(batcher))
   distributed.on_primary(lambda: run_dir_lib.record_settings(run_dir, config), 'recording the settings')

@@ -9,16 +9,16 @@ import jax
 import numpy as np
 
 from internal import atomic
-from internal import checkpoints
+from internal.training import checkpoints
 from internal import datasets
-from internal import depth_metrics
+from internal.evaluation import depth_metrics
 from internal.datasets import packed
-from internal import inference
-from internal import lpips
-from internal import metrics
-from internal import results
-from internal import run_dir as run_dir_lib
-from internal import vis
+from internal.evaluation import inference
+from internal.evaluation import lpips
+from internal.evaluation import metrics
+from internal.evaluation import results
+from internal.training import run_dir as run_dir_lib
+from internal.evaluation import vis
 
 
 def output_dir(run_dir: str, step: int) -> str:

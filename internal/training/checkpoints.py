@@ -16,8 +16,8 @@ import numpy as np
 import orbax.checkpoint as ocp
 import tensorstore
 
-from internal import distributed
-from internal import train_step
+from internal.training import distributed
+from internal.training import train_step
 
 CHECKPOINT_SUBDIR = 'checkpoints'
 ITEM = 'default'  # The folder orbax writes a single StandardSave item to.

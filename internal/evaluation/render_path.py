@@ -8,13 +8,13 @@ import jax
 import numpy as np
 import tqdm
 
-from internal import checkpoints
-from internal import cli
+from internal.training import checkpoints
 from internal import datasets
-from internal import evaluation
-from internal import inference
-from internal import run_dir as run_dir_lib
-from internal import vis
+from internal.evaluation import evaluate
+from internal.evaluation import inference
+from internal.training import run_dir as run_dir_lib
+from internal.evaluation import vis
+from internal import progress
 
 VIDEO_FPS = 30
 VIDEO_HINT = 'frames only; for mp4 videos: pip install imageio imageio-ffmpeg'
@@ -63,7 +63,7 @@ def render(config) -> str:
   frames = {'color': [], 'depth': [], 'opacity': []}
   depth_range = None
   num_frames = path_rays.origins.shape[0]
-  for f in tqdm.trange(num_frames, unit='frame', **cli.progress_kwargs()):
+  for f in tqdm.trange(num_frames, unit='frame', **progress.progress_kwargs()):
     rendering = inference.render_image(render_fn, jax.tree.map(lambda x, f=f: x[f], path_rays),
                                        config.render_chunk_size)
     depth_range = depth_range or vis.depth_range(rendering['distance_mean'])
@@ -72,7 +72,7 @@ def render(config) -> str:
       frames[name].append(vis.to_uint8(image))
   print(f'{num_frames} frames of step {step} in {out_dir!r}')
   if can_write_video():
-    scene = evaluation.dataset_and_scene(config)[1]
+    scene = evaluate.dataset_and_scene(config)[1]
     for name, images in frames.items():
       write_video(np.stack(images), os.path.join(out_dir, f'{scene}_{config.expname}_{name}.mp4'))
   else:

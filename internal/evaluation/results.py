@@ -14,7 +14,7 @@ METRICS_FILENAME = 'metrics.json'
 #    "means": {metric: float or null}, the mean over test views of each per-image value (null: not available),
 #    "per_image": [{"id": int, metric: float or null, ...}], one entry per evaluated test view, in test order,
 #    "complete": bool, true when every test view was evaluated at full resolution}
-# Metric names are internal.metrics.FULL_METRICS (+ MASKED_METRICS for DTU object metrics).
+# Metric names are internal.evaluation.metrics.FULL_METRICS (+ MASKED_METRICS for DTU object metrics).
 RECORD_FIELDS = {'dataset': str, 'scene': str, 'n_input_views': int, 'method': str, 'step': int,
                  'means': dict, 'per_image': list, 'complete': bool}
 EXPECTED_SCENES = {

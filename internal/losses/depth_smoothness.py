@@ -35,11 +35,6 @@ def tv_weighting(acc, mask_weight: float, fix: bool):
   return jax.lax.stop_gradient(acc[:, :-1, :-1]) * mask_weight
 
 
-def needs_patches(config) -> bool:
-  """Whether Config asks for the depth-smoothness loss (as released: a nonzero mult or the decay schedule)."""
-  return config.depth_tvnorm_loss_mult != 0 or config.depth_tvnorm_decay
-
-
 def level_weights(config, step, num_levels: int):
   """Multiplier of each level's TV: coarse_loss_mult below the last, the (scheduled) TV mult on the last."""
   last = (loss_weight(step, config.depth_tvnorm_maxstep, config.depth_tvnorm_loss_mult_start,

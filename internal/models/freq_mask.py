@@ -3,7 +3,7 @@
 import numpy as np
 import jax.numpy as jnp
 
-from internal import encoding
+from internal.models import encoding
 
 _LOW, _HIGH = 1e-8, 1. - 1e-8
 LAYOUTS = ('released', 'paper')  # Config.freq_mask_layout: released_mask or paper_mask.

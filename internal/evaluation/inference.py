@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from internal import rays as rays_lib
-from internal import train_step as train_step_lib
+from internal.training import train_step as train_step_lib
 
 OUTPUT_KEYS = ('rgb', 'acc', 'distance_mean', 'distance_median')
 

@@ -9,14 +9,15 @@ import jax.numpy as jnp
 from jax import random
 import optax
 
-from internal import anneal
-from internal import depth_smoothness
-from internal import freq_mask
-from internal import losses
-from internal import models
-from internal import occlusion
-from internal import optim
-from internal import schedule
+from internal.models import anneal
+from internal.losses import depth_smoothness
+from internal.models import freq_mask
+from internal.losses import reconstruction
+from internal.models import mip_nerf
+from internal.losses import occlusion
+from internal.training import optim
+from internal.training import schedule
+from internal.datasets import random_poses
 
 
 @flax.struct.dataclass
@@ -41,7 +42,7 @@ GUARD_CHECKS = (('loss_finite', 'loss'), ('grads_finite', 'gradients'), ('lr_val
 
 def create_train_state(config, key, example_rays):
   """(model, TrainState at step 0) for Config, initialized on example rays [B, ...]."""
-  model, variables = models.construct_model(key, example_rays, config.white_background,
+  model, variables = mip_nerf.construct_model(key, example_rays, config.white_background,
                                              config.precision)
   params = variables['params']
   return model, TrainState(step=jnp.array(0, jnp.int32), params=params,
@@ -75,11 +76,11 @@ def compute_loss(config, model, params, batch, key, step):
   stats = {}
   level_losses = []
   for level, rendering in enumerate(renderings):
-    level_losses.append(losses.data_loss(rendering['rgb'], batch['rgb'], rays.lossmult))
+    level_losses.append(reconstruction.data_loss(rendering['rgb'], batch['rgb'], rays.lossmult))
     stats[f'loss_level{level}'] = level_losses[-1]
-    stats[f'psnr_level{level}'] = losses.true_psnr(rendering['rgb'], batch['rgb'], rays.lossmult)
+    stats[f'psnr_level{level}'] = reconstruction.true_psnr(rendering['rgb'], batch['rgb'], rays.lossmult)
   loss = level_losses[-1] + config.coarse_loss_mult * sum(level_losses[:-1])
-  stats['weight_l2'] = losses.weight_l2(params)
+  stats['weight_l2'] = reconstruction.weight_l2(params)
   loss += config.weight_decay_mult * stats['weight_l2']
   fine = history[-1]
   if config.occ_reg_loss_mult > 0:
@@ -88,9 +89,9 @@ def compute_loss(config, model, params, batch, key, step):
     loss += config.occ_reg_loss_mult * stats['loss_occ']
   if config.distortion_loss_mult > 0:
     s_vals = (fine['t_vals'] - rays.near) / (rays.far - rays.near)
-    stats['loss_distortion'] = losses.distortion_loss(s_vals, fine['weights'])
+    stats['loss_distortion'] = reconstruction.distortion_loss(s_vals, fine['weights'])
     loss += config.distortion_loss_mult * stats['loss_distortion']
-  if depth_smoothness.needs_patches(config):
+  if random_poses.needs_patches(config):
     stats['loss_depth_tv'], tvs = _depth_smoothness(config, model, params, batch['patch_rays'], key, step,
                                                     mask_point, mask_view)
     stats.update({f'depth_tv_level{level}': tv for level, tv in enumerate(tvs)})

@@ -1,0 +1,1 @@
+"""Evaluation: rendering whole images, metrics, LPIPS, depth errors, outputs, videos."""

@@ -1,0 +1,1 @@
+"""Loss terms: reconstruction, occlusion (FreeNeRF), depth smoothness (RegNeRF)."""

@@ -1,0 +1,1 @@
+"""The model: encodings, Gaussians, sampling, volume rendering, MLP, frequency masks, precision."""

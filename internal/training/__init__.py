@@ -1,0 +1,1 @@
+"""Training: train step, optimizer, schedules, loop, checkpoints, run directories, devices."""
