@@ -23,11 +23,11 @@ import numpy as np
 
 from bench import common
 from bench import released_equivalent
+from internal.models import freq_schedule
 from internal import configs
 from internal.evaluation import inference
 from internal.models.mip_nerf import MipNerfModel
 from internal import rays as rays_lib
-from internal.training import train_step as ts
 
 PAPER_DTU3 = dict(near=0.5, far=3.5, white_background=False, max_steps=43945, lr_init=2e-3,
                   lr_final=2e-5, lr_delay_steps=512, lr_delay_mult=0.01, grad_max_norm=0.1,
@@ -71,7 +71,7 @@ interleaved_medians = common.interleaved_medians
 
 def released_render_fn(model, params, config, step):
   """jit-compiled rays [N, ...] -> fine outputs plus the per-sample normals the released code keeps."""
-  mask_point, mask_view = ts.masks_at(config, model.mlp.encoding_degrees(), jnp.asarray(step))
+  mask_point, mask_view = freq_schedule.masks_at(config, model.mlp.encoding_degrees(), jnp.asarray(step))
 
   @jax.jit
   def render(params, chunk_rays):

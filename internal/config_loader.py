@@ -9,7 +9,7 @@ from typing import Sequence
 import gin
 
 from internal.configs import Config
-from internal.models import freq_mask
+from internal.models import freq_schedule
 from internal.models import gaussians
 from internal.evaluation import lpips
 from internal.models import mip_nerf
@@ -83,7 +83,6 @@ def validate(config: Config) -> None:
   _choice(config, 'blender_split', blender.SPLIT_MODES)
   _choice(config, 'downsample_mode', image_io.DOWNSAMPLE_MODES)
   _choice(config, 'batching', batching.BATCHING_MODES)
-  _choice(config, 'freq_mask_layout', freq_mask.LAYOUTS)
   _choice(config, 'nonfinite_grad_policy', train_step.NONFINITE_POLICIES)
   _choice(config, 'lpips_input_range', lpips.INPUT_RANGES)
   _choice(config, 'generated_rig', synthetic.RIGS)
@@ -101,8 +100,6 @@ def validate(config: Config) -> None:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected >= 0')
   if config.max_skipped_steps < 1:
     raise ValueError(f'Config.max_skipped_steps = {config.max_skipped_steps}; expected >= 1')
-  if not 0. <= config.max_vis_freq_ratio <= 1.:
-    raise ValueError(f'Config.max_vis_freq_ratio = {config.max_vis_freq_ratio}; expected in [0, 1]')
   if config.far <= config.near:
     raise ValueError(f'Config.far = {config.far} must exceed Config.near = {config.near}')
   for name in ('near', 'far', 'lr_init', 'lr_final'):
@@ -116,10 +113,7 @@ def validate(config: Config) -> None:
     raise ValueError(f'Config.near = {config.near}; expected > 0 for {config.dataset_loader!r} scenes, whose rays '
                      'start in world space (only LLFF-style NDC rays start at 0)')
   _check_ndc_near_far(config)
-  if config.max_vis_freq_ratio > 0 and not config.freq_reg:
-    raise ValueError(f'Config.max_vis_freq_ratio = {config.max_vis_freq_ratio} acts only under the frequency '
-                     'regularizer, as released; set Config.freq_reg = True (with Config.freq_reg_end = 0 for the '
-                     'fixed visible ratio alone) or leave the ratio at 0')
+  freq_schedule.check_settings(config, mip_nerf.MLP().encoding_degrees())
   _warn_on_unused_regularizer(config)
   _validate_regnerf(config)
 
@@ -172,9 +166,6 @@ def _check_types(config: Config) -> None:
 
 def _warn_on_unused_regularizer(config: Config) -> None:
   """Warns about regularizer settings that are legal but cannot act as written."""
-  if config.freq_reg and config.freq_reg_end > config.max_steps:
-    warnings.warn(f'Config.freq_reg_end = {config.freq_reg_end} exceeds Config.max_steps = {config.max_steps}: '
-                  'the frequency mask never fully opens during training', stacklevel=3)
   num_samples = mip_nerf.MipNerfModel().num_samples
   if config.occ_reg_loss_mult > 0 and config.occ_reg_range > num_samples:
     warnings.warn(f'Config.occ_reg_range = {config.occ_reg_range} exceeds MipNerfModel.num_samples = '

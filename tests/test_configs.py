@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from conftest import SHARED_DATA
+from internal.models import freq_schedule
 from internal import config_loader
 from internal import configs
 from internal import datasets
 from internal.models import mip_nerf
-from internal.training import train_step
 from internal.training import loop
 from internal import cli
 
@@ -150,7 +150,7 @@ def test_freenerf_configs_hold_the_released_values(dataset, n):
 def test_mipnerf_configs_are_freenerf_without_regularizers(dataset, n):
   config = _ours('mipnerf', dataset, n)
   assert config.max_steps == STEPS[dataset, n][0] and config.n_input_views == n
-  assert train_step.masks_at(config, mip_nerf.MLP().encoding_degrees(), 0) == (None, None) and config.occ_reg_loss_mult == 0.
+  assert freq_schedule.masks_at(config, mip_nerf.MLP().encoding_degrees(), 0) == (None, None) and config.occ_reg_loss_mult == 0.
   assert {k: getattr(config, k) for k in LR_BLOCK} == LR_BLOCK
 
 
@@ -173,7 +173,7 @@ def test_blender_config_follows_the_dietnerf_protocol():
 
 def test_freenerf_mask_of_the_dtu3_config_opens_as_released():
   config = _ours('freenerf', 'dtu', 3)
-  point, view = train_step.masks_at(config, mip_nerf.MLP().encoding_degrees(), config.freq_reg_end // 2)
+  point, view = freq_schedule.masks_at(config, mip_nerf.MLP().encoding_degrees(), config.freq_reg_end // 2)
   point = np.asarray(point)
   assert point.shape == (99,) and np.asarray(view).shape == (27,)
   assert np.all(point[:51] == 1.) and np.all(point[54:] < 1e-6)  # t/T = 0.5: every sin band, no cos.

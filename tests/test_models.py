@@ -9,7 +9,7 @@ from jax import random
 
 from conftest import random_rays
 from internal.models import encoding
-from internal.models import freq_mask
+from internal.models import freq_schedule
 from internal.models import mip_nerf
 
 TINY = ['MLP.net_depth = 2', 'MLP.net_width = 16', 'MLP.net_width_viewdirs = 8',
@@ -65,7 +65,7 @@ def test_density_noise_per_sample_by_default_and_shared_as_released():
 def test_no_mask_multiplication_in_graph_when_regularization_off():
   model, variables = _tiny()
   rays = random_rays(0, 4)
-  masks = freq_mask.encoding_masks(jnp.asarray(5), freq_reg=True, freq_reg_end=10,
+  masks = freq_schedule.encoding_masks(jnp.asarray(5), freq_reg=True, freq_reg_end=10,
                                    layout='released', max_vis_freq_ratio=0.,
                                    num_deg_point=16, num_deg_view=4)
   count = lambda *m: str(jax.make_jaxpr(lambda v: model.apply(v, None, rays, *m))(variables)).count(' mul ')
@@ -82,7 +82,7 @@ def test_mask_zero_hides_encoding(monkeypatch):
   # A mask that keeps only the identity: changing the masked sin/cos features leaves every output unchanged.
   model, variables = _tiny()
   rays = random_rays(0, 4)
-  masks = (freq_mask.fixed_ratio_mask(99, 3 / 99), freq_mask.fixed_ratio_mask(27, 3 / 27))
+  masks = (freq_schedule.fixed_ratio_mask(99, 3 / 99), freq_schedule.fixed_ratio_mask(27, 3 / 27))
   render = lambda: [np.asarray(level['rgb']) for level in model.apply(variables, None, rays, *masks)[0]]
   before = render()
   ipe, pe = encoding.integrated_pos_enc, encoding.pos_enc
@@ -145,7 +145,7 @@ def test_skip_connection_reuses_masked_encoding():
   params = mlp.init(random.PRNGKey(0), None, means, covs, None, method=mip_nerf.MLP.predict_density)
   layers = params['params']
   assert layers['Dense_2']['kernel'].shape == (16 + 99, 16)
-  mask = freq_mask.fixed_ratio_mask(99, 3 / 99)
+  mask = freq_schedule.fixed_ratio_mask(99, 3 / 99)
   enc = encoding.integrated_pos_enc(means, covs, 0, 16) * mask
   dense = lambda i, x: x @ layers[f'Dense_{i}']['kernel'] + layers[f'Dense_{i}']['bias']
   # skip_layer 1: the (masked) encoding is appended after layers 1 and 2.

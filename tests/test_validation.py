@@ -11,7 +11,7 @@ import pytest
 from conftest import noise, save_png
 from internal import config_loader
 from internal import configs
-from internal.models import freq_mask
+from internal.models import freq_schedule
 from internal.models import gaussians
 from internal.evaluation import lpips
 from internal.models import precision
@@ -51,7 +51,7 @@ def test_bad_settings_raise_value_errors_naming_them(binding, message):
 @pytest.mark.parametrize('name, options', [
     ('Config.dataset_loader', loader.LOADERS), ('Config.dtu_layout', dtu.LAYOUTS),
     ('Config.blender_split', blender_lib.SPLIT_MODES), ('Config.downsample_mode', image_io.DOWNSAMPLE_MODES),
-    ('Config.batching', batching.BATCHING_MODES), ('Config.freq_mask_layout', freq_mask.LAYOUTS),
+    ('Config.batching', batching.BATCHING_MODES), ('Config.freq_mask_layout', freq_schedule.LAYOUTS),
     ('Config.nonfinite_grad_policy', train_step.NONFINITE_POLICIES), ('Config.lpips_input_range', lpips.INPUT_RANGES),
     ('Config.generated_rig', synthetic.RIGS), ('Config.precision', precision.PRECISIONS),
     ('MipNerfModel.ray_shape', gaussians.RAY_SHAPES), ('MipNerfModel.pdf_padding', sampling.PDF_PADDINGS)])
@@ -102,9 +102,9 @@ def test_visible_ratio_without_the_frequency_regularizer_is_refused():
   with pytest.raises(ValueError, match=r'^Config.max_vis_freq_ratio = 0.1 acts only under the frequency regularizer'):
     _load('Config.max_vis_freq_ratio = 0.1', 'Config.freq_reg = False')
   config = _load('Config.max_vis_freq_ratio = 0.1', 'Config.freq_reg = True', 'Config.freq_reg_end = 0')
-  point, view = train_step.masks_at(config, (16, 4), 0)
-  np.testing.assert_array_equal(point, freq_mask.fixed_ratio_mask(99, 0.1))
-  np.testing.assert_array_equal(view, freq_mask.fixed_ratio_mask(27, 0.1))
+  point, view = freq_schedule.masks_at(config, (16, 4), 0)
+  np.testing.assert_array_equal(point, freq_schedule.fixed_ratio_mask(99, 0.1))
+  np.testing.assert_array_equal(view, freq_schedule.fixed_ratio_mask(27, 0.1))
 
 
 def test_regularizers_that_cannot_act_warn():

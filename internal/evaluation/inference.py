@@ -7,14 +7,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from internal import rays as rays_lib
-from internal.training import train_step as train_step_lib
+from internal.models import freq_schedule
 
 OUTPUT_KEYS = ('rgb', 'acc', 'distance_mean', 'distance_median')
 
 
 def make_render_fn(config, model, params, step: int, compute_normals: bool = False):
   """jit-compiled rays [N, ...] -> fine-level outputs, with the masks of the checkpoint step."""
-  mask_point, mask_view = train_step_lib.masks_at(config, model.mlp.encoding_degrees(), jnp.asarray(step))
+  mask_point, mask_view = freq_schedule.masks_at(config, model.mlp.encoding_degrees(), jnp.asarray(step))
   padding = config.resample_padding_final
   keys = OUTPUT_KEYS + (('normals',) if compute_normals else ())
 

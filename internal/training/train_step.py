@@ -11,7 +11,7 @@ import optax
 
 from internal.models import anneal
 from internal.losses import depth_smoothness
-from internal.models import freq_mask
+from internal.models import freq_schedule
 from internal.losses import reconstruction
 from internal.models import mip_nerf
 from internal.losses import occlusion
@@ -49,24 +49,12 @@ def create_train_state(config, key, example_rays):
                            opt_state=jax.jit(optim.adam(config.adam_eps).init)(params))
 
 
-def masks_at(config, degrees, step):
-  """Frequency masks (point, view) of Config for the encoding degrees (point, view) at a (possibly traced) step.
-
-  (None, None) when off; degrees is the model's model.mlp.encoding_degrees().
-  """
-  num_deg_point, num_deg_view = degrees
-  return freq_mask.encoding_masks(
-      step, freq_reg=config.freq_reg, freq_reg_end=config.freq_reg_end,
-      layout=config.freq_mask_layout, max_vis_freq_ratio=config.max_vis_freq_ratio,
-      num_deg_point=num_deg_point, num_deg_view=num_deg_view)
-
-
 def compute_loss(config, model, params, batch, key, step):
   """(total loss, stats) of one batch {'rays': Rays [B, ...], 'rgb': [B, 3]} at step.
 
   With RegNeRF's depth smoothness the batch also holds 'patch_rays' [P, ps, ps, ...] (no data loss on them).
   """
-  mask_point, mask_view = masks_at(config, model.mlp.encoding_degrees(), step)
+  mask_point, mask_view = freq_schedule.masks_at(config, model.mlp.encoding_degrees(), step)
   rays = batch['rays']
   if config.anneal_nearfar:
     rays = anneal.anneal_rays(config, rays, step)

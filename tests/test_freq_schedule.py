@@ -1,11 +1,12 @@
-"""Tests of internal/freq_mask.py against worked examples of the released mask and a literal reference."""
+"""Tests of internal/models/freq_schedule.py and freq_ramp.py against worked examples of the released mask and a literal reference."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from internal.models import freq_mask
+from internal import config_loader
+from internal.models import freq_schedule
 
 LOW = np.float32(1e-8)
 END = 1000
@@ -44,7 +45,7 @@ def _reference_released(length, step, end):
     (1., 27, np.ones(27, np.float32)),
 ])
 def test_released_worked_example(ratio, length, expected):
-  mask = freq_mask.released_mask(length, int(ratio * END), END)
+  mask = freq_schedule.released_mask(length, int(ratio * END), END)
   assert mask.dtype == jnp.float32 and mask.shape == (length,)
   np.testing.assert_array_equal(mask, expected)
 
@@ -52,38 +53,38 @@ def test_released_worked_example(ratio, length, expected):
 def test_released_matches_literal_reference():
   for length in (99, 27):
     for step in range(0, 1100, 7):
-      np.testing.assert_array_equal(freq_mask.released_mask(length, step, END),
+      np.testing.assert_array_equal(freq_schedule.released_mask(length, step, END),
                                     _reference_released(length, step, END).astype(np.float32))
 
 
 def test_released_pointer_is_exact():
   """L = 99, T = 62791, t = 59127: ptr - 1 = 33 t / T = 31 + 4670 / 62791 exactly; group 32 (features
   96..98) gets the float32 rounding of 4670 / 62791 = 0.0743737 (a float32 pointer gave 0.0743713)."""
-  mask = np.asarray(freq_mask.released_mask(99, 59127, 62791))
+  mask = np.asarray(freq_schedule.released_mask(99, 59127, 62791))
   ptr = 99 / 3 * 59127 / 62791 + 1  # The released formula in float64.
   np.testing.assert_array_equal(mask[96:], np.float32(ptr - int(ptr)))
   assert mask[96] == np.float32(4670 / 62791) and abs(mask[96] - 0.0743737) < 5e-8
   np.testing.assert_array_equal(mask[:96], 1.)
-  traced = jax.jit(lambda s: freq_mask.released_mask(99, s, 62791))(jnp.int32(59127))
+  traced = jax.jit(lambda s: freq_schedule.released_mask(99, s, 62791))(jnp.int32(59127))
   np.testing.assert_array_equal(traced, mask)
 
 
 def test_pointer_bound_checked():
   with pytest.raises(ValueError, match='Config.freq_reg_end'):
-    freq_mask.released_mask(99, 0, 2**25)
+    freq_schedule.released_mask(99, 0, 2**25)
 
 
 def test_released_ends():
-  assert np.all(np.asarray(freq_mask.released_mask(99, END, END)) == 1.)
-  assert np.all(np.asarray(freq_mask.released_mask(99, int(0.98 * END), END)) == 1.)  # capped ptr
-  assert np.all(np.asarray(freq_mask.released_mask(99, 5 * END, END)) == 1.)  # step > T
-  assert np.all(np.asarray(freq_mask.released_mask(99, 0, 0)) == 1.)  # T = 0
-  assert np.all(np.asarray(freq_mask.released_mask(27, 7, 0)) == 1.)
-  np.testing.assert_array_equal(freq_mask.released_mask(99, 0, 1), _expected(99, 3))  # T = 1
-  assert np.all(np.asarray(freq_mask.released_mask(99, 1, 1)) == 1.)
+  assert np.all(np.asarray(freq_schedule.released_mask(99, END, END)) == 1.)
+  assert np.all(np.asarray(freq_schedule.released_mask(99, int(0.98 * END), END)) == 1.)  # capped ptr
+  assert np.all(np.asarray(freq_schedule.released_mask(99, 5 * END, END)) == 1.)  # step > T
+  assert np.all(np.asarray(freq_schedule.released_mask(99, 0, 0)) == 1.)  # T = 0
+  assert np.all(np.asarray(freq_schedule.released_mask(27, 7, 0)) == 1.)
+  np.testing.assert_array_equal(freq_schedule.released_mask(99, 0, 1), _expected(99, 3))  # T = 1
+  assert np.all(np.asarray(freq_schedule.released_mask(99, 1, 1)) == 1.)
   # Chunk 32 (cos deg 15) is already fully open below T (ptr capped at 33 from t/T = 32/33).
-  assert np.all(np.asarray(freq_mask.released_mask(99, 970, END)) == 1.)
-  assert freq_mask.released_mask(99, 969, END)[98] < 1.
+  assert np.all(np.asarray(freq_schedule.released_mask(99, 970, END)) == 1.)
+  assert freq_schedule.released_mask(99, 969, END)[98] < 1.
 
 
 def _expected_paper(length, ones, fracs, frac):
@@ -112,48 +113,48 @@ def _expected_paper(length, ones, fracs, frac):
     (0.5, 4, _expected_paper(27, [*range(0, 9), *range(15, 21)], [*range(9, 12), *range(21, 24)], 0.5)),
 ])
 def test_paper_worked_example(ratio, num_degrees, expected):
-  mask = freq_mask.paper_mask(num_degrees, int(ratio * END), END)
+  mask = freq_schedule.paper_mask(num_degrees, int(ratio * END), END)
   assert mask.dtype == jnp.float32
   np.testing.assert_array_equal(mask, expected)
 
 
 def test_paper_ends():
-  assert np.all(np.asarray(freq_mask.paper_mask(16, 0, 0)) == 1.)
-  assert np.all(np.asarray(freq_mask.paper_mask(16, 2 * END, END)) == 1.)
-  assert np.all(np.asarray(freq_mask.paper_mask(16, 942, END)) == 1.)  # ptr capped at 17 from t/T = 16/17
-  assert freq_mask.paper_mask(16, 940, END)[98] < 1.
-  np.testing.assert_array_equal(freq_mask.paper_mask(16, 0, 1), _expected(99, 3))
-  assert np.all(np.asarray(freq_mask.paper_mask(16, 1, 1)) == 1.)
-  assert freq_mask.paper_mask(2, 0, END, num_coords=2).shape == (10,)
+  assert np.all(np.asarray(freq_schedule.paper_mask(16, 0, 0)) == 1.)
+  assert np.all(np.asarray(freq_schedule.paper_mask(16, 2 * END, END)) == 1.)
+  assert np.all(np.asarray(freq_schedule.paper_mask(16, 942, END)) == 1.)  # ptr capped at 17 from t/T = 16/17
+  assert freq_schedule.paper_mask(16, 940, END)[98] < 1.
+  np.testing.assert_array_equal(freq_schedule.paper_mask(16, 0, 1), _expected(99, 3))
+  assert np.all(np.asarray(freq_schedule.paper_mask(16, 1, 1)) == 1.)
+  assert freq_schedule.paper_mask(2, 0, END, num_coords=2).shape == (10,)
 
 
 def test_fixed_ratio_mask():
-  np.testing.assert_array_equal(freq_mask.fixed_ratio_mask(99, 0.5), np.r_[np.ones(49), np.zeros(50)])
-  np.testing.assert_array_equal(freq_mask.fixed_ratio_mask(27, 0.1), np.r_[np.ones(2), np.zeros(25)])
-  np.testing.assert_array_equal(freq_mask.fixed_ratio_mask(27, 1.), np.ones(27))
+  np.testing.assert_array_equal(freq_schedule.fixed_ratio_mask(99, 0.5), np.r_[np.ones(49), np.zeros(50)])
+  np.testing.assert_array_equal(freq_schedule.fixed_ratio_mask(27, 0.1), np.r_[np.ones(2), np.zeros(25)])
+  np.testing.assert_array_equal(freq_schedule.fixed_ratio_mask(27, 1.), np.ones(27))
 
 
 def test_encoding_masks_dispatch():
   kw = dict(freq_reg=True, freq_reg_end=END, layout='released', max_vis_freq_ratio=0., num_deg_point=16,
             num_deg_view=4)
-  assert freq_mask.encoding_masks(5, **{**kw, 'freq_reg': False}) == (None, None)
-  assert freq_mask.encoding_masks(5, **{**kw, 'freq_reg_end': 0}) == (None, None)
-  point, view = freq_mask.encoding_masks(250, **kw)
-  np.testing.assert_array_equal(point, freq_mask.released_mask(99, 250, END))
-  np.testing.assert_array_equal(view, freq_mask.released_mask(27, 250, END))
-  point, view = freq_mask.encoding_masks(250, **{**kw, 'layout': 'paper'})
-  np.testing.assert_array_equal(point, freq_mask.paper_mask(16, 250, END))
-  np.testing.assert_array_equal(view, freq_mask.paper_mask(4, 250, END))
+  assert freq_schedule.encoding_masks(5, **{**kw, 'freq_reg': False}) == (None, None)
+  assert freq_schedule.encoding_masks(5, **{**kw, 'freq_reg_end': 0}) == (None, None)
+  point, view = freq_schedule.encoding_masks(250, **kw)
+  np.testing.assert_array_equal(point, freq_schedule.released_mask(99, 250, END))
+  np.testing.assert_array_equal(view, freq_schedule.released_mask(27, 250, END))
+  point, view = freq_schedule.encoding_masks(250, **{**kw, 'layout': 'paper'})
+  np.testing.assert_array_equal(point, freq_schedule.paper_mask(16, 250, END))
+  np.testing.assert_array_equal(view, freq_schedule.paper_mask(4, 250, END))
   for end in (END, 0):  # The fixed visible ratio acts under freq_reg, whatever its end step.
-    point, view = freq_mask.encoding_masks(250, **{**kw, 'freq_reg_end': end, 'max_vis_freq_ratio': 0.5})
-    np.testing.assert_array_equal(point, freq_mask.fixed_ratio_mask(99, 0.5))
-    np.testing.assert_array_equal(view, freq_mask.fixed_ratio_mask(27, 0.5))
+    point, view = freq_schedule.encoding_masks(250, **{**kw, 'freq_reg_end': end, 'max_vis_freq_ratio': 0.5})
+    np.testing.assert_array_equal(point, freq_schedule.fixed_ratio_mask(99, 0.5))
+    np.testing.assert_array_equal(view, freq_schedule.fixed_ratio_mask(27, 0.5))
   # As released, it does not act without the frequency regularizer.
-  assert freq_mask.encoding_masks(250, **{**kw, 'freq_reg': False, 'max_vis_freq_ratio': 0.5}) == (None, None)
-  point, view = freq_mask.encoding_masks(250, **{**kw, 'num_deg_point': 10, 'num_deg_view': 2})
+  assert freq_schedule.encoding_masks(250, **{**kw, 'freq_reg': False, 'max_vis_freq_ratio': 0.5}) == (None, None)
+  point, view = freq_schedule.encoding_masks(250, **{**kw, 'num_deg_point': 10, 'num_deg_view': 2})
   assert (point.shape, view.shape) == ((63,), (15,))  # The degrees passed, not defaults, set the lengths.
   with pytest.raises(ValueError, match='Config.freq_mask_layout'):
-    freq_mask.encoding_masks(5, **{**kw, 'layout': 'interleaved'})
+    freq_schedule.encoding_masks(5, **{**kw, 'layout': 'interleaved'})
 
 
 def _reference_paper(num_degrees, step, end):
@@ -169,9 +170,9 @@ def _reference_paper(num_degrees, step, end):
 
 
 @pytest.mark.parametrize('name,fn,reference', [
-    ('released', lambda s: freq_mask.released_mask(99, s, END), lambda s: _reference_released(99, s, END)),
-    ('paper', lambda s: freq_mask.paper_mask(4, s, END), lambda s: _reference_paper(4, s, END)),
-    ('encoding_masks', lambda s: freq_mask.encoding_masks(
+    ('released', lambda s: freq_schedule.released_mask(99, s, END), lambda s: _reference_released(99, s, END)),
+    ('paper', lambda s: freq_schedule.paper_mask(4, s, END), lambda s: _reference_paper(4, s, END)),
+    ('encoding_masks', lambda s: freq_schedule.encoding_masks(
         s, freq_reg=True, freq_reg_end=END, layout='released', max_vis_freq_ratio=0., num_deg_point=16,
         num_deg_view=4)[1],
      lambda s: _reference_released(27, s, END)),
@@ -187,3 +188,14 @@ def test_jit_with_traced_step_compiles_once(name, fn, reference):
   for step in (0, 1, 250, 333, 500, 999, 1000, 4000):
     np.testing.assert_allclose(jitted(jnp.asarray(step, jnp.int32)), reference(step), rtol=0, atol=4e-6)
   assert len(traces) == 1
+
+
+def test_too_large_end_is_refused_when_the_config_is_loaded():
+  """A T the exact pointer cannot hold is a settings error at load time, before a run directory is written."""
+  largest = (2**24 - 1) // 3  # Released layout: 3 features a group, den * T < 2**24.
+  def load(end, *bindings):
+    return config_loader.load_config([], [f'Config.freq_reg_end = {end}', f'Config.max_steps = {end}', *bindings])
+  with pytest.raises(ValueError, match=rf'Config.freq_reg_end = {largest + 1} is too large .*at most {largest}'):
+    load(largest + 1, 'Config.freq_reg = True')
+  load(largest, 'Config.freq_reg = True')
+  load(largest + 1)  # Without Config.freq_reg the schedule is off and any T is accepted.

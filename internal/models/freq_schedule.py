@@ -1,0 +1,95 @@
+"""FreeNeRF's frequency regularization (paper Sec. 3.2): which encoding features are visible at a step.
+
+Four settings decide it, all `Config` fields:
+- `freq_reg` (bool): the switch. Off: no mask, every frequency visible from step 0 (mip-NeRF).
+- `freq_reg_end` (int, T): the step at which the last band opens; the visible band grows linearly from the
+  lowest frequencies at step 0 to all at T. 0 with `freq_reg` on: no ramp (all visible), unless the ratio below
+  is set. The paper: T = 0.9 / 0.7 / 0.5 of the steps for 3 / 6 / 9 views; Blender T = 0.5 x steps.
+- `max_vis_freq_ratio` (float in [0, 1]): the fixed visible-ratio ablation (paper Fig. 2): the first
+  int(L * ratio) features stay visible for the whole run, the rest hidden; acts only under `freq_reg` (as
+  released) and then replaces the ramp. 0 = off.
+- `freq_mask_layout`: 'released' opens 3 features at a time left to right over the released feature order
+  (so every sin band opens before any cos band); 'paper' opens the identity, then sin and cos of one degree
+  together (as the paper and its Blender code do).
+The released name `warmup_end` is read as `freq_reg_end` (internal/config_loader.py).
+"""
+
+import warnings
+
+import numpy as np
+import jax.numpy as jnp
+
+from internal.configs import Config
+from internal.models import encoding
+from internal.models import freq_ramp
+
+LAYOUTS = ('released', 'paper')  # Config.freq_mask_layout: released_mask or paper_mask.
+
+
+def released_mask(length, step, end):
+  """Released mask: chunks of 3 features open left to right; f32 [length]."""
+  return freq_ramp.ramp(np.arange(length) // 3, length, 3, step, end)
+
+
+def paper_mask(num_degrees, step, end, num_coords=3):
+  """Paper-style mask: identity, then sin and cos of each degree together; f32 [encoding.width(D, C)]."""
+  _, degree, _ = encoding.feature_layout(num_degrees, num_coords, append_identity=True)
+  return freq_ramp.ramp(degree + 1, num_degrees + 1, 1, step, end)
+
+
+def fixed_ratio_mask(length, ratio):
+  """Ablation mask: the first int(length*ratio) features 1, the rest 0; f32 [length]."""
+  return jnp.asarray(np.arange(length) < int(length * ratio), jnp.float32)
+
+
+def encoding_masks(step, *, freq_reg, freq_reg_end, layout, max_vis_freq_ratio, num_deg_point, num_deg_view):
+  """Masks for the point [width(Dp)] and view [width(Dv)] encodings, or (None, None) when nothing is masked."""
+  if not freq_reg:
+    return None, None
+  len_point, len_view = encoding.width(num_deg_point), encoding.width(num_deg_view)
+  if max_vis_freq_ratio > 0:
+    return fixed_ratio_mask(len_point, max_vis_freq_ratio), fixed_ratio_mask(len_view, max_vis_freq_ratio)
+  if freq_reg_end == 0:
+    return None, None
+  if layout == 'released':
+    return released_mask(len_point, step, freq_reg_end), released_mask(len_view, step, freq_reg_end)
+  if layout == 'paper':
+    return paper_mask(num_deg_point, step, freq_reg_end), paper_mask(num_deg_view, step, freq_reg_end)
+  raise ValueError(f'Config.freq_mask_layout = {layout!r}; expected one of {list(LAYOUTS)}')
+
+
+def masks_at(config: Config, degrees, step):
+  """Masks (point, view) of Config for the encoding degrees (point, view) at a (possibly traced) step.
+
+  (None, None) when off; degrees is the model's `model.mlp.encoding_degrees()`.
+  """
+  num_deg_point, num_deg_view = degrees
+  return encoding_masks(step, freq_reg=config.freq_reg, freq_reg_end=config.freq_reg_end,
+                        layout=config.freq_mask_layout, max_vis_freq_ratio=config.max_vis_freq_ratio,
+                        num_deg_point=num_deg_point, num_deg_view=num_deg_view)
+
+
+def check_settings(config: Config, degrees) -> None:
+  """Raises a ValueError naming the setting (warns for legal but odd ones) before any work is done."""
+  if config.freq_mask_layout not in LAYOUTS:
+    raise ValueError(f'Config.freq_mask_layout = {config.freq_mask_layout!r}; expected one of {list(LAYOUTS)}')
+  if not 0. <= config.max_vis_freq_ratio <= 1.:
+    raise ValueError(f'Config.max_vis_freq_ratio = {config.max_vis_freq_ratio}; expected in [0, 1]')
+  if config.max_vis_freq_ratio > 0 and not config.freq_reg:
+    raise ValueError(f'Config.max_vis_freq_ratio = {config.max_vis_freq_ratio} acts only under the frequency '
+                     'regularizer, as released; set Config.freq_reg = True (with Config.freq_reg_end = 0 for the '
+                     'fixed visible ratio alone) or leave the ratio at 0')
+  if not config.freq_reg:
+    return
+  groups = [(encoding.width(d), 3) if config.freq_mask_layout == 'released' else (d + 1, 1) for d in degrees]
+  if not all(freq_ramp.pointer_fits(num, den, config.freq_reg_end) for num, den in groups):
+    raise ValueError(f'Config.freq_reg_end = {config.freq_reg_end} is too large for the exact mask pointer of '
+                     f'encodings of {tuple(degrees)} degrees (at most {_max_end(groups)})')
+  if config.freq_reg_end > config.max_steps:
+    warnings.warn(f'Config.freq_reg_end = {config.freq_reg_end} exceeds Config.max_steps = {config.max_steps}: '
+                  'the frequency mask never fully opens during training', stacklevel=4)
+
+
+def _max_end(groups) -> int:
+  """The largest T whose pointer fits for every (num, den) of groups."""
+  return min(min((2**31 - 1) // num, (2**24 - 1) // den) for num, den in groups)
