@@ -1,4 +1,4 @@
-"""Every ```bash block of README.md runs as written (with tiny settings), so that the README cannot drift.
+"""Every ```bash block of README.md and docs/*.md runs as written (with tiny settings), so that they cannot drift.
 
 Each block runs in bash in a copy of the repository, with one scene per loop (the README's scene-list variables)
 and a `python` on PATH that appends tiny model and data bindings to train.py / eval.py / render.py and to the
@@ -22,7 +22,15 @@ from conftest import JAX_CACHE
 from test_checkpoints import ROOT
 
 README = ROOT / 'README.md'
-BLOCKS = re.findall(r'^```bash\n(.*?)^```', README.read_text(), re.S | re.M)
+DOCUMENTS = [README] + sorted((ROOT / 'docs').glob('*.md'))
+
+
+def bash_blocks(path) -> list:
+  """The ```bash blocks of a Markdown file, in order."""
+  return re.findall(r'^```bash\n(.*?)^```', path.read_text(), re.S | re.M)
+
+
+BLOCKS = [(f'{path.relative_to(ROOT)}:{i}', block) for path in DOCUMENTS for i, block in enumerate(bash_blocks(path))]
 INSTALL_STEP = re.compile(r'^(python3 -m venv .*|\. \.venv/bin/activate|pip install .*)$')
 LOOP_VARIABLES = {'DATA_ROOT': str(SHARED_DATA), 'DTU_SCANS': 'scan8', 'LLFF_SCENES': 'fern', 'BLENDER_SCENES': 'lego', 'VIEWS': '3',
                   'METHODS': 'mipnerf', 'T_VALUES': '4395'}
@@ -89,17 +97,18 @@ def sandbox(tmp_path_factory):
 
 
 def test_the_readme_has_its_command_blocks():
-  assert len(BLOCKS) >= 5
-  assert {'train.py', 'eval.py', 'render.py', 'tools.tables', 'pytest'} <= set().union(*map(called, BLOCKS))
+  blocks = bash_blocks(README)
+  assert len(blocks) >= 5
+  assert {'train.py', 'eval.py', 'render.py', 'tools.tables', 'pytest'} <= set().union(*map(called, blocks))
+  assert any(name.startswith('docs/') for name, _ in BLOCKS)  # The docs' blocks are run too.
 
 
-@pytest.mark.parametrize('index', range(len(BLOCKS)))
-def test_readme_block_runs_as_written(index, sandbox):
-  block = BLOCKS[index]
+@pytest.mark.parametrize('index,block', BLOCKS, ids=[name for name, _ in BLOCKS])
+def test_readme_block_runs_as_written(index, block, sandbox):
   missing = [str(path) for name, path in SHARED_SCENES.items() if re.search(rf'\b{name}', block) and
              not path.is_dir()]
   if missing:
-    pytest.skip(f'README block {index} needs shared scenes that are absent: {missing}')
+    pytest.skip(f'block {index} needs shared scenes that are absent: {missing}')
   repo, path, log = sandbox
   log.write_text('')
   env = dict(os.environ, PATH=path, JAX_COMPILATION_CACHE_DIR=JAX_CACHE,
