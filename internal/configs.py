@@ -16,7 +16,7 @@ class Config:
   """Every experiment setting; .gin files bind `Config.<field>` exactly as in RegNeRF/FreeNeRF."""
   # Experiment bookkeeping.
   expname: str = 'demo'
-  project: str = 'freenerf'
+  project: str = 'freenerf'             # Unused: kept only so that the released .gin files, which set it, parse.
   checkpoint_dir: str = 'out/demo'
   overwrite: bool = False               # Allow training into a directory holding another run.
   jax_rng_seed: int = 20200823
