@@ -32,7 +32,7 @@ def read_transforms(scene_dir: str, split: str) -> dict:
 
 def frame_ids(split: str, n_frames: int, mode: str, n_views: int, test_stride: int) -> list:
   """Frame positions of the split: DietNeRF ids or the first n (train); every test_stride-th frame (test)."""
-  base.check_choice('blender_split', mode, SPLIT_MODES)
+  base.check_choice('Config.blender_split', mode, SPLIT_MODES)
   if split == 'test':
     return list(range(0, n_frames, test_stride))
   if mode == 'dietnerf' and max(DIETNERF_IDS) >= n_frames:

@@ -41,7 +41,7 @@ def scan_number(scan: str) -> int:
 
 def detect_layout(scan_dir: str, layout: str) -> str:
   """'idr' when cameras_sphere.npz is present, 'regnerf' when rect_*.png images are; layout forces it."""
-  base.check_choice('dtu_layout', layout, LAYOUTS)
+  base.check_choice('Config.dtu_layout', layout, LAYOUTS)
   if layout != 'auto':
     return layout
   if os.path.isfile(os.path.join(scan_dir, 'cameras_sphere.npz')):

@@ -35,7 +35,7 @@ def load_dataset(split: str, config, ground_truth: bool = False) -> base.Dataset
   ground_truth: also read the generated scene's exact depths and object masks (a pack holds them either way).
   """
   base.check_split(split)
-  base.check_choice('dataset_loader', config.dataset_loader, LOADERS)
+  base.check_choice('Config.dataset_loader', config.dataset_loader, LOADERS)
   if config.dataset_loader == 'packed':
     return packed.load_packed(split, config)
   if config.dataset_loader == 'dtu':
@@ -52,7 +52,7 @@ def load_dataset(split: str, config, ground_truth: bool = False) -> base.Dataset
 
 def render_path_rays(config):
   """Rays [F,H,W,...] of the scene's render path (spiral for LLFF/DTU, orbit for object-centric scenes)."""
-  base.check_choice('dataset_loader', config.dataset_loader, LOADERS)
+  base.check_choice('Config.dataset_loader', config.dataset_loader, LOADERS)
   if config.dataset_loader == 'packed':
     return packed.render_path_rays(config)
   if config.dataset_loader == 'dtu':
