@@ -106,7 +106,7 @@ def validate(config: Config) -> None:
     if getattr(config, name) <= 0.:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected > 0 (the learning rate decays '
                        'log-linearly from lr_init to lr_final)')
-  if needs_positive_near(config) and config.near <= 0.:
+  if loader.ndc(config) is False and config.near <= 0.:
     raise ValueError(f'Config.near = {config.near}; expected > 0 for {config.dataset_loader!r} scenes, whose rays '
                      'start in world space (only LLFF-style NDC rays start at 0)')
   _check_ndc_near_far(config)
@@ -118,24 +118,12 @@ def validate(config: Config) -> None:
   _validate_regnerf(config)
 
 
-def needs_positive_near(config: Config) -> bool:
-  """True for world-space rays (DTU, Blender, the generated object rig); LLFF's NDC rays ignore Config.near."""
-  return config.dataset_loader in ('dtu', 'blender') or (
-      config.dataset_loader == 'generated' and config.generated_rig == 'object')
-
-
-def uses_ndc_rays(config: Config) -> bool:
-  """True for LLFF-style NDC rays (LLFF, the generated forward rig): their near and far are fixed at 0 and 1."""
-  return config.dataset_loader == 'llff' or (
-      config.dataset_loader == 'generated' and config.generated_rig == 'forward')
-
-
 def _check_ndc_near_far(config: Config) -> None:
   """Refuses a Config.near/far that NDC rays would ignore: only (0, 1), or both left at their defaults.
 
   RegNeRF's annealing (Config.anneal_nearfar) reads Config.near/far, so under it only (0, 1) is accepted.
   """
-  if not uses_ndc_rays(config):
+  if not loader.ndc(config):  # World rays (or a pack, whose settings are checked on load).
     return
   fields = {f.name: f.default for f in dataclasses.fields(Config)}
   unset = (config.near, config.far) == (fields['near'], fields['far']) and not config.anneal_nearfar
