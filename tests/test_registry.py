@@ -4,6 +4,7 @@ The lists derived from them are compared with the hand-written lists they replac
 """
 
 import dataclasses
+import pathlib
 from types import SimpleNamespace
 
 import numpy as np
@@ -12,7 +13,9 @@ import pytest
 from internal.configs import Config
 from internal.datasets import DatasetError, loader
 from internal.evaluation import depth_metrics, metric_registry, metrics, results
-from tools import study_spec, tables
+from tools import study_export, study_spec, tables
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 IMAGE = ('psnr', 'ssim', 'lpips', 'avg_error')
 MASKED = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'avg_error_masked')
@@ -51,6 +54,12 @@ def test_derived_metric_lists_equal_the_former_literal_lists():
   former_display = {'psnr': 'PSNR', 'ssim': 'SSIM', 'lpips': 'LPIPS', 'avg_error': 'Avg'}
   assert {m: tables.DISPLAY[m] for m in IMAGE} == former_display
   assert {m: tables.DISPLAY[m + '_masked'] for m in IMAGE} == former_display
+
+
+def test_hand_picked_metric_lists_name_registered_metrics():
+  assert set(study_export.TABLE_METRICS) <= set(metric_registry.METRICS)
+  for path in sorted(ROOT.glob('studies/*.toml')):
+    assert set(study_spec.load(path).plot.metrics) <= set(metric_registry.METRICS), path.name
 
 
 def test_unknown_metric_group_and_unregistered_metric_are_refused():
