@@ -16,6 +16,7 @@ from internal.models import mip_nerf
 from internal.models import precision
 from internal.models import sampling
 from internal.training import train_step
+from internal.datasets import base
 from internal.datasets import batching
 from internal.datasets import blender
 from internal.datasets import dtu
@@ -68,28 +69,22 @@ def _apply_warmup_end(config: Config) -> Config:
   return config
 
 
-def _choice(config, name: str, options: Sequence[str], prefix: str = 'Config') -> None:
-  """Raises a ValueError naming prefix.name unless the setting is one of options."""
-  value = getattr(config, name)
-  if value not in options:
-    raise ValueError(f'{prefix}.{name} = {value!r}; expected one of {list(options)}')
+# Settings that name one of a list of options, each list next to the code that implements it.
+CONFIG_CHOICES = (('dataset_loader', loader.LOADERS), ('dtu_layout', dtu.LAYOUTS),
+                  ('blender_split', blender.SPLIT_MODES), ('downsample_mode', image_io.DOWNSAMPLE_MODES),
+                  ('batching', batching.BATCHING_MODES), ('nonfinite_grad_policy', train_step.NONFINITE_POLICIES),
+                  ('lpips_input_range', lpips.INPUT_RANGES), ('generated_rig', synthetic.RIGS),
+                  ('precision', precision.PRECISIONS))
+MODEL_CHOICES = (('ray_shape', gaussians.RAY_SHAPES), ('pdf_padding', sampling.PDF_PADDINGS))
 
 
 def validate(config: Config) -> None:
   """Raises a ValueError naming the setting when a value is out of range."""
-  # Each option list lives next to the code that implements it.
-  _choice(config, 'dataset_loader', loader.LOADERS)
-  _choice(config, 'dtu_layout', dtu.LAYOUTS)
-  _choice(config, 'blender_split', blender.SPLIT_MODES)
-  _choice(config, 'downsample_mode', image_io.DOWNSAMPLE_MODES)
-  _choice(config, 'batching', batching.BATCHING_MODES)
-  _choice(config, 'nonfinite_grad_policy', train_step.NONFINITE_POLICIES)
-  _choice(config, 'lpips_input_range', lpips.INPUT_RANGES)
-  _choice(config, 'generated_rig', synthetic.RIGS)
-  _choice(config, 'precision', precision.PRECISIONS)
+  for name, options in CONFIG_CHOICES:
+    base.check_choice(f'Config.{name}', getattr(config, name), options, ValueError)
   model = mip_nerf.MipNerfModel()
-  _choice(model, 'ray_shape', gaussians.RAY_SHAPES, 'MipNerfModel')
-  _choice(model, 'pdf_padding', sampling.PDF_PADDINGS, 'MipNerfModel')
+  for name, options in MODEL_CHOICES:
+    base.check_choice(f'MipNerfModel.{name}', getattr(model, name), options, ValueError)
   _check_types(config)
   for name in ('max_steps', 'batch_size', 'render_chunk_size', 'checkpoint_every', 'checkpoint_keep',
                'print_every'):
@@ -109,7 +104,7 @@ def validate(config: Config) -> None:
     if getattr(config, name) <= 0.:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected > 0 (the learning rate decays '
                        'log-linearly from lr_init to lr_final)')
-  if needs_positive_near(config) and config.near <= 0.:
+  if loader.ndc(config) is False and config.near <= 0.:
     raise ValueError(f'Config.near = {config.near}; expected > 0 for {config.dataset_loader!r} scenes, whose rays '
                      'start in world space (only LLFF-style NDC rays start at 0)')
   _check_ndc_near_far(config)
@@ -118,24 +113,12 @@ def validate(config: Config) -> None:
   _validate_regnerf(config)
 
 
-def needs_positive_near(config: Config) -> bool:
-  """True for world-space rays (DTU, Blender, the generated object rig); LLFF's NDC rays ignore Config.near."""
-  return config.dataset_loader in ('dtu', 'blender') or (
-      config.dataset_loader == 'generated' and config.generated_rig == 'object')
-
-
-def uses_ndc_rays(config: Config) -> bool:
-  """True for LLFF-style NDC rays (LLFF, the generated forward rig): their near and far are fixed at 0 and 1."""
-  return config.dataset_loader == 'llff' or (
-      config.dataset_loader == 'generated' and config.generated_rig == 'forward')
-
-
 def _check_ndc_near_far(config: Config) -> None:
   """Refuses a Config.near/far that NDC rays would ignore: only (0, 1), or both left at their defaults.
 
   RegNeRF's annealing (Config.anneal_nearfar) reads Config.near/far, so under it only (0, 1) is accepted.
   """
-  if not uses_ndc_rays(config):
+  if not loader.ndc(config):  # World rays (or a pack, whose settings are checked on load).
     return
   fields = {f.name: f.default for f in dataclasses.fields(Config)}
   unset = (config.near, config.far) == (fields['near'], fields['far']) and not config.anneal_nearfar

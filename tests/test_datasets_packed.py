@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 
 from conftest import SHARED_DATA
-from internal.evaluation import evaluate
 from internal.configs import Config
-from internal.datasets import DatasetError, DatasetNotFoundError, load_dataset, packed, render_path_rays
+from internal.datasets import DatasetError, DatasetNotFoundError, load_dataset, loader, packed, render_path_rays
 from tools import pack_scene
 
 
@@ -75,8 +74,8 @@ def test_bad_pack_files(tmp_path):
   np.savez(tmp_path / 'other.npz', x=np.zeros(3))
   with pytest.raises(DatasetError, match='is not a packed scene'):
     load_dataset('train', dataclasses.replace(config, data_dir=str(tmp_path / 'other.npz')))
-  with pytest.raises(DatasetError, match="Config.dataset_loader = 'packed'"):
-    packed.pack_arrays(config, {})
+  with pytest.raises(DatasetError, match="Config.dataset_loader = 'packed' scenes cannot be packed"):
+    loader.pack_arrays(config, {})
 
 
 def test_palette_coding_is_exact():
@@ -124,5 +123,4 @@ def test_eval_files_a_pack_under_its_source(tmp_path):
   config = generated_config(tmp_path, 'object')
   pack_scene.pack(config, str(tmp_path / 'scene.npz'))
   reloaded = dataclasses.replace(config, dataset_loader='packed', data_dir=str(tmp_path / 'scene.npz'))
-  assert (evaluate.dataset_and_scene(reloaded) == evaluate.dataset_and_scene(config) ==
-          ('blender', 'generated_object'))
+  assert loader.filed_as(reloaded) == loader.filed_as(config) == ('blender', 'generated_object')

@@ -18,6 +18,14 @@ def test_data_loss_is_three_times_channel_mse_and_true_psnr_is_not():
   assert float(reconstruction.true_psnr(rgb, target, lossmult)) == pytest.approx(-10 * np.log10(mse), rel=1e-5)
 
 
+def test_mse_to_psnr_is_float64_for_numbers_and_jax_for_jax_arrays():
+  psnr = reconstruction.mse_to_psnr(1e-3 + 1e-12)  # float32 could not hold the 1e-12.
+  assert psnr.dtype == np.float64 and psnr == -10 * np.log10(1e-3 + 1e-12)
+  assert reconstruction.mse_to_psnr(0.) == np.inf and reconstruction.mse_to_psnr(.01) == 20.
+  traced = jax.jit(reconstruction.mse_to_psnr)(jnp.float32(.01))
+  assert isinstance(traced, jax.Array) and float(traced) == pytest.approx(20., rel=1e-6)
+
+
 def test_data_loss_respects_lossmult():
   rgb = np.zeros((2, 3))
   target = np.array([[1., 1., 1.], [0., 0., 0.]])

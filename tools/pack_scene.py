@@ -13,14 +13,14 @@ import dataclasses
 import os
 import sys
 
-from internal.datasets import base, load_dataset, packed
+from internal.datasets import base, load_dataset, loader, packed
 from internal import cli
 
 
 def pack(config, out: str) -> dict:
   """Writes the pack of Config's scene to out after checking it loads back equal; returns {split: Dataset}."""
   datasets = {split: load_dataset(split, config, ground_truth=True) for split in base.SPLITS}
-  packed.write_pack(out, packed.pack_arrays(config, datasets))
+  packed.write_pack(out, loader.pack_arrays(config, datasets))
   reloaded = dataclasses.replace(config, dataset_loader='packed', data_dir=out)
   for split, data in datasets.items():
     diff = packed.datasets_equal(packed.load_packed(split, reloaded), data)

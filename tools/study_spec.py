@@ -20,18 +20,19 @@ write {{ and }} for literal braces.
 
 import dataclasses
 import itertools
-import math
 import pathlib
 import string
 import tomllib
 from typing import Dict, List, Optional, Tuple
+
+from internal.evaluation import metric_registry
 
 # Axis named VIEWS_AXIS is the tables' view count: it stays out of Config.expname (the tables' method column).
 VIEWS_AXIS = 'views'
 # Recorded per-cell numbers that can serve as a plot's x besides the axes.
 RECORDED_X = ('train_seconds', 'eval_seconds', 'steps_per_sec', 'gflops_per_step', 'peak_rss_mb')
 # Metrics where lower is better (the Pareto front keeps the low ones).
-LOWER_IS_BETTER = ('lpips', 'avg_error', 'depth_mae', 'pseudo_depth_mae', 'lpips_masked', 'avg_error_masked')
+LOWER_IS_BETTER = metric_registry.lower_is_better()
 
 
 class StudyError(ValueError):
@@ -319,8 +320,3 @@ def cell_gin(study: Study, cell: Cell, out: str, data_root: str, run_dir: str,
   bindings = fill(study.bindings + method.bindings + scene + tuple(b for p in points for b in p.bindings))
   return configs, bindings + list(extra_bindings) + [f'Config.expname = {cell.expname!r}', f'Config.checkpoint_dir = {run_dir!r}']
 
-
-def x_value(cell: Cell, axis: str) -> Optional[float]:
-  """The cell's numeric value on an axis (None when categorical)."""
-  value = dict(cell.points)[axis].value
-  return None if value is None or math.isnan(value) else value

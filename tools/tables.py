@@ -18,16 +18,14 @@ import pathlib
 import sys
 from typing import Dict, List, Optional, Sequence, Tuple
 
+from internal.datasets import loader
+from internal.evaluation import metric_registry
 from internal.evaluation import results
-from internal.evaluation.metrics import FULL_METRICS, MASKED_METRICS
 
-# Column groups of the paper's tables: (label, metric keys).
-METRIC_GROUPS = {
-    'dtu': (('object', MASKED_METRICS), ('full', FULL_METRICS)),
-    'llff': (('', FULL_METRICS),),
-    'blender': (('', FULL_METRICS),),
-}
-_DISPLAY = {'psnr': 'PSNR', 'ssim': 'SSIM', 'lpips': 'LPIPS', 'avg_error': 'Avg'}
+# Column groups of the paper's tables per dataset: (label, metric keys), from the loaders' table groups.
+METRIC_GROUPS = {name: tuple((label, metric_registry.names(group))
+                             for label, group in loader.REGISTRY[name].table_groups) for name in results.DATASETS}
+DISPLAY = {name: metric.display for name, metric in metric_registry.METRICS.items()}  # Column titles.
 Key = Tuple[str, str, int, str]  # (dataset, method, n_input_views, scene)
 
 
@@ -113,7 +111,7 @@ def _scene_mean(scenes: Dict[str, dict], dataset: str, metric: str, allow_incomp
 
 def _metric_columns(dataset: str) -> List[Tuple[str, str]]:
   """(column title, metric key) of a dataset's metric groups."""
-  return [(f'{label} {_DISPLAY[m.replace("_masked", "")]}'.strip(), m)
+  return [(f'{label} {DISPLAY[m]}'.strip(), m)
           for label, metrics in METRIC_GROUPS[dataset] for m in metrics]
 
 
@@ -155,7 +153,7 @@ def _summary_tables(dataset: str, groups: Dict[Tuple[str, str, int], Dict[str, d
     notes += [f'{_label(group)}: {_note(gaps, allow_incomplete)}'] if gaps else []
   tables = []
   for label, metrics in METRIC_GROUPS[dataset]:
-    header = ['method'] + [f'{n} views {_DISPLAY[m.replace("_masked", "")]}' for n in views for m in metrics]
+    header = ['method'] + [f'{n} views {DISPLAY[m]}' for n in views for m in metrics]
     rows = [[method] + [_scene_mean(groups.get((dataset, method, n), {}), dataset, m, allow_incomplete)
                         for n in views for m in metrics] for method in methods]
     name = f'{dataset}_summary' + (f'_{label}' if label else '')

@@ -45,10 +45,10 @@ def check_split(split: str) -> None:
     raise DatasetError(f'unknown split {split!r}; expected one of {list(SPLITS)}')
 
 
-def check_choice(name: str, value: str, options: Sequence[str]) -> None:
-  """Raises DatasetError naming Config.<name> when value is not an option."""
+def check_choice(setting: str, value, options: Sequence[str], error: type = DatasetError) -> None:
+  """Raises error (a ValueError) naming setting, e.g. 'Config.batching', unless value is one of options."""
   if value not in options:
-    raise DatasetError(f'Config.{name} = {value!r}; expected one of {list(options)}')
+    raise error(f'{setting} = {value!r}; expected one of {list(options)}')
 
 
 def listing(path: str) -> List[str]:

@@ -20,7 +20,7 @@ def make_batcher(dataset: base.Dataset, config):
 
   When a geometry loss needs them, the batch also holds 'patch_rays': Rays [P, ps, ps, ...] of random poses.
   """
-  base.check_choice('batching', config.batching, BATCHING_MODES)
+  base.check_choice('Config.batching', config.batching, BATCHING_MODES)
   n, n_pixels = dataset.images.shape[0], dataset.height * dataset.width
   rays = Rays(*[np.reshape(x, (n, n_pixels, x.shape[-1])) for x in dataset.rays])
   rgb = dataset.images.reshape(n, n_pixels, 3)

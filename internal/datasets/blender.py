@@ -10,6 +10,9 @@ from internal.datasets import base, cameras, image_io, raygen
 DIETNERF_IDS = (26, 86, 2, 55, 75, 93, 16, 73)
 SPLIT_MODES = ('dietnerf', 'first_n')
 TEST_STRIDE = 8  # DietNeRF/FreeNeRF evaluate on test frames [::8] (25 views).
+PROTOCOL_SCENES = ('chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship')  # NeRF-synthetic's 8.
+# Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
+SHAPING_SETTINGS = ('blender_scene', 'blender_split', 'near', 'far', 'white_background')
 
 
 def read_transforms(scene_dir: str, split: str) -> dict:
@@ -32,7 +35,7 @@ def read_transforms(scene_dir: str, split: str) -> dict:
 
 def frame_ids(split: str, n_frames: int, mode: str, n_views: int, test_stride: int) -> list:
   """Frame positions of the split: DietNeRF ids or the first n (train); every test_stride-th frame (test)."""
-  base.check_choice('blender_split', mode, SPLIT_MODES)
+  base.check_choice('Config.blender_split', mode, SPLIT_MODES)
   if split == 'test':
     return list(range(0, n_frames, test_stride))
   if mode == 'dietnerf' and max(DIETNERF_IDS) >= n_frames:
@@ -89,6 +92,22 @@ def render_cameras(scene_dir: str, factor: int):
   pixtocam = cameras.focal_pixtocam(.5 * width / np.tan(.5 * float(meta['camera_angle_x'])), height, width)
   poses = np.array([f['transform_matrix'] for f in meta['frames']], np.float64)[:, :3, :4]
   return poses, pixtocam, height, width
+
+
+def scene_path(config) -> str:
+  """The folder of the scene Config.blender_scene names under Config.data_dir (both checked)."""
+  return base.scene_dir(config.data_dir, config.blender_scene, 'blender_scene')
+
+
+def load_scene(split: str, config) -> base.Dataset:
+  """Loads one split of the Blender scene Config.blender_scene (test: every TEST_STRIDE-th frame)."""
+  return load_blender(split, config, scene_path(config), f'blender/{config.blender_scene}', config.blender_split,
+                      TEST_STRIDE)
+
+
+def scene_render_path(config):
+  """Rays [F,H,W,...] of the orbit path of the Blender scene Config.blender_scene."""
+  return render_path_rays(config, scene_path(config))
 
 
 def render_path_rays(config, scene_dir: str):

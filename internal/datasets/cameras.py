@@ -84,31 +84,34 @@ def focus_point(poses: np.ndarray) -> np.ndarray:
   return np.linalg.solve(mt_m.mean(0), (mt_m @ origins).mean(0))[:, 0]
 
 
+def spiral_positions(poses: np.ndarray, perc: float, n_frames: int, n_rots: int, zrate: float) -> np.ndarray:
+  """[F,3] camera centres of a spiral in the frame of the average of poses [N,3,4].
+
+  Radii: the perc-th percentile of |translation| per axis; n_rots turns, the depth oscillating at zrate.
+  """
+  radii = np.concatenate([np.percentile(np.abs(poses[:, :3, 3]), perc, 0), [1.]])
+  c2w = to_homogeneous(poses_avg(poses))
+  thetas = np.linspace(0., 2. * np.pi * n_rots, n_frames, endpoint=False)
+  return np.stack([(c2w @ (np.array([np.cos(t), -np.sin(t), -np.sin(t * zrate), 1.]) * radii))[:3]
+                   for t in thetas])
+
+
 def spiral_path_llff(poses: np.ndarray, bounds: np.ndarray, n_frames: int, n_rots: int = 2,
                      zrate: float = .5) -> np.ndarray:
   """[F,3,4] LLFF spiral around the average of poses [N,3,4] (OpenGL), focused from scene bounds [N,2]."""
   focal = 1. / ((1. - .75) / (bounds.min() * .9) + .75 / (bounds.max() * 5.))
-  radii = np.concatenate([np.percentile(np.abs(poses[:, :3, 3]), 90, 0), [1.]])
-  c2w, up = to_homogeneous(poses_avg(poses)), poses[:, :3, 1].mean(0)
-  out = []
-  for theta in np.linspace(0., 2. * np.pi * n_rots, n_frames, endpoint=False):
-    position = (c2w @ (np.array([np.cos(theta), -np.sin(theta), -np.sin(theta * zrate), 1.]) * radii))[:3]
-    lookdir = position - (c2w @ np.array([0., 0., -focal, 1.]))[:3]
-    out.append(viewmatrix(lookdir, up, position))
-  return np.stack(out)
+  target = (to_homogeneous(poses_avg(poses)) @ np.array([0., 0., -focal, 1.]))[:3]
+  up = poses[:, :3, 1].mean(0)
+  return np.stack([viewmatrix(position - target, up, position)
+                   for position in spiral_positions(poses, 90, n_frames, n_rots, zrate)])
 
 
 def spiral_path_dtu(poses: np.ndarray, n_frames: int, n_rots: int = 2, zrate: float = .5,
                     perc: float = 60) -> np.ndarray:
   """[F,3,4] DTU spiral (OpenCV, +z towards the focus point of poses [N,3,4])."""
-  centre = focus_point(poses)
-  radii = np.concatenate([np.percentile(np.abs(poses[:, :3, 3]), perc, 0), [1.]])
-  c2w, up = to_homogeneous(poses_avg(poses)), poses[:, :3, 1].mean(0)
-  out = []
-  for theta in np.linspace(0., 2. * np.pi * n_rots, n_frames, endpoint=False):
-    position = (c2w @ (np.array([np.cos(theta), -np.sin(theta), -np.sin(theta * zrate), 1.]) * radii))[:3]
-    out.append(viewmatrix(centre - position, up, position))
-  return np.stack(out)
+  centre, up = focus_point(poses), poses[:, :3, 1].mean(0)
+  return np.stack([viewmatrix(centre - position, up, position)
+                   for position in spiral_positions(poses, perc, n_frames, n_rots, zrate)])
 
 
 def orbit_path(poses: np.ndarray, n_frames: int) -> np.ndarray:

@@ -14,11 +14,16 @@ TEST_IDS = (1, 2, 9, 10, 11, 12, 14, 15, 23, 24, 26, 27, 29, 30, 31, 32, 33, 34,
 IDR_MASK_SCANS = (40, 55, 63, 110, 114)  # idrmasks keeps these scans' masks in scanN/mask/.
 LAYOUTS = ('auto', 'regnerf', 'idr')
 SPLIT_TYPES = ('pixelnerf', 'all', 'dtuhold', 'depth_eval')  # 'depth_eval' (dtu_mipnerf_all.gin) = 'dtuhold'.
+# The 15 test scans of pixelNeRF's protocol, which the paper's DTU means cover.
+PROTOCOL_SCENES = tuple(f'scan{i}' for i in (8, 21, 30, 31, 34, 38, 40, 41, 45, 55, 63, 82, 103, 110, 114))
+# Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
+SHAPING_SETTINGS = ('dtu_scan', 'dtu_light_cond', 'dtu_max_images', 'dtu_split_type', 'dtuhold', 'near', 'far',
+                    'near_origin')
 
 
 def split_ids(split_type: str, n_cameras: int, dtuhold: int) -> tuple:
   """(train pool, test ids) of the DTU split type over n_cameras views ('dtuhold': test = ids % dtuhold == 0)."""
-  base.check_choice('dtu_split_type', split_type, SPLIT_TYPES)
+  base.check_choice('Config.dtu_split_type', split_type, SPLIT_TYPES)
   if split_type == 'pixelnerf':
     if n_cameras <= max(TEST_IDS + TRAIN_IDS):
       raise base.DatasetError(f'the pixelnerf DTU split needs 49 cameras; got {n_cameras} '
@@ -41,7 +46,7 @@ def scan_number(scan: str) -> int:
 
 def detect_layout(scan_dir: str, layout: str) -> str:
   """'idr' when cameras_sphere.npz is present, 'regnerf' when rect_*.png images are; layout forces it."""
-  base.check_choice('dtu_layout', layout, LAYOUTS)
+  base.check_choice('Config.dtu_layout', layout, LAYOUTS)
   if layout != 'auto':
     return layout
   if os.path.isfile(os.path.join(scan_dir, 'cameras_sphere.npz')):

@@ -3,7 +3,7 @@
 import numpy as np
 from PIL import Image
 
-from internal.datasets.base import DatasetError, require_file
+from internal.datasets.base import DatasetError, check_choice, require_file
 
 DOWNSAMPLE_MODES = ('released', 'area')
 
@@ -66,8 +66,7 @@ def downsample_area(img: np.ndarray, factor: int) -> np.ndarray:
 
 def downsample(img: np.ndarray, factor: int, mode: str) -> np.ndarray:
   """[H,W,C] f32 -> [H//f,W//f,C] f32 with mode 'released' or 'area'; factor 1 returns img as float32."""
-  if mode not in DOWNSAMPLE_MODES:
-    raise DatasetError(f'Config.downsample_mode = {mode!r}; expected one of {list(DOWNSAMPLE_MODES)}')
+  check_choice('Config.downsample_mode', mode, DOWNSAMPLE_MODES)
   if factor <= 1:
     return img.astype(np.float32)
   fn = downsample_released if mode == 'released' else downsample_area

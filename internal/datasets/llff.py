@@ -8,6 +8,9 @@ from internal.datasets import base, cameras, image_io, raygen
 
 IMAGE_EXTENSIONS = ('JPG', 'jpg', 'png')
 AXIS_FIX = np.array([[0., -1., 0., 0.], [1., 0., 0., 0.], [0., 0., 1., 0.], [0., 0., 0., 1.]])
+PROTOCOL_SCENES = ('fern', 'flower', 'fortress', 'horns', 'leaves', 'orchids', 'room', 'trex')  # The paper's 8.
+# Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
+SHAPING_SETTINGS = ('llff_scan', 'llffhold')
 
 
 def image_folder(scene_dir: str, factor: int) -> tuple:
@@ -95,6 +98,21 @@ def load_llff(split: str, config, scene_dir: str, name: str) -> base.Dataset:
   return base.Dataset(images=images, camtoworlds=c2w[ids].astype(np.float32),
                       pixtocams=np.repeat(pixtocam[None], len(ids), 0).astype(np.float32), ids=list(ids),
                       height=height, width=width, near=near, far=far, masks=None, rays=rays, split=split, name=name)
+
+
+def scene_path(config) -> str:
+  """The folder of the scene Config.llff_scan names under Config.data_dir (both checked)."""
+  return base.scene_dir(config.data_dir, config.llff_scan, 'llff_scan')
+
+
+def load_scene(split: str, config) -> base.Dataset:
+  """Loads one split of the LLFF scene Config.llff_scan."""
+  return load_llff(split, config, scene_path(config), f'llff/{config.llff_scan}')
+
+
+def scene_render_path(config):
+  """Rays [F,H,W,...] (NDC) of the spiral path of the LLFF scene Config.llff_scan."""
+  return render_path_rays(config, scene_path(config))
 
 
 def render_path_rays(config, scene_dir: str):

@@ -1,66 +1,102 @@
-"""Dispatch on Config.dataset_loader: load_dataset(split, config) and render_path_rays(config)."""
+"""The table of scene loaders, one record per Config.dataset_loader value, and the dispatch on it.
+
+Validation (near/far rules), evaluation (how a run is filed, NDC depths), results (the dataset names), the
+tables (protocol scenes, metric groups) and packing derive what they need from REGISTRY. Adding a dataset: a
+loader file and one record here.
+"""
 
 import dataclasses
+from typing import Callable, Dict, Optional, Tuple
 
-import numpy as np
-
-from internal.datasets import base, blender, dtu, llff, packed, synthetic
-
-LOADERS = ('dtu', 'llff', 'blender', 'generated', 'packed')
+from internal.datasets import base, blender, dtu, generated, llff, packed
 
 
-def load_generated(split: str, config, ground_truth: bool = False) -> base.Dataset:
-  """Writes the generated scene into Config.data_dir if absent, then loads it through the Blender/LLFF loader.
+@dataclasses.dataclass(frozen=True)
+class Loader:
+  """One Config.dataset_loader value: its functions and how the rest of the code treats its scenes."""
+  load: Callable                     # (split, config) -> Dataset.
+  render_path: Callable              # config -> Rays [F,H,W,...] of the render path.
+  scene_setting: Optional[str]       # The Config field naming the scene (None: filed_as names it).
+  ndc: Callable                      # config -> True: NDC rays (near 0, far 1); False: world rays (near > 0);
+                                     # None: the data decides (a pack checks its settings on load).
+  protocol_scenes: Tuple[str, ...] = ()  # The protocol's test scenes, over which the tables average.
+  # (column label, metric group of evaluation/metric_registry.py) of the columns of its tables.
+  table_groups: Tuple[Tuple[str, str], ...] = (('', 'full'),)
+  filed_as: Optional[Callable] = None  # config -> (dataset, scene) of its runs in metrics.json and the tables;
+                                       # None: (its own name, the scene setting), a dataset of its own.
+  ground_truth: Optional[Callable] = None  # (Dataset, config) -> Dataset with exact depths and object masks.
+  shaping_settings: Tuple[str, ...] = ()   # The Config fields a pack records and checks on load.
+  pack_cameras: Optional[Callable] = None  # (config, {split: Dataset}) -> the pack's camera record; None: unpackable.
 
-  The exact depths and object masks are read only when ground_truth is asked (depth metrics, packing).
-  """
-  rig, scene_dir = config.generated_rig, config.data_dir
-  synthetic.ensure_scene(scene_dir, rig, config.generated_seed, config.generated_size)
-  if rig == 'object':
-    data = blender.load_blender(split, config, scene_dir, 'generated/object', 'first_n', 1)
-    scale = 1.
-  else:
-    data = llff.load_llff(split, config, scene_dir, 'generated/forward')
-    scale = 1. / (.75 * llff.read_poses_bounds(scene_dir)[:, 15:17].min())
-  if not ground_truth:
-    return data
-  depths, masks = synthetic.load_ground_truth(scene_dir, rig, split, data.ids, base.load_factor(config, split),
-                                              config.downsample_mode)
-  return dataclasses.replace(data, depths=(depths * scale).astype(np.float32), object_masks=masks)
+
+def _filed_as_packed(config) -> Tuple[str, str]:
+  """A pack's runs are filed as those of the scene it was packed from (its settings are checked on load)."""
+  return filed_as(dataclasses.replace(config, dataset_loader=packed.source_loader(config.data_dir)))
+
+
+REGISTRY: Dict[str, Loader] = {
+    'dtu': Loader(dtu.load_dtu, dtu.render_path_rays, 'dtu_scan', lambda config: False, dtu.PROTOCOL_SCENES,
+                  (('object', 'masked'), ('full', 'full')), shaping_settings=dtu.SHAPING_SETTINGS,
+                  pack_cameras=packed.dtu_cameras),
+    'llff': Loader(llff.load_scene, llff.scene_render_path, 'llff_scan', lambda config: True, llff.PROTOCOL_SCENES,
+                   shaping_settings=llff.SHAPING_SETTINGS,
+                   pack_cameras=lambda config, data: packed.llff_cameras(config, data, llff.scene_path(config))),
+    'blender': Loader(blender.load_scene, blender.scene_render_path, 'blender_scene', lambda config: False,
+                      blender.PROTOCOL_SCENES, shaping_settings=blender.SHAPING_SETTINGS,
+                      pack_cameras=lambda config, data: packed.blender_cameras(config, data,
+                                                                               blender.scene_path(config))),
+    'generated': Loader(generated.load, generated.render_path_rays, None, generated.is_ndc,
+                        filed_as=generated.filed_as, ground_truth=generated.with_ground_truth,
+                        shaping_settings=generated.SHAPING_SETTINGS, pack_cameras=generated.pack_cameras),
+    'packed': Loader(packed.load_packed, packed.render_path_rays, None, lambda config: None,
+                     filed_as=_filed_as_packed),
+}
+LOADERS = tuple(REGISTRY)
+# The dataset names of metrics.json and the tables: the loaders whose runs are filed under their own name.
+RESULT_DATASETS = tuple(name for name, record in REGISTRY.items() if record.filed_as is None)
+
+
+def loader_of(config) -> Loader:
+  """The record of Config.dataset_loader; DatasetError when it names no loader."""
+  base.check_choice('Config.dataset_loader', config.dataset_loader, LOADERS)
+  return REGISTRY[config.dataset_loader]
 
 
 def load_dataset(split: str, config, ground_truth: bool = False) -> base.Dataset:
   """Loads split ('train' | 'test') of the scene Config selects, as a Dataset.
 
-  ground_truth: also read the generated scene's exact depths and object masks (a pack holds them either way).
+  ground_truth: also read the exact depths and object masks where the loader has them (a pack holds them
+  either way); they are read only when asked (depth metrics, packing).
   """
   base.check_split(split)
-  base.check_choice('dataset_loader', config.dataset_loader, LOADERS)
-  if config.dataset_loader == 'packed':
-    return packed.load_packed(split, config)
-  if config.dataset_loader == 'dtu':
-    return dtu.load_dtu(split, config)
-  if config.dataset_loader == 'llff':
-    scene = base.scene_dir(config.data_dir, config.llff_scan, 'llff_scan')
-    return llff.load_llff(split, config, scene, f'llff/{config.llff_scan}')
-  if config.dataset_loader == 'blender':
-    scene = base.scene_dir(config.data_dir, config.blender_scene, 'blender_scene')
-    return blender.load_blender(split, config, scene, f'blender/{config.blender_scene}', config.blender_split,
-                                blender.TEST_STRIDE)
-  return load_generated(split, config, ground_truth)
+  record = loader_of(config)
+  data = record.load(split, config)
+  return record.ground_truth(data, config) if ground_truth and record.ground_truth else data
 
 
 def render_path_rays(config):
   """Rays [F,H,W,...] of the scene's render path (spiral for LLFF/DTU, orbit for object-centric scenes)."""
-  base.check_choice('dataset_loader', config.dataset_loader, LOADERS)
-  if config.dataset_loader == 'packed':
-    return packed.render_path_rays(config)
-  if config.dataset_loader == 'dtu':
-    return dtu.render_path_rays(config)
-  if config.dataset_loader == 'llff':
-    return llff.render_path_rays(config, base.scene_dir(config.data_dir, config.llff_scan, 'llff_scan'))
-  if config.dataset_loader == 'blender':
-    return blender.render_path_rays(config, base.scene_dir(config.data_dir, config.blender_scene, 'blender_scene'))
-  synthetic.ensure_scene(config.data_dir, config.generated_rig, config.generated_seed, config.generated_size)
-  fn = blender.render_path_rays if config.generated_rig == 'object' else llff.render_path_rays
-  return fn(config, config.data_dir)
+  return loader_of(config).render_path(config)
+
+
+def ndc(config) -> Optional[bool]:
+  """True for NDC rays (near/far fixed at 0/1), False for world rays (near > 0), None when the data decides."""
+  return loader_of(config).ndc(config)
+
+
+def filed_as(config) -> Tuple[str, str]:
+  """(dataset, scene) naming a run in metrics.json and the tables (a pack reads its source loader)."""
+  record = loader_of(config)
+  if record.filed_as is not None:
+    return record.filed_as(config)
+  return config.dataset_loader, getattr(config, record.scene_setting)
+
+
+def pack_arrays(config, datasets: dict) -> dict:
+  """The arrays of the pack of Config's scene from its loaded splits {split: Dataset} (see packed.py)."""
+  record = loader_of(config)
+  if record.pack_cameras is None:
+    packable = [name for name, other in REGISTRY.items() if other.pack_cameras]
+    raise base.DatasetError(f'Config.dataset_loader = {config.dataset_loader!r} scenes cannot be packed; pack a '
+                            f'scene from its source loader, one of {packable}')
+  return packed.pack_arrays(config, datasets, record.shaping_settings, record.pack_cameras(config, datasets))

@@ -14,18 +14,10 @@ import zipfile
 
 import numpy as np
 
-from internal.datasets import base, blender, cameras, dtu, image_io, llff, raygen, synthetic
+from internal.datasets import base, blender, cameras, dtu, image_io, llff, raygen
 
 VERSION = 1
 COMMON_SETTINGS = ('factor', 'eval_factor', 'n_input_views', 'downsample_mode')
-SOURCE_SETTINGS = {
-    'dtu': ('dtu_scan', 'dtu_light_cond', 'dtu_max_images', 'dtu_split_type', 'dtuhold', 'near', 'far',
-            'near_origin'),
-    'llff': ('llff_scan', 'llffhold'),
-    'blender': ('blender_scene', 'blender_split', 'near', 'far', 'white_background'),
-    'generated': ('generated_rig', 'generated_seed', 'generated_size', 'near', 'far', 'white_background',
-                  'llffhold'),
-}
 FIELDS = ('images', 'masks', 'depths', 'object_masks')
 
 
@@ -34,9 +26,9 @@ def _jsonable(value):
   return json.loads(json.dumps(value, default=lambda x: x.tolist()))
 
 
-def settings(config, source: str) -> dict:
-  """{Config field: value} of the settings that shape the data of a source loader."""
-  return {name: _jsonable(getattr(config, name)) for name in COMMON_SETTINGS + SOURCE_SETTINGS[source]}
+def settings(config, source_settings) -> dict:
+  """{Config field: value} of the common settings and those of the source loader that shape the data."""
+  return {name: _jsonable(getattr(config, name)) for name in COMMON_SETTINGS + tuple(source_settings)}
 
 
 # ---------------------------------------------------------------- value coding
@@ -79,7 +71,7 @@ def path_poses(kind: str, source, bounds, n_frames: int) -> np.ndarray:
 
 # ---------------------------------------------------------------- cameras of each source loader
 
-def _dtu_record(config, datasets: dict) -> dict:
+def dtu_cameras(config, datasets: dict) -> dict:
   """Float64 cameras of a DTU scan: all normalized poses, per-split views, the spiral's intrinsics."""
   scan_dir, layout, projections = dtu.scan_setup(config)
   record = {'ray_kind': 'dtu', 'path_kind': 'spiral_dtu', 'arrays': {'cameras/projections': projections}}
@@ -100,7 +92,7 @@ def _dtu_record(config, datasets: dict) -> dict:
   return record
 
 
-def _llff_record(config, datasets: dict, scene_dir: str) -> dict:
+def llff_cameras(config, datasets: dict, scene_dir: str) -> dict:
   """Float64 cameras of an LLFF scene: all recentered poses and scaled bounds, per-split views, the spiral."""
   record = {'ray_kind': 'llff', 'path_kind': 'spiral_llff', 'arrays': {}}
   c2w, bounds, focal = llff.process_poses(llff.read_poses_bounds(scene_dir))
@@ -124,7 +116,7 @@ def _llff_record(config, datasets: dict, scene_dir: str) -> dict:
   return record
 
 
-def _blender_record(config, datasets: dict, scene_dir: str) -> dict:
+def blender_cameras(config, datasets: dict, scene_dir: str) -> dict:
   """Float64 cameras of a Blender-layout scene: per-split frames, the test frames the orbit is built from."""
   record = {'ray_kind': 'pinhole', 'path_kind': 'orbit', 'arrays': {}}
   for split, data in datasets.items():
@@ -143,29 +135,14 @@ def _blender_record(config, datasets: dict, scene_dir: str) -> dict:
   return record
 
 
-def camera_record(config, datasets: dict) -> dict:
-  """{'ray_kind', 'path_kind', 'render', 'arrays'} of the scene Config selects (float64 cameras)."""
-  source = config.dataset_loader
-  if source == 'dtu':
-    return _dtu_record(config, datasets)
-  if source == 'llff':
-    return _llff_record(config, datasets, base.scene_dir(config.data_dir, config.llff_scan, 'llff_scan'))
-  if source == 'blender':
-    return _blender_record(config, datasets, base.scene_dir(config.data_dir, config.blender_scene, 'blender_scene'))
-  synthetic.ensure_scene(config.data_dir, config.generated_rig, config.generated_seed, config.generated_size)
-  if config.generated_rig == 'object':
-    return _blender_record(config, datasets, config.data_dir)
-  return _llff_record(config, datasets, config.data_dir)
-
-
 # ---------------------------------------------------------------- pack and load
 
-def pack_arrays(config, datasets: dict) -> dict:
-  """Every array of the pack ('meta' JSON included) from the loaded splits {split: Dataset}."""
-  source = config.dataset_loader
-  if source == 'packed':
-    raise base.DatasetError("Config.dataset_loader = 'packed': pack a scene from its source loader")
-  record = camera_record(config, datasets)
+def pack_arrays(config, datasets: dict, source_settings, record: dict) -> dict:
+  """Every array of the pack ('meta' JSON included) from the loaded splits {split: Dataset}.
+
+  source_settings: the Config fields besides COMMON_SETTINGS that shaped the data (checked on load); record:
+  the cameras of the scene ({'ray_kind', 'path_kind', 'render', 'arrays'}, see dtu_cameras).
+  """
   arrays = dict(record['arrays'])
   splits = {}
   for split, data in datasets.items():
@@ -174,7 +151,8 @@ def pack_arrays(config, datasets: dict) -> dict:
         arrays.update(encode(f'{split}/{field}', getattr(data, field)))
     splits[split] = {'ids': list(map(int, data.ids)), 'height': data.height, 'width': data.width,
                      'near': float(data.near), 'far': float(data.far), 'name': data.name}
-  meta = {'version': VERSION, 'source_loader': source, 'settings': settings(config, source),
+  meta = {'version': VERSION, 'source_loader': config.dataset_loader,
+          'settings': settings(config, source_settings),
           'ray_kind': record['ray_kind'], 'path_kind': record['path_kind'],
           'ray_params': {'near': float(config.near), 'far': float(config.far),
                          'near_origin': float(config.near_origin)},

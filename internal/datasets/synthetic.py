@@ -213,7 +213,7 @@ def render_view(scene: dict, c2w: np.ndarray, pixtocam: np.ndarray, height: int,
 
 def scene_params(rig: str, seed: int, height: int, width: int, spp: int) -> dict:
   """The parameters that identify a generated scene (what scene.json must match)."""
-  base.check_choice('generated_rig', rig, RIGS)
+  base.check_choice('Config.generated_rig', rig, RIGS)
   return {'version': SCENE_VERSION, 'rig': rig, 'seed': int(seed), 'height': int(height), 'width': int(width),
           'spp': int(spp)}
 

@@ -16,8 +16,9 @@ from typing import Dict, Optional
 
 import numpy as np
 
-DEPTH_METRICS = ('depth_mae', 'depth_within_1pct', 'depth_within_5pct')
-PSEUDO_PREFIX = 'pseudo_'
+from internal.evaluation import metric_registry
+
+DEPTH_METRICS = metric_registry.names(metric_registry.DEPTH)
 REFERENCE_OPACITY = .5   # Reference pixels at least this opaque hold a surface to compare with.
 
 
@@ -91,7 +92,7 @@ def reference_scorer(test_set, ndc: bool, reference_dir: str, positions):
 
   def score(i: int, distance):
     errors = depth_errors(world_depth(test_set, i, distance, ndc), refs[i][0], refs[i][1], depth_range)
-    return {PSEUDO_PREFIX + k: v for k, v in errors.items()}
+    return {metric_registry.PSEUDO_PREFIX + k: v for k, v in errors.items()}
   return score
 
 

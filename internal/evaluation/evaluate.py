@@ -12,7 +12,7 @@ from internal import atomic
 from internal.training import checkpoints
 from internal import datasets
 from internal.evaluation import depth_metrics
-from internal.datasets import packed
+from internal.datasets import loader
 from internal.evaluation import inference
 from internal.evaluation import lpips
 from internal.evaluation import metrics
@@ -31,21 +31,6 @@ def existing_record(config):
   run_dir = run_dir_lib.check_run_dir(config)
   path = os.path.join(output_dir(run_dir, checkpoints.latest_step(run_dir)), results.METRICS_FILENAME)
   return results.read_record(path) if os.path.isfile(path) else None
-
-
-def dataset_and_scene(config) -> tuple:
-  """(dataset, scene) naming a run in metrics.json.
-
-  A generated scene is filed under the layout it is written in (blender for the object rig, llff for the
-  forward rig) as scene 'generated_<rig>', which tools.tables shows but never averages.
-  """
-  loader = config.dataset_loader
-  if loader == 'packed':  # Filed like the scene it was packed from (its settings are checked on load).
-    loader = packed.source_loader(config.data_dir)
-  if loader == 'generated':
-    return ('blender' if config.generated_rig == 'object' else 'llff'), f'generated_{config.generated_rig}'
-  scene = {'dtu': config.dtu_scan, 'llff': config.llff_scan, 'blender': config.blender_scene}
-  return loader, scene[loader]
 
 
 def load_lpips_fn(config):
@@ -118,7 +103,8 @@ def evaluate(config) -> dict:
                           'Config.overwrite = True to evaluate again and replace it')
   render_fn = inference.make_render_fn(config, model, state.params, step)
   lpips_fn, lpips_reason = load_lpips_fn(config)
-  ndc = dataset_and_scene(config)[0] == 'llff'
+  dataset, scene = loader.filed_as(config)
+  ndc = loader.REGISTRY[dataset].ndc(config)  # A run's rays are those of the dataset it is filed under.
   depth_scores = [depth_metrics.scorer(test_set, ndc)]  # Exact depths (generated scenes).
   if config.depth_reference_dir:
     depth_scores.append(depth_metrics.reference_scorer(test_set, ndc, config.depth_reference_dir, positions))
@@ -134,8 +120,8 @@ def evaluate(config) -> dict:
     per_image.append({'id': int(test_set.ids[i]), **values})
     save_images(rendering, out_dir, int(test_set.ids[i]))
     print(f'view {test_set.ids[i]}: ' + ', '.join(f'{k} {v:.4f}' for k, v in values.items() if v is not None))
-  record = results.make_record(*dataset_and_scene(config), config.n_input_views, config.expname, step,
-                              per_image, is_complete(config))
+  record = results.make_record(dataset, scene, config.n_input_views, config.expname, step, per_image,
+                              is_complete(config))
   record.update(lpips_missing_reason=lpips_reason, eval_factor=config.eval_factor,
                 test_positions=positions, run_dir=os.path.abspath(run_dir))
   write_csv(per_image, os.path.join(out_dir, 'metrics.csv'))

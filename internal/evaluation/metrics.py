@@ -9,9 +9,12 @@ from typing import Callable, Dict, Optional
 import numpy as np
 import skimage.metrics
 
+from internal.evaluation import metric_registry
+from internal.losses.reconstruction import mse_to_psnr
+
 LpipsFn = Callable[[np.ndarray, np.ndarray], float]
-FULL_METRICS = ('psnr', 'ssim', 'lpips', 'avg_error')
-MASKED_METRICS = tuple(f'{name}_masked' for name in FULL_METRICS)
+FULL_METRICS = metric_registry.names(metric_registry.FULL)
+MASKED_METRICS = metric_registry.names(metric_registry.MASKED)
 
 
 def _f64(x) -> np.ndarray:
@@ -19,15 +22,9 @@ def _f64(x) -> np.ndarray:
   return np.asarray(x, dtype=np.float64)
 
 
-def mse_to_psnr(mse: float) -> float:
-  """-10 log10(mse); inf for mse == 0."""
-  with np.errstate(divide='ignore'):
-    return float(-10. * np.log10(mse))
-
-
 def psnr(pred, gt) -> float:
   """PSNR of pred [H,W,3] vs gt [H,W,3] in float64 over all H*W*3 values."""
-  return mse_to_psnr(np.mean((_f64(pred) - _f64(gt))**2))
+  return float(mse_to_psnr(np.mean((_f64(pred) - _f64(gt))**2)))
 
 
 def ssim(pred, gt) -> float:
@@ -71,7 +68,7 @@ def dtu_masked_metrics(pred, gt, mask, lpips_fn: Optional[LpipsFn] = None) -> Di
   inside = np.broadcast_to(_f64(mask), pred.shape) == 1.
   mse = np.mean((pred[inside] - gt[inside])**2) if inside.any() else np.nan
   white_pred, white_gt = white_composite(pred, mask), white_composite(gt, mask)
-  values = {'psnr_masked': mse_to_psnr(mse), 'ssim_masked': ssim(white_pred, white_gt)}
+  values = {'psnr_masked': float(mse_to_psnr(mse)), 'ssim_masked': ssim(white_pred, white_gt)}
   values['lpips_masked'] = None if lpips_fn is None else float(lpips_fn(white_pred, white_gt))
   values['avg_error_masked'] = avg_error(
       values['psnr_masked'], values['ssim_masked'], values['lpips_masked'])

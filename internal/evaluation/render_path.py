@@ -10,7 +10,7 @@ import tqdm
 
 from internal.training import checkpoints
 from internal import datasets
-from internal.evaluation import evaluate
+from internal.datasets import loader
 from internal.evaluation import inference
 from internal.training import run_dir as run_dir_lib
 from internal.evaluation import vis
@@ -72,7 +72,7 @@ def render(config) -> str:
       frames[name].append(vis.to_uint8(image))
   print(f'{num_frames} frames of step {step} in {out_dir!r}')
   if can_write_video():
-    scene = evaluate.dataset_and_scene(config)[1]
+    scene = loader.filed_as(config)[1]
     for name, images in frames.items():
       write_video(np.stack(images), os.path.join(out_dir, f'{scene}_{config.expname}_{name}.mp4'))
   else:

@@ -6,23 +6,22 @@ import pathlib
 from typing import List, Optional, Sequence
 
 from internal import atomic
+from internal.datasets import loader
+from internal.evaluation import metric_registry
 
 METRICS_FILENAME = 'metrics.json'
-# metrics.json (written by internal/evaluation.py through `make_record` / `write_record`):
-#   {"dataset": "dtu" | "llff" | "blender", "scene": str (e.g. "scan8", "fern", "lego"), "n_input_views": int,
+# metrics.json (written by internal/evaluation/evaluate.py through `make_record` / `write_record`):
+#   {"dataset": one of DATASETS, "scene": str (e.g. "scan8", "fern", "lego"), "n_input_views": int,
 #    "method": str (e.g. "freenerf", "mipnerf"), "step": int,
 #    "means": {metric: float or null}, the mean over test views of each per-image value (null: not available),
 #    "per_image": [{"id": int, metric: float or null, ...}], one entry per evaluated test view, in test order,
 #    "complete": bool, true when every test view was evaluated at full resolution}
-# Metric names are internal.evaluation.metrics.FULL_METRICS (+ MASKED_METRICS for DTU object metrics).
+# Metric names are those of internal/evaluation/metric_registry.py.
 RECORD_FIELDS = {'dataset': str, 'scene': str, 'n_input_views': int, 'method': str, 'step': int,
                  'means': dict, 'per_image': list, 'complete': bool}
-EXPECTED_SCENES = {
-    'dtu': tuple(f'scan{i}' for i in (8, 21, 30, 31, 34, 38, 40, 41, 45, 55, 63, 82, 103, 110, 114)),
-    'llff': ('fern', 'flower', 'fortress', 'horns', 'leaves', 'orchids', 'room', 'trex'),
-    'blender': ('chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship'),
-}
-DATASETS = tuple(EXPECTED_SCENES)
+DATASETS = loader.RESULT_DATASETS
+# The protocol's test scenes of each dataset, over which the tables average.
+EXPECTED_SCENES = {name: loader.REGISTRY[name].protocol_scenes for name in DATASETS}
 
 
 def mean(values: Sequence[Optional[float]]) -> Optional[float]:
@@ -39,6 +38,10 @@ def check_record(record: dict, where: str) -> None:
       raise ValueError(f'{where}: field {field!r} = {record.get(field)!r}; expected {kind.__name__}')
   if record['dataset'] not in DATASETS:
     raise ValueError(f'{where}: dataset {record["dataset"]!r}; expected one of {list(DATASETS)}')
+  unknown = sorted(set(record['means']) - set(metric_registry.METRICS))
+  if unknown:
+    raise ValueError(f'{where}: metrics {unknown} are not in internal/evaluation/metric_registry.py; expected '
+                     f'some of {list(metric_registry.METRICS)}')
 
 
 def make_record(dataset: str, scene: str, n_input_views: int, method: str, step: int,

@@ -2,6 +2,7 @@
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 
 def data_loss(rgb, target, lossmult):
@@ -10,8 +11,15 @@ def data_loss(rgb, target, lossmult):
 
 
 def mse_to_psnr(mse):
-  """PSNR in dB of a mean squared error on [0, 1] images."""
-  return -10. * jnp.log10(mse)
+  """PSNR in dB, -10 log10(mse), of a mean squared error on [0, 1] images; inf for 0.
+
+  A jax array (traced in the training step) gives a jax array; anything else a float64 numpy value, the
+  precision the evaluation reports.
+  """
+  if isinstance(mse, jax.Array):
+    return -10. * jnp.log10(mse)
+  with np.errstate(divide='ignore'):
+    return -10. * np.log10(np.float64(mse))
 
 
 def true_psnr(rgb, target, lossmult):

@@ -218,8 +218,3 @@ def construct_model(key, example_rays, white_background: bool, precision: str = 
   model = MipNerfModel(white_background=white_background, precision=precision)
   variables = jax.jit(model.init)(key, None, example_rays)  # One compile, not one per operation.
   return model, variables
-
-
-def num_params(params) -> int:
-  """Total number of scalars in a parameter tree."""
-  return sum(x.size for x in jax.tree.leaves(params))

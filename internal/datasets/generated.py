@@ -1,0 +1,57 @@
+"""The generated scene (synthetic.py) as a loader: written into Config.data_dir if absent, then read through the
+Blender layout (object rig, world-space rays) or the LLFF layout (forward rig, NDC rays)."""
+
+import dataclasses
+
+import numpy as np
+
+from internal.datasets import base, blender, llff, packed, synthetic
+
+# Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
+SHAPING_SETTINGS = ('generated_rig', 'generated_seed', 'generated_size', 'near', 'far', 'white_background',
+                    'llffhold')
+
+
+def scene(config) -> str:
+  """Config.data_dir after writing the generated scene there if it is absent (checked to match otherwise)."""
+  synthetic.ensure_scene(config.data_dir, config.generated_rig, config.generated_seed, config.generated_size)
+  return config.data_dir
+
+
+def load(split: str, config) -> base.Dataset:
+  """One split of the generated scene, without its ground truth (see with_ground_truth)."""
+  if config.generated_rig == 'object':
+    return blender.load_blender(split, config, scene(config), 'generated/object', 'first_n', 1)
+  return llff.load_llff(split, config, scene(config), 'generated/forward')
+
+
+def with_ground_truth(data: base.Dataset, config) -> base.Dataset:
+  """data with the exact depths [N,H,W] (in the units of its rays) and object masks [N,H,W] of its views."""
+  rig, scene_dir = config.generated_rig, config.data_dir
+  scale = 1. if rig == 'object' else 1. / (.75 * llff.read_poses_bounds(scene_dir)[:, 15:17].min())
+  depths, masks = synthetic.load_ground_truth(scene_dir, rig, data.split, data.ids,
+                                              base.load_factor(config, data.split), config.downsample_mode)
+  return dataclasses.replace(data, depths=(depths * scale).astype(np.float32), object_masks=masks)
+
+
+def render_path_rays(config):
+  """Rays [F,H,W,...] of the render path: an orbit for the object rig, the LLFF spiral for the forward rig."""
+  fn = blender.render_path_rays if config.generated_rig == 'object' else llff.render_path_rays
+  return fn(config, scene(config))
+
+
+def is_ndc(config) -> bool:
+  """The forward rig's rays are NDC, as LLFF's; the object rig's are world-space, as Blender's."""
+  return config.generated_rig == 'forward'
+
+
+def filed_as(config) -> tuple:
+  """(dataset, scene) of its runs: the layout it is written in, scene 'generated_<rig>' (shown, never averaged)."""
+  return ('blender' if config.generated_rig == 'object' else 'llff'), f'generated_{config.generated_rig}'
+
+
+def pack_cameras(config, datasets: dict) -> dict:
+  """The pack's camera record, as for a scene of its layout."""
+  if config.generated_rig == 'object':
+    return packed.blender_cameras(config, datasets, scene(config))
+  return packed.llff_cameras(config, datasets, scene(config))
