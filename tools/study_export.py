@@ -51,8 +51,8 @@ def machine() -> Dict[str, object]:
 
 def eval_dir(cell_path: str, step: int) -> str:
   """The evaluation folder of a finished cell's run (<cell>/run/test_preds_step_<step>)."""
-  from internal import evaluation  # pylint: disable=import-outside-toplevel  (jax: only when exporting)
-  return evaluation.output_dir(os.path.join(cell_path, 'run'), step)
+  from internal.evaluation import evaluate  # pylint: disable=import-outside-toplevel  (jax: only when exporting)
+  return evaluate.output_dir(os.path.join(cell_path, 'run'), step)
 
 
 def _copy_cell(cell_path: str, cell: dict, dest: str) -> None:
