@@ -12,6 +12,7 @@ from test_datasets_core import encoded_dataset
 from internal import config_loader
 from internal.configs import Config
 from internal.datasets import batching
+from internal.evaluation import evaluate
 from internal.losses import occlusion
 from internal.models import encoding
 from internal.models import freq_schedule
@@ -213,9 +214,12 @@ def test_a_few_freenerf_on_nerf_steps_on_the_shared_lego(tmp_path):
       f"Config.data_dir = '{scene.parent}'", 'Config.factor = 16', 'Config.max_steps = 3', 'Config.batch_size = 64',
       'Config.precrop_steps = 2', 'Config.freq_reg_end = 2', f"Config.checkpoint_dir = '{tmp_path / 'run'}'",
       'NerfModel.num_coarse_samples = 8', 'NerfModel.num_fine_samples = 8', 'Config.train_render_every = 0',
-      'Config.occ_reg_range = 4'])
+      'Config.occ_reg_range = 4', 'Config.render_factor = 16', 'Config.eval_test_ids = [0]',
+      'Config.compute_lpips = False'])
   result = loop.train(config)
   assert int(result.state.step) == 3 and result.signum is None
   assert (tmp_path / 'run' / 'checkpoints' / '3').is_dir()
   params = result.state.params
   assert set(params) == {'coarse_mlp', 'fine_mlp'} and params['fine_mlp']['Dense_0']['kernel'].shape == (63, 16)
+  record = evaluate.evaluate(config)  # The checkpoint restores into NerfModel and renders a test view.
+  assert [p['id'] for p in record['per_image']] == [0] and np.isfinite(record['means']['psnr'])
