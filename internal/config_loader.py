@@ -13,6 +13,7 @@ from internal.models import freq_schedule
 from internal.models import gaussians
 from internal.evaluation import lpips
 from internal.models import mip_nerf
+from internal.models import registry
 from internal.models import precision
 from internal.models import sampling
 from internal.training import train_step
@@ -74,7 +75,7 @@ CONFIG_CHOICES = (('dataset_loader', loader.LOADERS), ('dtu_layout', dtu.LAYOUTS
                   ('blender_split', blender.SPLIT_MODES), ('downsample_mode', image_io.DOWNSAMPLE_MODES),
                   ('batching', batching.BATCHING_MODES), ('nonfinite_grad_policy', train_step.NONFINITE_POLICIES),
                   ('lpips_input_range', lpips.INPUT_RANGES), ('generated_rig', synthetic.RIGS),
-                  ('precision', precision.PRECISIONS))
+                  ('precision', precision.PRECISIONS), ('model', tuple(registry.MODELS)))
 MODEL_CHOICES = (('ray_shape', gaussians.RAY_SHAPES), ('pdf_padding', sampling.PDF_PADDINGS))
 
 
@@ -108,7 +109,10 @@ def validate(config: Config) -> None:
     raise ValueError(f'Config.near = {config.near}; expected > 0 for {config.dataset_loader!r} scenes, whose rays '
                      'start in world space (only LLFF-style NDC rays start at 0)')
   _check_ndc_near_far(config)
-  freq_schedule.check_settings(config, mip_nerf.MLP().encoding_degrees())
+  if config.precrop_steps < 0 or not 0. < config.precrop_frac <= 1.:
+    raise ValueError(f'Config.precrop_steps = {config.precrop_steps}, Config.precrop_frac = {config.precrop_frac}; '
+                     'expected steps >= 0 and a fraction in (0, 1]')
+  freq_schedule.check_settings(config, registry.build(config.model).encoding_degrees())
   _warn_on_unused_regularizer(config)
   _validate_regnerf(config)
 
@@ -149,9 +153,10 @@ def _check_types(config: Config) -> None:
 
 def _warn_on_unused_regularizer(config: Config) -> None:
   """Warns about regularizer settings that are legal but cannot act as written."""
-  num_samples = mip_nerf.MipNerfModel().num_samples
+  num_samples = registry.build(config.model).fine_samples_per_ray()
   if config.occ_reg_loss_mult > 0 and config.occ_reg_range > num_samples:
-    warnings.warn(f'Config.occ_reg_range = {config.occ_reg_range} exceeds MipNerfModel.num_samples = '
+    what = 'MipNerfModel.num_samples' if config.model == 'mipnerf' else 'the fine samples per ray'
+    warnings.warn(f'Config.occ_reg_range = {config.occ_reg_range} exceeds {what} = '
                   f'{num_samples}: the occlusion loss covers every sample of the ray', stacklevel=3)
 
 

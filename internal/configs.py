@@ -60,6 +60,13 @@ class Config:
   generated_size: Sequence[int] = (64, 80)  # Generated scene image (H, W).
   generated_seed: int = 0               # Generated scene: seed of its layout and textures.
 
+  # Model.
+  model: str = 'mipnerf'                # 'mipnerf' (MipNerfModel, MLP.*) | 'nerf' (NerfModel, NerfMLP.*: plain NeRF).
+
+  # Central-crop warm-up (NeRF's Blender recipe): early steps draw pixels from the image centre only.
+  precrop_steps: int = 0                # Steps 1..precrop_steps sample the central crop (0 = off).
+  precrop_frac: float = 0.5             # Crop side as a fraction of the image side, in (0, 1].
+
   # Optimization.
   # Training steps (the paper: DTU 43,945 / 87,891 / 131,836, LLFF 69,768 / 139,535 / 209,303 for 3/6/9 views).
   max_steps: int = 250000

@@ -35,6 +35,8 @@ INSTALL_STEP = re.compile(r'^(python3 -m venv .*|\. \.venv/bin/activate|pip inst
 LOOP_VARIABLES = {'DATA_ROOT': str(SHARED_DATA), 'DTU_SCANS': 'scan8', 'LLFF_SCENES': 'fern', 'BLENDER_SCENES': 'lego', 'VIEWS': '3',
                   'METHODS': 'mipnerf', 'T_VALUES': '4395'}
 TINY = ['MLP.net_depth = 2', 'MLP.net_width = 16', 'MLP.net_width_viewdirs = 16', 'MipNerfModel.num_samples = 8',
+        'NerfMLP.net_depth = 2', 'NerfMLP.net_width = 16', 'NerfMLP.net_width_viewdirs = 8', 'NerfMLP.skip_layer = 0',
+        'NerfModel.num_coarse_samples = 8', 'NerfModel.num_fine_samples = 8',
         'Config.max_steps = 2', 'Config.batch_size = 64', 'Config.print_every = 1', 'Config.train_render_every = 0',
         'Config.render_path_frames = 2', 'Config.eval_test_ids = [0]', 'Config.compute_lpips = False',
         'Config.allow_missing_test_views = True', 'Config.generated_size = (16, 20)']

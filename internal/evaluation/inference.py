@@ -14,7 +14,7 @@ OUTPUT_KEYS = ('rgb', 'acc', 'distance_mean', 'distance_median')
 
 def make_render_fn(config, model, params, step: int, compute_normals: bool = False):
   """jit-compiled rays [N, ...] -> fine-level outputs, with the masks of the checkpoint step."""
-  mask_point, mask_view = freq_schedule.masks_at(config, model.mlp.encoding_degrees(), jnp.asarray(step))
+  mask_point, mask_view = freq_schedule.model_masks(config, model, jnp.asarray(step))
   padding = config.resample_padding_final
   keys = OUTPUT_KEYS + (('normals',) if compute_normals else ())
 

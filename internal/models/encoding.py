@@ -1,4 +1,4 @@
-"""Positional encodings in the released feature order: [identity | sin block | cos block]."""
+"""Positional encodings: mip-NeRF's released order [identity | sin block | cos block] and NeRF's interleaved one."""
 
 import numpy as np
 import jax.numpy as jnp
@@ -33,13 +33,25 @@ def integrated_pos_enc(mean, cov_diag, min_deg, max_deg, append_identity=True):
   return jnp.concatenate([mean, enc], axis=-1) if append_identity else enc
 
 
+def interleaved_pos_enc(x, num_degrees):
+  """NeRF's encoding of x [...,C] -> [..., C*(1 + 2D)]: [x, sin(2^0 x), cos(2^0 x), sin(2^1 x), ...]."""
+  xb = x[..., None, :] * (2.**jnp.arange(num_degrees, dtype=jnp.float32))[:, None]  # [..., D, C]
+  bands = jnp.stack([jnp.sin(xb), jnp.cos(xb)], axis=-2)  # [..., D, 2, C]
+  return jnp.concatenate([x, bands.reshape(x.shape[:-1] + (-1,))], axis=-1)
+
+
 def width(num_degrees, num_coords=3, append_identity=True):
   """Length of pos_enc / integrated_pos_enc over num_degrees degrees of num_coords coordinates."""
   return num_coords * (int(append_identity) + 2 * num_degrees)
 
 
-def feature_layout(num_degrees, num_coords=3, append_identity=True):
-  """Index map of an encoding: (kind [L], degree [L], coord [L]) int; kind 0 id (deg -1), 1 sin, 2 cos."""
+def feature_layout(num_degrees, num_coords=3, append_identity=True, interleaved=False):
+  """Index map of an encoding: (kind [L], degree [L], coord [L]) int; kind 0 id (deg -1), 1 sin, 2 cos.
+
+  interleaved: NeRF's order (interleaved_pos_enc), else the released block order (pos_enc).
+  """
+  if interleaved:
+    return _interleaved_layout(num_degrees, num_coords)
   band_degree = np.repeat(np.arange(num_degrees), num_coords)
   band_coord = np.tile(np.arange(num_coords), num_degrees)
   kinds = [np.full(band_degree.shape, 1), np.full(band_degree.shape, 2)]
@@ -50,3 +62,11 @@ def feature_layout(num_degrees, num_coords=3, append_identity=True):
     degrees.insert(0, np.full(num_coords, -1))
     coords.insert(0, np.arange(num_coords))
   return tuple(np.concatenate(a).astype(np.int64) for a in (kinds, degrees, coords))
+
+
+def _interleaved_layout(num_degrees, num_coords):
+  """feature_layout of interleaved_pos_enc: identity, then per degree sin of every coord, cos of every coord."""
+  kind = np.concatenate([np.zeros(num_coords, int), np.tile(np.repeat([1, 2], num_coords), num_degrees)])
+  degree = np.concatenate([np.full(num_coords, -1), np.repeat(np.arange(num_degrees), 2 * num_coords)])
+  coord = np.tile(np.arange(num_coords), 1 + 2 * num_degrees)
+  return kind.astype(np.int64), degree.astype(np.int64), coord.astype(np.int64)

@@ -8,9 +8,9 @@ Four settings decide it, all `Config` fields:
 - `max_vis_freq_ratio` (float in [0, 1]): the fixed visible-ratio ablation (paper Fig. 2): the first
   int(L * ratio) features stay visible for the whole run, the rest hidden; acts only under `freq_reg` (as
   released) and then replaces the ramp. 0 = off.
-- `freq_mask_layout`: 'released' opens 3 features at a time left to right over the released feature order
-  (so every sin band opens before any cos band); 'paper' opens the identity, then sin and cos of one degree
-  together (as the paper and its Blender code do).
+- `freq_mask_layout`: 'released' opens 3 features at a time left to right over the model's feature order (on
+  mip-NeRF's block order every sin band opens before any cos band; on NeRF's interleaved order this is exactly
+  the Blender code's rule); 'paper' opens the identity, then sin and cos of one degree together (paper eq. 3).
 The released name `warmup_end` is read as `freq_reg_end` (internal/config_loader.py).
 """
 
@@ -31,9 +31,12 @@ def released_mask(length, step, end):
   return freq_ramp.ramp(np.arange(length) // 3, length, 3, step, end)
 
 
-def paper_mask(num_degrees, step, end, num_coords=3):
-  """Paper-style mask: identity, then sin and cos of each degree together; f32 [encoding.width(D, C)]."""
-  _, degree, _ = encoding.feature_layout(num_degrees, num_coords, append_identity=True)
+def paper_mask(num_degrees, step, end, num_coords=3, interleaved=False):
+  """Paper-style mask: identity, then sin and cos of each degree together; f32 [encoding.width(D, C)].
+
+  interleaved: for NeRF's interleaved feature order, else mip-NeRF's block order.
+  """
+  _, degree, _ = encoding.feature_layout(num_degrees, num_coords, append_identity=True, interleaved=interleaved)
   return freq_ramp.ramp(degree + 1, num_degrees + 1, 1, step, end)
 
 
@@ -42,7 +45,8 @@ def fixed_ratio_mask(length, ratio):
   return jnp.asarray(np.arange(length) < int(length * ratio), jnp.float32)
 
 
-def encoding_masks(step, *, freq_reg, freq_reg_end, layout, max_vis_freq_ratio, num_deg_point, num_deg_view):
+def encoding_masks(step, *, freq_reg, freq_reg_end, layout, max_vis_freq_ratio, num_deg_point, num_deg_view,
+                   interleaved=False):
   """Masks for the point [width(Dp)] and view [width(Dv)] encodings, or (None, None) when nothing is masked."""
   if not freq_reg:
     return None, None
@@ -54,19 +58,25 @@ def encoding_masks(step, *, freq_reg, freq_reg_end, layout, max_vis_freq_ratio, 
   if layout == 'released':
     return released_mask(len_point, step, freq_reg_end), released_mask(len_view, step, freq_reg_end)
   if layout == 'paper':
-    return paper_mask(num_deg_point, step, freq_reg_end), paper_mask(num_deg_view, step, freq_reg_end)
+    return (paper_mask(num_deg_point, step, freq_reg_end, interleaved=interleaved),
+            paper_mask(num_deg_view, step, freq_reg_end, interleaved=interleaved))
   raise ValueError(f'Config.freq_mask_layout = {layout!r}; expected one of {list(LAYOUTS)}')
 
 
-def masks_at(config: Config, degrees, step):
+def masks_at(config: Config, degrees, step, interleaved=False):
   """Masks (point, view) of Config for the encoding degrees (point, view) at a (possibly traced) step.
 
-  (None, None) when off; degrees is the model's `model.mlp.encoding_degrees()`.
+  (None, None) when off; degrees is the model's `model.encoding_degrees()`, interleaved its feature order.
   """
   num_deg_point, num_deg_view = degrees
   return encoding_masks(step, freq_reg=config.freq_reg, freq_reg_end=config.freq_reg_end,
                         layout=config.freq_mask_layout, max_vis_freq_ratio=config.max_vis_freq_ratio,
-                        num_deg_point=num_deg_point, num_deg_view=num_deg_view)
+                        num_deg_point=num_deg_point, num_deg_view=num_deg_view, interleaved=interleaved)
+
+
+def model_masks(config: Config, model, step):
+  """masks_at for a model (MipNerfModel or NerfModel): its encoding degrees and feature order."""
+  return masks_at(config, model.encoding_degrees(), step, model.interleaved_encoding)
 
 
 def check_settings(config: Config, degrees) -> None:

@@ -172,6 +172,8 @@ class MipNerfModel(nn.Module):
   precision: str = 'float32'  # Set from Config.precision, passed on to the MLP.
   mlp: Optional[MLP] = None  # The shared MLP; None builds make_mlp() (gin-bound, at `precision`).
 
+  interleaved_encoding = False  # A class constant, not a field: the released block order [id | sin | cos].
+
   def __post_init__(self):
     if self.mlp is None:  # Built now, not in setup, so that its encoding degrees are known before init.
       object.__setattr__(self, 'mlp', self.make_mlp())
@@ -181,6 +183,16 @@ class MipNerfModel(nn.Module):
   def make_mlp(self) -> MLP:
     """The gin-bound MLP at this model's precision."""
     return MLP(precision=self.precision)
+
+  @nn.nowrap
+  def encoding_degrees(self):
+    """(point, view) encoding degrees of the shared MLP."""
+    return self.mlp.encoding_degrees()
+
+  @nn.nowrap
+  def fine_samples_per_ray(self) -> int:
+    """Samples per ray of the last level (the occlusion loss's sample axis)."""
+    return self.num_samples
 
   def __call__(self, key, rays, mask_point=None, mask_view=None, resample_padding=0.01,
                compute_extras=False, compute_normals=False):

@@ -1,4 +1,4 @@
-"""Sampling distances along rays: stratified (coarse) and inverse-CDF resampling (fine)."""
+"""Sampling distances along rays: stratified (coarse), inverse-CDF resampling (mip-NeRF) and NeRF's importance samples."""
 
 import jax
 import jax.numpy as jnp
@@ -76,3 +76,24 @@ def resample_t_vals(key, t_vals, weights, padding, pdf_padding='released'):
   blurred = blur_weights(weights, padding)
   new_t = sample_pdf(key, t_vals, blurred, t_vals.shape[-1], pdf_padding)
   return jax.lax.stop_gradient(jnp.sort(new_t, axis=-1))
+
+
+NERF_WEIGHT_PADDING = 1e-5  # NeRF adds this to every weight before building its pdf.
+
+
+def importance_samples(key, t_points, weights, num_samples):
+  """NeRF's hierarchical samples [B,n] from sample points t_points [B,S] and their weights [B,S]; no gradient.
+
+  The pdf lives on the S-1 intervals between midpoints of t_points, with the interior weights [1:-1] padded by
+  NERF_WEIGHT_PADDING; u is iid uniform when key is given, else linspace(0, 1) (NeRF's deterministic pass).
+  """
+  bins = 0.5 * (t_points[..., 1:] + t_points[..., :-1])
+  padded = weights[..., 1:-1] + NERF_WEIGHT_PADDING
+  pdf = padded / jnp.sum(padded, axis=-1, keepdims=True)
+  cdf = jnp.concatenate([jnp.zeros_like(pdf[..., :1]), jnp.cumsum(pdf, axis=-1)], axis=-1)
+  shape = t_points.shape[:-1] + (num_samples,)
+  if key is None:
+    u = jnp.broadcast_to(jnp.linspace(0., 1., num_samples), shape)
+  else:
+    u = jax.random.uniform(key, shape)
+  return jax.lax.stop_gradient(invert_cdf(u, cdf, bins))

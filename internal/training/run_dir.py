@@ -16,7 +16,7 @@ import time
 import gin
 
 from internal import atomic
-from internal.models import mip_nerf
+from internal.models import registry
 
 FINGERPRINT_FILE = 'config.json'
 GIN_FILE = 'config.gin'
@@ -27,10 +27,10 @@ NOT_FINGERPRINTED = (
     'train_render_every', 'render_chunk_size', 'data_dir', 'dtu_mask_path', 'allow_missing_test_views',
     'render_factor', 'render_path_frames', 'eval_test_ids', 'eval_factor', 'lpips_weights_path',
     'lpips_input_range', 'compute_lpips', 'max_skipped_steps', 'depth_reference_dir')
-# flax bookkeeping fields of MLP and MipNerfModel, and precision (set from Config.precision, fingerprinted there).
+# flax bookkeeping fields of the model and its MLP, and precision (set from Config.precision, fingerprinted there).
 MODULE_NOT_FINGERPRINTED = ('parent', 'name', 'precision')
-# white_background is set from Config.white_background; the shared mlp is fingerprinted as MLP.*.
-MODEL_NOT_FINGERPRINTED = MODULE_NOT_FINGERPRINTED + ('white_background', 'mlp')
+# white_background is set from Config.white_background; the MLPs a model holds are fingerprinted as <MLP class>.*.
+MODEL_NOT_FINGERPRINTED = MODULE_NOT_FINGERPRINTED + ('white_background', 'mlp', 'coarse_mlp', 'fine_mlp')
 UNSET = '<unset>'
 
 
@@ -46,15 +46,14 @@ def _jsonable(value):
 
 
 def _settings(config) -> list:
-  """(prefix, object, fingerprinted fields) of Config and of the model modules as gin configures them now."""
+  """(prefix, object, fingerprinted fields) of Config and of Config.model's modules as gin configures them now."""
+  modules = [(prefix, obj, MODEL_NOT_FINGERPRINTED) for prefix, obj in registry.gin_modules(config.model)]
   return [(prefix, obj, [f for f in dataclasses.fields(obj) if f.name not in skip])
-          for prefix, obj, skip in (('Config', config, NOT_FINGERPRINTED),
-                                    ('MLP', mip_nerf.MLP(), MODULE_NOT_FINGERPRINTED),
-                                    ('MipNerfModel', mip_nerf.MipNerfModel(), MODEL_NOT_FINGERPRINTED))]
+          for prefix, obj, skip in [('Config', config, NOT_FINGERPRINTED)] + modules]
 
 
 def fingerprint(config) -> dict:
-  """{'<Config|MLP|MipNerfModel>.<field>': value} of every setting that changes training."""
+  """{'<Config|MLP|MipNerfModel|NerfMLP|NerfModel>.<field>': value} of every setting that changes training."""
   return {f'{prefix}.{f.name}': _jsonable(getattr(obj, f.name))
           for prefix, obj, fields in _settings(config) for f in fields}
 

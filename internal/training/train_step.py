@@ -13,7 +13,7 @@ from internal.models import anneal
 from internal.losses import depth_smoothness
 from internal.models import freq_schedule
 from internal.losses import reconstruction
-from internal.models import mip_nerf
+from internal.models import registry
 from internal.losses import occlusion
 from internal.training import optim
 from internal.training import schedule
@@ -42,7 +42,7 @@ GUARD_CHECKS = (('loss_finite', 'loss'), ('grads_finite', 'gradients'), ('lr_val
 
 def create_train_state(config, key, example_rays):
   """(model, TrainState at step 0) for Config, initialized on example rays [B, ...]."""
-  model, variables = mip_nerf.construct_model(key, example_rays, config.white_background,
+  model, variables = registry.construct_model(config.model, key, example_rays, config.white_background,
                                              config.precision)
   params = variables['params']
   return model, TrainState(step=jnp.array(0, jnp.int32), params=params,
@@ -54,7 +54,7 @@ def compute_loss(config, model, params, batch, key, step):
 
   With RegNeRF's depth smoothness the batch also holds 'patch_rays' [P, ps, ps, ...] (no data loss on them).
   """
-  mask_point, mask_view = freq_schedule.masks_at(config, model.mlp.encoding_degrees(), step)
+  mask_point, mask_view = freq_schedule.model_masks(config, model, step)
   rays = batch['rays']
   if config.anneal_nearfar:
     rays = anneal.anneal_rays(config, rays, step)
