@@ -1,9 +1,10 @@
 """Copies a study's results into a folder meant to be committed: what was run, on what, and what came out.
 
 <dest>/ gets results.csv and the plots, the study file, per cell <cell>/cell.json, the evaluation's
-metrics.json and metrics.csv and the run's learning_curve.csv where recorded (no checkpoints), a side-by-side picture per scene (ground truth, then each
-method's render of the first evaluated test views), table.md (per cell its metrics, wall times and commit) and
-provenance.json: the command, the commit each cell ran at, the machine and the package versions.
+metrics.json and metrics.csv and the run's learning_curve.csv where recorded (no checkpoints), a side-by-side
+picture per scene (ground truth, then each method's render of the first evaluated test views), table.md (per
+cell its metrics, wall times and commit) and provenance.json: the command, the commit each cell ran at, the
+machine and the package versions.
 """
 
 import json
