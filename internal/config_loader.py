@@ -115,6 +115,7 @@ def validate(config: Config) -> None:
   freq_schedule.check_settings(config, registry.build(config.model).encoding_degrees())
   _warn_on_unused_regularizer(config)
   _validate_regnerf(config)
+  _validate_curve(config)
 
 
 def _check_ndc_near_far(config: Config) -> None:
@@ -176,3 +177,21 @@ def _validate_regnerf(config: Config) -> None:
   if config.depth_tvnorm_decay and config.depth_tvnorm_maxstep < 1:
     raise ValueError(f'Config.depth_tvnorm_maxstep = {config.depth_tvnorm_maxstep}; expected a positive '
                      'integer when Config.depth_tvnorm_decay = True')
+
+
+def _validate_curve(config: Config) -> None:
+  """Raises a ValueError naming the learning-curve setting that is out of range."""
+  if config.curve_every < 0:
+    raise ValueError(f'Config.curve_every = {config.curve_every}; expected >= 0 (steps between learning-curve '
+                     'points, 0 = no curve)')
+  if config.curve_factor < 1:
+    raise ValueError(f'Config.curve_factor = {config.curve_factor}; expected a positive integer')
+  ids = config.curve_test_ids
+  if (not isinstance(ids, (list, tuple)) or not ids or len(set(ids)) != len(ids)
+      or any(isinstance(i, bool) or not isinstance(i, int) or i < 0 for i in ids)):
+    raise ValueError(f'Config.curve_test_ids = {ids!r}; expected a non-empty list of distinct test-view positions '
+                     '(integers >= 0)')
+  if config.curve_every and config.dataset_loader == 'packed' and config.curve_factor != config.eval_factor:
+    raise ValueError(f'Config.curve_factor = {config.curve_factor}: a packed scene holds its test views at '
+                     f'Config.eval_factor = {config.eval_factor} only; set Config.curve_factor = '
+                     f'{config.eval_factor}')

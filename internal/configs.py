@@ -136,3 +136,10 @@ class Config:
   # A run evaluated on the same test views (e.g. mip-NeRF on many views) whose rendered depths are a pseudo ground
   # truth, as in the paper's appendix depth table: eval then reports pseudo_depth_* against them.
   depth_reference_dir: str = ''
+
+  # Learning curve (internal/evaluation/learning_curve.py): during training, the test PSNR (and DTU's object-masked
+  # PSNR) of a few test views at reduced size, in <run dir>/learning_curve.csv and tensorboard's curve/. Off by
+  # default, so the paper configs train as released; configs/demo.gin turns it on.
+  curve_every: int = 0                  # Steps between curve points, plus the last step (0 = no curve).
+  curve_test_ids: Sequence[int] = (0, 1, 2)  # Positions in the test split of the views scored.
+  curve_factor: int = 4                 # Curve views load at Config.factor * this (in place of eval_factor).

@@ -3,7 +3,8 @@
 Each method is one run directory; the baseline is configs/demo.gin followed by configs/demo_mipnerf.gin, which
 only names its run and switches the regularizers off. After both are trained, evaluated and rendered, `finish`
 writes to the runs' parent folder demo.png (per shown test view a colour and a depth row: ground truth | mip-NeRF
-| FreeNeRF) and demo_orbit.mp4 (both orbits side by side, when imageio-ffmpeg is installed).
+| FreeNeRF), demo_curves.png (both runs' learning curves: test PSNR against the step) and demo_orbit.mp4 (both
+orbits side by side, when imageio-ffmpeg is installed).
 """
 
 import os
@@ -18,6 +19,7 @@ from internal import config_loader
 from internal import datasets
 from internal.evaluation import evaluate
 from internal.evaluation import inference
+from internal.evaluation import learning_curve
 from internal.evaluation import render_path
 from internal.evaluation import vis
 from internal import cli
@@ -29,7 +31,7 @@ SHOWN_VIEWS = (0, 2, 4, 6)     # Positions in the test split: every 90 degrees o
 BLOCKS_PER_ROW = 2             # Test views side by side in the picture.
 SCALE = 2                      # Nearest-neighbour upscaling of the small renders.
 GAP, HEADER, LABEL_WIDTH, LINE = 4, 22, 56, 16
-PICTURE, ORBIT_VIDEO = 'demo.png', 'demo_orbit.mp4'
+PICTURE, CURVES, ORBIT_VIDEO = 'demo.png', 'demo_curves.png', 'demo_orbit.mp4'
 
 
 def method_config(name: str, bindings=()):
@@ -131,6 +133,20 @@ def write_picture(truth, records: dict, renderings: dict, n_input_views: int, pa
   return picture
 
 
+def write_curves(method_cfgs: dict, path: str) -> bool:
+  """Writes the runs' learning curves (test PSNR against the step) as a PNG; False when none was recorded."""
+  lines = {name: [(row['step'], row['psnr']) for row in learning_curve.read_rows(
+      learning_curve.csv_path(cfg.checkpoint_dir))] for name, cfg in method_cfgs.items()}
+  lines = {name: points for name, points in lines.items() if points}
+  if not lines:
+    return False
+  config = method_cfgs['FreeNeRF']
+  fig, ax = vis.line_figure(lines)
+  vis.save_figure(fig, ax, 'training step', 'test PSNR (dB)', f'{config.n_input_views} training views; test '
+                  f'positions {list(config.curve_test_ids)} at 1/{config.curve_factor} size', path)
+  return True
+
+
 def write_orbit_video(method_cfgs: dict, path: str) -> bool:
   """Writes both methods' orbit renders side by side (colour row, depth row) as an mp4; False without ffmpeg."""
   if not render_path.can_write_video():
@@ -160,6 +176,7 @@ def finish(bindings=()) -> dict:
   out_dir = output_dir(method_cfgs)
   truth = [test_set.images[p] for p in positions], [test_set.depths[p] for p in positions]
   write_picture(truth, records, renderings, config.n_input_views, os.path.join(out_dir, PICTURE))
+  write_curves(method_cfgs, os.path.join(out_dir, CURVES))
   if not write_orbit_video(method_cfgs, os.path.join(out_dir, ORBIT_VIDEO)):
     print(render_path.VIDEO_HINT)
   return {name: record['means']['psnr'] for name, record in records.items()}

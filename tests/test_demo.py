@@ -70,6 +70,19 @@ def test_side_by_side_rows_columns_and_shared_depth_range():
   np.testing.assert_allclose(tiles[1][0][0, 0], demo.vis.colorize_depth(depths[0])[0, 0])
 
 
+def test_curves_picture_needs_a_recorded_curve(tmp_path, monkeypatch):
+  monkeypatch.chdir(tmp_path)
+  cfgs = demo.method_configs()
+  path = tmp_path / demo.CURVES
+  assert not demo.write_curves(cfgs, str(path)) and not path.exists()
+  os.makedirs(cfgs['FreeNeRF'].checkpoint_dir)
+  (tmp_path / cfgs['FreeNeRF'].checkpoint_dir / 'learning_curve.csv').write_text('step,psnr,seconds\n50,12.5,3\n'
+                                                                                 '100,14.,6\n')
+  assert demo.write_curves(cfgs, str(path))
+  with Image.open(path) as picture:
+    assert picture.format == 'PNG' and picture.size == (640, 440)
+
+
 def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch, scene_dir):
   monkeypatch.chdir(tmp_path)
   bindings = TINY + [f"Config.data_dir = '{scene_dir}'", 'Config.max_steps = 4', 'Config.freq_reg_end = 3',
@@ -89,6 +102,8 @@ def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch,
   assert picture.shape == (demo.HEADER + demo.LINE + 2 * views * (32 * demo.SCALE + demo.GAP),
                            demo.LABEL_WIDTH + 3 * demo.BLOCKS_PER_ROW * (40 * demo.SCALE + demo.GAP), 3)
   assert (tmp_path / 'out' / 'demo' / demo.ORBIT_VIDEO).stat().st_size > 0
+  with Image.open(tmp_path / 'out' / 'demo' / demo.CURVES) as curves:   # One point each: the last step.
+    assert curves.format == 'PNG' and curves.size == (640, 440)
   assert train.main(['--gin_bindings', *bindings]) == 0   # Again: everything is done, nothing is refused.
 
 

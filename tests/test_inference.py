@@ -35,3 +35,17 @@ def test_chunked_equals_unchunked(render_setup, chunk_size):
     assert image[key].shape == (2, 5) + whole[key].shape[1:], key
     np.testing.assert_allclose(image[key].reshape(whole[key].shape), whole[key], rtol=1e-5, atol=1e-6,
                                err_msg=key)
+
+
+def test_one_compilation_renders_every_step_with_its_masks():
+  config = config_loader.load_config([], TINY)
+  rays = random_rays(1, 12)
+  model, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, white_background=False)
+  compiled = inference.compile_render(config, model)
+  shared = {s: jax.device_get(inference.make_render_fn(config, model, variables['params'], s, compiled=compiled)(rays))
+            for s in (2, 8)}
+  for step, outputs in shared.items():
+    fresh = jax.device_get(inference.make_render_fn(config, model, variables['params'], step)(rays))
+    np.testing.assert_allclose(outputs['rgb'], fresh['rgb'], rtol=1e-6, atol=1e-7)
+  assert np.abs(shared[2]['rgb'] - shared[8]['rgb']).max() > 1e-4   # The frequency mask opens in between.
+  assert compiled._cache_size() == 1                                  # pylint: disable=protected-access

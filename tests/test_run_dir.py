@@ -90,7 +90,8 @@ def test_a_failed_first_start_records_nothing_and_the_corrected_retry_runs(tmp_p
                             f"Config.lpips_weights_path = '{tmp_path / 'no_such.pkl'}'"))
   assert run_dir_lib.read_fingerprint(str(run))['Config.n_input_views'] == 8
   assert checkpoints.latest_step(str(run)) == 2 and not (run / run_dir_lib.LOCK_FILE).exists()
-  assert sorted(os.listdir(run)) == ['checkpoints', 'config.gin', 'config.json', 'tensorboard']
+  assert sorted(os.listdir(run)) == ['checkpoints', 'config.gin', 'config.json', 'learning_curve.csv',
+                                     'tensorboard']                 # configs/demo.gin records learning curves.
 
 
 def test_training_checks_the_test_split_before_it_starts(tmp_path, scene_dir):

@@ -28,6 +28,7 @@ bindings = ["MLP.net_depth = 2", "MLP.net_width = 16", "MLP.net_width_viewdirs =
             "MipNerfModel.num_samples = 8", "Config.batch_size = 64", "Config.max_steps = {STEPS}",
             "Config.freq_reg_end = 18", "Config.print_every = 10", "Config.train_render_every = 0",
             "Config.checkpoint_every = 10", "Config.compute_lpips = False", "Config.render_chunk_size = 192",
+            "Config.curve_every = 10", "Config.curve_factor = 1",
             "Config.generated_size = (12, 16)", "Config.data_dir = '{{out}}/scenes/{{scene}}'"]
 [methods.freenerf]
 configs = ["{REPO}/configs/demo.gin"]
@@ -96,6 +97,23 @@ def test_plots_are_png_images(ran):
       assert image.format == 'PNG' and image.size == (640, 440)
 
 
+def test_learning_curves_are_plotted_against_the_step(ran):
+  study, out, _ = ran
+  for cell in study_spec.cells(study):         # The half-trained cell too: no row lost or repeated on resuming.
+    rows = _rows(os.path.join(out, 'mini', cell.cell_id, study_lib.RUN_SUBDIR, 'learning_curve.csv'))
+    assert [r['step'] for r in rows] == ['10', '20'] and float(rows[1]['seconds']) > float(rows[0]['seconds'])
+  curves = study_lib.gather_curves(study, out)
+  assert len(curves) == 8 and {c['method'] for c in curves} == {'freenerf', 'mipnerf'}
+  assert all(c['views'] == '3' for c in curves)
+  lines = study_plots._series(study, curves, 'step', 'psnr', None)  # pylint: disable=protected-access
+  assert sorted(lines) == ['freenerf forward views=3', 'freenerf object views=3', 'mipnerf forward views=3',
+                           'mipnerf object views=3']
+  assert all([x for x, _ in points] == [10., 20.] for points in lines.values())
+  with Image.open(os.path.join(out, 'mini', 'psnr_vs_step.png')) as image:
+    assert image.format == 'PNG' and image.size == (640, 440)
+  assert not os.path.exists(os.path.join(out, 'mini', 'psnr_masked_vs_step.png'))   # No DTU masks here.
+
+
 def test_rerun_skips_finished_cells(ran):
   _, out, path = ran
   before = {p: p.read_text() for p in pathlib.Path(out, 'mini').glob(f'*/{study_lib.CELL_FILE}')}
@@ -121,6 +139,9 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
     record = json.loads((dest / cell / 'metrics.json').read_text())
     assert json.loads((dest / cell / 'cell.json').read_text())['means']['psnr'] == record['means']['psnr']
     assert provenance['cells'][cell]['commit'] == study_lib.study_export.git_commit(str(REPO))
+    curve = pathlib.Path(out, 'mini', cell, study_lib.RUN_SUBDIR, 'learning_curve.csv')
+    assert (dest / cell / 'learning_curve.csv').read_text() == curve.read_text()
+  assert (dest / 'psnr_vs_step.png').is_file()
   table = (dest / 'table.md').read_text().splitlines()
   assert table[0].startswith('| method | scene | views | step | psnr |') and len(table) == 2 + 4
   assert all(f'| {float(r["psnr"]):.3f} |' in row for r, row in zip(_rows(dest / 'results.csv'), table[2:]))

@@ -11,7 +11,8 @@ and, on accelerators, the device's peak bytes. Its output goes to <cell>/log.txt
 Resumable: a cell with cell.json is skipped; a half-trained one resumes from its newest checkpoint.
 --jobs N runs N cells at a time; --gpus gives one GPU per worker (CUDA_VISIBLE_DEVICES), --shard K/N takes
 every N-th cell from K (one command per host on a shared folder). At the end (also after failures) the
-results of all finished cells are gathered into <out>/<study>/results.csv and <metric>_vs_<x>.png plots.
+results of all finished cells are gathered into <out>/<study>/results.csv and <metric>_vs_<x>.png plots, and
+the cells' learning curves (Config.curve_every > 0) into psnr_vs_step.png (and psnr_masked_vs_step.png on DTU).
 `python -m tools.tables <out>/<study>` gathers the same runs into the paper's tables.
 """
 
@@ -35,7 +36,7 @@ from tools import study_spec
 CELL_FILE = 'cell.json'
 SPEC_FILE = 'cell_spec.json'
 LOG_FILE = 'log.txt'
-RUN_SUBDIR = 'run'  # The cell's run directory (Config.checkpoint_dir) inside its folder.
+RUN_SUBDIR = study_export.RUN_SUBDIR  # The cell's run directory (Config.checkpoint_dir) inside its folder.
 RESULTS_FILE = 'results.csv'
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -190,8 +191,19 @@ def gather(study: study_spec.Study, out: str) -> List[dict]:
   return rows
 
 
+def gather_curves(study: study_spec.Study, out: str) -> List[dict]:
+  """Rows of the cells' learning curves (where recorded): per cell and curve step, its labels and values."""
+  from internal.evaluation import learning_curve  # pylint: disable=import-outside-toplevel  (imports jax)
+  rows = []
+  for cell in study_spec.cells(study):
+    path = learning_curve.csv_path(os.path.join(cell_dir(study, cell, out), RUN_SUBDIR))
+    rows += [{'method': cell.method, 'scene': cell.scene, **cell.labels(), **row}
+             for row in learning_curve.read_rows(path)]
+  return rows
+
+
 def write_results(study: study_spec.Study, out: str) -> List[str]:
-  """Writes results.csv and the plots; returns the written paths."""
+  """Writes results.csv and the plots (learning curves too, where recorded); returns the written paths."""
   rows = gather(study, out)
   fields = list(dict.fromkeys(k for row in rows for k in row))
   path = os.path.join(study_dir(study, out), RESULTS_FILE)
@@ -200,7 +212,8 @@ def write_results(study: study_spec.Study, out: str) -> List[str]:
     writer = csv.DictWriter(f, fieldnames=fields)
     writer.writeheader()
     writer.writerows({k: ('' if row.get(k) is None else row.get(k)) for k in fields} for row in rows)
-  return [path] + study_plots.write_plots(study, rows, study_dir(study, out))
+  return [path] + study_plots.write_plots(study, rows, study_dir(study, out)) + study_plots.write_curve_plots(
+      study, gather_curves(study, out), study_dir(study, out))
 
 
 def run_study(study: study_spec.Study, out: str, data_root: str = 'data', jobs: int = 1,

@@ -1,9 +1,10 @@
 """Copies a study's results into a folder meant to be committed: what was run, on what, and what came out.
 
-<dest>/ gets results.csv and the plots, the study file, per cell <cell>/cell.json and the evaluation's
-metrics.json and metrics.csv (no checkpoints), a side-by-side picture per scene (ground truth, then each
-method's render of the first evaluated test views), table.md (per cell its metrics, wall times and commit) and
-provenance.json: the command, the commit each cell ran at, the machine and the package versions.
+<dest>/ gets results.csv and the plots, the study file, per cell <cell>/cell.json, the evaluation's
+metrics.json and metrics.csv and the run's learning_curve.csv where recorded (no checkpoints), a side-by-side
+picture per scene (ground truth, then each method's render of the first evaluated test views), table.md (per
+cell its metrics, wall times and commit) and provenance.json: the command, the commit each cell ran at, the
+machine and the package versions.
 """
 
 import json
@@ -20,6 +21,7 @@ from PIL import Image
 from internal.evaluation import vis
 from tools import study_spec
 
+RUN_SUBDIR = 'run'    # A cell's run directory (Config.checkpoint_dir) inside its folder.
 PICTURE_VIEWS = 2     # Test views per scene in the side-by-side picture.
 MIN_TILE_WIDTH = 160  # Narrower renders are upscaled (nearest) so that the column titles fit.
 PROVENANCE_FILE = 'provenance.json'
@@ -52,16 +54,18 @@ def machine() -> Dict[str, object]:
 def eval_dir(cell_path: str, step: int) -> str:
   """The evaluation folder of a finished cell's run (<cell>/run/test_preds_step_<step>)."""
   from internal.evaluation import evaluate  # pylint: disable=import-outside-toplevel  (jax: only when exporting)
-  return evaluate.output_dir(os.path.join(cell_path, 'run'), step)
+  return evaluate.output_dir(os.path.join(cell_path, RUN_SUBDIR), step)
 
 
 def _copy_cell(cell_path: str, cell: dict, dest: str) -> None:
-  """Copies a finished cell's cell.json and its evaluation's metrics files into dest/<cell id>/."""
+  """Copies a finished cell's cell.json, its evaluation's metrics files and its learning curve into
+  dest/<cell id>/."""
+  from internal.evaluation import learning_curve  # pylint: disable=import-outside-toplevel
   target = os.path.join(dest, cell['cell'])
   os.makedirs(target, exist_ok=True)
   shutil.copy2(os.path.join(cell_path, 'cell.json'), target)
-  for name in ('metrics.json', 'metrics.csv'):
-    source = os.path.join(eval_dir(cell_path, cell['step']), name)
+  sources = [os.path.join(eval_dir(cell_path, cell['step']), name) for name in ('metrics.json', 'metrics.csv')]
+  for source in sources + [learning_curve.csv_path(os.path.join(cell_path, RUN_SUBDIR))]:
     if os.path.isfile(source):
       shutil.copy2(source, target)
 

@@ -5,11 +5,11 @@ import math
 import os
 from typing import List, Optional, Sequence, Tuple
 
-import matplotlib
-matplotlib.use('Agg')
-import matplotlib.pyplot as plt  # pylint: disable=wrong-import-position
-
+from internal.evaluation import vis
 from tools import study_spec
+
+# Learning-curve metrics (internal/evaluation/learning_curve.py) plotted against the training step.
+CURVE_METRICS = ('psnr', 'psnr_masked')
 
 
 def _number(value) -> Optional[float]:
@@ -62,9 +62,7 @@ def plot(study: study_spec.Study, rows: List[dict], x: str, metric: str, path: s
   lines = _series(study, rows, x, metric, positions)
   if not lines:
     return False
-  fig, ax = plt.subplots(figsize=(6.4, 4.4))
-  for name, points in lines.items():
-    ax.plot(*zip(*points), marker='o', linestyle='-' if positions is not None else 'none', label=name)
+  fig, ax = vis.line_figure(lines, joined=positions is not None)
   for curve in study.paper:
     if curve.metric == metric and curve.x == x:
       ax.plot(*zip(*curve.points), marker='x', linestyle='--', color='black',
@@ -75,14 +73,7 @@ def plot(study: study_spec.Study, rows: List[dict], x: str, metric: str, path: s
     ax.scatter(*zip(*front), s=120, facecolors='none', edgecolors='red')
   if ticks:
     ax.set_xticks(range(len(ticks)), ticks, rotation=20)
-  ax.set_xlabel(x)
-  ax.set_ylabel(metric)
-  ax.set_title(f'{study.name}: {metric} vs {x}')
-  ax.grid(alpha=.3)
-  ax.legend(fontsize=7)
-  fig.tight_layout()
-  fig.savefig(path, dpi=100)
-  plt.close(fig)
+  vis.save_figure(fig, ax, x, metric, f'{study.name}: {metric} vs {x}', path)
   return True
 
 
@@ -94,4 +85,21 @@ def write_plots(study: study_spec.Study, rows: List[dict], out_dir: str) -> List
       path = os.path.join(out_dir, f'{metric}_vs_{x}.png')
       if plot(study, rows, x, metric, path):
         written.append(path)
+  return written
+
+
+def write_curve_plots(study: study_spec.Study, curve_rows: List[dict], out_dir: str) -> List[str]:
+  """<metric>_vs_step.png of the cells' learning curves for every CURVE_METRICS that has data; the paths.
+
+  curve_rows: one per cell and curve step, with the cell's method, scene and labels, as results rows.
+  """
+  written = []
+  for metric in CURVE_METRICS:
+    lines = _series(study, curve_rows, 'step', metric, None)
+    if lines:
+      path = os.path.join(out_dir, f'{metric}_vs_step.png')
+      fig, ax = vis.line_figure(lines)
+      vis.save_figure(fig, ax, 'training step', f'{metric} (learning-curve views)',
+                      f'{study.name}: {metric} vs step', path)
+      written.append(path)
   return written

@@ -43,26 +43,32 @@ def load_lpips_fn(config):
     return None, str(e)
 
 
-def check_eval_inputs(config) -> None:
-  """Before training: loads the test split once (images, DTU masks) so that a missing file raises now, not
-  after training; warns when LPIPS will be reported as null."""
-  datasets.load_dataset('test', config)
+def check_eval_inputs(config) -> datasets.Dataset:
+  """Before training: loads the test split (images, DTU masks) so that a missing file raises now, not after
+  training, and returns it; warns when LPIPS will be reported as null."""
+  test_set = datasets.load_dataset('test', config)
   if config.compute_lpips:
     _, reason = load_lpips_fn(config)
     if reason:
       warnings.warn(f'LPIPS will be null in metrics.json: {reason} (Config.compute_lpips = False silences this)',
                     stacklevel=2)
+  return test_set
 
 
 def select_positions(config, num_views: int) -> list:
   """Positions of the test views to evaluate: Config.eval_test_ids (checked) or all."""
   if config.eval_test_ids is None:
     return list(range(num_views))
-  positions = [int(i) for i in config.eval_test_ids]
+  return checked_positions(config.eval_test_ids, num_views, 'eval_test_ids')
+
+
+def checked_positions(ids, num_views: int, setting: str) -> list:
+  """ids as a list of ints; ValueError naming Config.<setting> when one is outside 0..num_views - 1."""
+  positions = [int(i) for i in ids]
   bad = [i for i in positions if not 0 <= i < num_views]
   if bad:
-    raise ValueError(f'Config.eval_test_ids = {list(config.eval_test_ids)}: positions {bad} are outside the '
-                     f'{num_views} test views (0..{num_views - 1})')
+    raise ValueError(f'Config.{setting} = {list(ids)}: positions {bad} are outside the {num_views} test views '
+                     f'(0..{num_views - 1})')
   return positions
 
 

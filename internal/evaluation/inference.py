@@ -12,20 +12,30 @@ from internal.models import freq_schedule
 OUTPUT_KEYS = ('rgb', 'acc', 'distance_mean', 'distance_median')
 
 
-def make_render_fn(config, model, params, step: int, compute_normals: bool = False):
-  """jit-compiled rays [N, ...] -> fine-level outputs, with the masks of the checkpoint step."""
-  mask_point, mask_view = freq_schedule.model_masks(config, model, jnp.asarray(step))
+def compile_render(config, model, compute_normals: bool = False):
+  """jit-compiled (params, masks, rays [N, ...]) -> fine-level outputs; masks = (point, view) frequency masks.
+
+  The masks are an argument, so one compilation (per chunk size) serves every step.
+  """
   padding = config.resample_padding_final
   keys = OUTPUT_KEYS + (('normals',) if compute_normals else ())
 
   @jax.jit
-  def render(params, chunk):
-    renderings, _ = model.apply({'params': params}, None, chunk, mask_point, mask_view, padding,
-                                compute_normals=compute_normals)
+  def render(params, masks, chunk):
+    renderings, _ = model.apply({'params': params}, None, chunk, *masks, padding, compute_normals=compute_normals)
     return {k: renderings[-1][k] for k in keys}
+  return render
 
+
+def make_render_fn(config, model, params, step: int, compute_normals: bool = False, compiled=None):
+  """rays [N, ...] -> fine-level outputs, with the masks of the checkpoint step.
+
+  compiled: a compile_render(config, model, compute_normals) to reuse (e.g. at every step of a learning curve).
+  """
+  compiled = compiled or compile_render(config, model, compute_normals)
+  masks = freq_schedule.model_masks(config, model, jnp.asarray(step))
   # Parameters are an argument, not constants folded into the compiled program.
-  return functools.partial(render, params)
+  return functools.partial(compiled, params, masks)
 
 
 def render_image(render_fn, rays, chunk_size: int):

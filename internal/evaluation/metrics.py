@@ -58,17 +58,21 @@ def white_composite(img, mask) -> np.ndarray:
   return _f64(img) * m + (1. - m)
 
 
+def masked_psnr(pred, gt, mask) -> float:
+  """PSNR of pred [H,W,3] vs gt [H,W,3] over the values whose mask [H,W,3 or 1] is exactly 1 (nan if none)."""
+  pred, gt = _f64(pred), _f64(gt)
+  inside = np.broadcast_to(_f64(mask), pred.shape) == 1.
+  return float(mse_to_psnr(np.mean((pred[inside] - gt[inside])**2) if inside.any() else np.nan))
+
+
 def dtu_masked_metrics(pred, gt, mask, lpips_fn: Optional[LpipsFn] = None) -> Dict[str, Optional[float]]:
   """DTU object metrics of pred [H,W,3] vs gt [H,W,3] with mask [H,W,3 or 1] in [0,1]; keys MASKED_METRICS.
 
   psnr_masked averages the squared error over the values whose mask is exactly 1 (nan if there are none);
   ssim/lpips_masked compare both images with the background composited to white.
   """
-  pred, gt = _f64(pred), _f64(gt)
-  inside = np.broadcast_to(_f64(mask), pred.shape) == 1.
-  mse = np.mean((pred[inside] - gt[inside])**2) if inside.any() else np.nan
   white_pred, white_gt = white_composite(pred, mask), white_composite(gt, mask)
-  values = {'psnr_masked': float(mse_to_psnr(mse)), 'ssim_masked': ssim(white_pred, white_gt)}
+  values = {'psnr_masked': masked_psnr(pred, gt, mask), 'ssim_masked': ssim(white_pred, white_gt)}
   values['lpips_masked'] = None if lpips_fn is None else float(lpips_fn(white_pred, white_gt))
   values['avg_error_masked'] = avg_error(
       values['psnr_masked'], values['ssim_masked'], values['lpips_masked'])

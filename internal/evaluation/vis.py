@@ -3,6 +3,7 @@
 import os
 
 import matplotlib
+import matplotlib.figure
 import numpy as np
 from PIL import Image
 
@@ -54,3 +55,24 @@ def visualize(rendering, depth_value_range=None) -> dict:
   return {'color': np.asarray(rendering['rgb']),
           'depth': colorize_depth(rendering['distance_mean'], depth_value_range),
           'opacity': colorize_opacity(rendering['acc'])}
+
+
+def line_figure(lines: dict, joined: bool = True) -> tuple:
+  """(figure, axes) of 6.4 x 4.4 inches with one series per name of lines {name: [(x, y)]}, joined or dots."""
+  fig = matplotlib.figure.Figure(figsize=(6.4, 4.4))
+  ax = fig.subplots()
+  for name, points in lines.items():
+    ax.plot(*zip(*points), marker='o', linestyle='-' if joined else 'none', label=name)
+  return fig, ax
+
+
+def save_figure(fig, ax, x_label: str, y_label: str, title: str, path: str) -> None:
+  """Labels the axes, adds a grid and the legend and writes the figure to path as a PNG at 100 dpi."""
+  ax.set_xlabel(x_label)
+  ax.set_ylabel(y_label)
+  ax.set_title(title)
+  ax.grid(alpha=.3)
+  ax.legend(fontsize=7)
+  fig.tight_layout()
+  os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+  fig.savefig(path, dpi=100)

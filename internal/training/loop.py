@@ -17,6 +17,7 @@ from internal import datasets
 from internal.training import distributed
 from internal.evaluation import evaluate
 from internal.evaluation import inference
+from internal.evaluation import learning_curve
 from internal.evaluation import metrics
 from internal.training import run_dir as run_dir_lib
 from internal.training import sharding
@@ -182,7 +183,7 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
   _check_batch(config, mesh)
   dataset = distributed.primary_first(lambda: datasets.load_dataset('train', config), 'loading the data')
   batcher = datasets.make_batcher(dataset, config)
-  evaluate.check_eval_inputs(config)
+  curve_views = learning_curve.load_views(config, evaluate.check_eval_inputs(config))
   init_key, train_key = random.split(random.PRNGKey(config.jax_rng_seed))
   model, state = train_step_lib.create_train_state(config, init_key, _example_rays(batcher))
   distributed.on_primary(lambda: run_dir_lib.record_settings(run_dir, config), 'recording the settings')
@@ -192,10 +193,12 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
   state = restored if restored is not None else state
   primary = distributed.is_primary()
   writer = tensorboardX.SummaryWriter(os.path.join(run_dir, 'tensorboard')) if primary else NullWriter()
+  curve = learning_curve.Recorder(config, model, curve_views, run_dir, writer, int(state.step)) if (
+      curve_views is not None and primary) else None
   last = min(config.max_steps, stop_at_step) if stop_at_step > 0 else config.max_steps
   try:
     with writer, stop_on_signals() as stop:
-      state, skipped = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last)
+      state, skipped = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last, curve)
     checkpoints.save(mngr, state)
   finally:
     mngr.wait_until_finished()
@@ -203,8 +206,10 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
   return TrainResult(model, state, run_dir, stop.signum, skipped)
 
 
-def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: int):
+def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: int, curve):
   """Steps from state.step + 1 to last (or until a signal); saves every Config.checkpoint_every steps.
+
+  curve: the learning_curve.Recorder of process 0 when Config.curve_every > 0, else None.
 
   Returns (state, number of skipped updates). The stats are fetched and checked before every save.
   """
@@ -224,6 +229,8 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
       if config.train_render_every > 0 and step % config.train_render_every == 0 and distributed.is_primary():
         test_set = test_set if test_set is not None else datasets.load_dataset('test', config)
         preview(config, model, state, step, test_set, writer)
+      if curve is not None and curve.due(step):
+        curve.record(step, state.params)
       if step % config.checkpoint_every == 0 and step < last:
         progress.flush(step)
         checkpoints.save(mngr, state)

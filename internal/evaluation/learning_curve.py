@@ -1,0 +1,145 @@
+"""Learning curves: the test PSNR of a few test views at reduced size every Config.curve_every steps of training.
+
+The paper's story is dynamic (the baseline overfits early, FreeNeRF does not): a curve shows it. A row is
+{'step', 'psnr', 'psnr_masked' (DTU only), 'seconds'}: the mean over the curve's views of their PSNR computed as
+evaluation computes it (and the DTU protocol's object-masked PSNR), and the wall-clock seconds of training so far,
+the curve's own evaluations left out. Rows go to tensorboard (curve/psnr, curve/psnr_masked, curve/eval_seconds)
+and to <run dir>/learning_curve.csv, rewritten atomically at every row. A resumed run keeps the rows up to its
+checkpoint's step, and its seconds go on from the last kept row (training time after that row, lost with the
+interrupted steps, is not counted).
+"""
+
+import csv
+import dataclasses
+import io
+import os
+import time
+from typing import List, NamedTuple, Optional
+
+import jax
+import numpy as np
+
+from internal import atomic
+from internal import datasets
+from internal import rays as rays_lib
+from internal.evaluation import evaluate
+from internal.evaluation import inference
+from internal.evaluation import metrics
+from internal.evaluation import results
+from internal.training import sharding
+
+CSV_FILE = 'learning_curve.csv'
+
+
+class Views(NamedTuple):
+  """The curve's test views: images f32 [V,h,w,3], DTU masks [V,h,w,3] or None, rays [V,h,w,...], view ids."""
+  images: np.ndarray
+  masks: Optional[np.ndarray]
+  rays: rays_lib.Rays
+  ids: List[int]
+
+
+def load_views(config, test_set: datasets.Dataset) -> Optional[Views]:
+  """The test views at positions Config.curve_test_ids, at Config.factor * Config.curve_factor; None when off.
+
+  test_set is the test split loaded at Config.eval_factor, reused when the factors agree.
+  """
+  if not config.curve_every:
+    return None
+  if config.curve_factor != config.eval_factor:
+    test_set = datasets.load_dataset('test', dataclasses.replace(config, eval_factor=config.curve_factor))
+  positions = evaluate.checked_positions(config.curve_test_ids, len(test_set.ids), 'curve_test_ids')
+  masks = None if test_set.masks is None else test_set.masks[positions]
+  return Views(test_set.images[positions], masks, rays_lib.map_rays(lambda x: x[positions], test_set.rays),
+               [int(test_set.ids[p]) for p in positions])
+
+
+def curve_row(step: int, seconds: float, images, renders, masks=None) -> dict:
+  """{'step', 'psnr'[, 'psnr_masked'], 'seconds'} of renders [V][h,w,3] against images [V][h,w,3].
+
+  PSNRs are averaged over the views as evaluation's means are; psnr_masked (with DTU masks [V][h,w,3]) only
+  counts the values whose mask is 1, as the DTU protocol does.
+  """
+  row = {'step': int(step), 'psnr': results.mean([metrics.psnr(r, g) for r, g in zip(renders, images)])}
+  if masks is not None:
+    row['psnr_masked'] = results.mean([metrics.masked_psnr(r, g, m) for r, g, m in zip(renders, images, masks)])
+  row['seconds'] = float(seconds)
+  return row
+
+
+def csv_path(run_dir: str) -> str:
+  """<run_dir>/learning_curve.csv."""
+  return os.path.join(run_dir, CSV_FILE)
+
+
+def read_rows(path: str) -> List[dict]:
+  """The rows of a learning_curve.csv (step an int, other columns floats or None when empty); [] when absent."""
+  if not os.path.isfile(path):
+    return []
+  with open(path, newline='') as f:
+    try:
+      return [{'step': int(row['step']), **{k: None if v == '' else float(v) for k, v in row.items() if k != 'step'}}
+              for row in csv.DictReader(f)]
+    except (KeyError, TypeError, ValueError) as err:
+      raise ValueError(f'{path!r} is not a learning curve ({type(err).__name__}: {err}); expected the columns '
+                       'step, psnr[, psnr_masked], seconds with numbers') from err
+
+
+class CurveLog:
+  """A run's learning_curve.csv: the rows up to the resumed step, then each new row; rewritten atomically."""
+
+  def __init__(self, run_dir: str, resumed_step: int):
+    self.path = csv_path(run_dir)
+    rows = read_rows(self.path)
+    self.rows = [row for row in rows if row['step'] <= resumed_step]
+    if len(self.rows) < len(rows):  # Rows of steps the resumed run trains again.
+      self._write()
+
+  def append(self, row: dict) -> None:
+    """Adds a row whose step follows every kept one and rewrites the file."""
+    if self.rows and row['step'] <= self.rows[-1]['step']:
+      raise ValueError(f'{self.path!r}: step {row["step"]} does not follow step {self.rows[-1]["step"]}')
+    self.rows.append(row)
+    self._write()
+
+  def _write(self) -> None:
+    """Writes every row (empty cells for missing values) through a temporary file."""
+    fields = list(dict.fromkeys(k for row in self.rows for k in row)) or ['step', 'psnr', 'seconds']
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=fields, restval='')
+    writer.writeheader()
+    writer.writerows({k: '' if v is None else v for k, v in row.items()} for row in self.rows)
+    atomic.write_text(self.path, text.getvalue())
+
+
+class Recorder:
+  """Scores the curve's views every Config.curve_every steps and at the last step; tensorboard and the CSV."""
+
+  def __init__(self, config, model, views: Views, run_dir: str, writer, resumed_step: int):
+    self.config, self.model, self.views, self.writer = config, model, views, writer
+    self.log = CurveLog(run_dir, resumed_step)
+    self.compiled = inference.compile_render(config, model)  # One compilation for every curve point.
+    self.seconds_before = self.log.rows[-1]['seconds'] if self.log.rows else 0.
+    self.start, self.eval_seconds = time.perf_counter(), 0.
+
+  def due(self, step: int) -> bool:
+    """Whether step gets a curve point."""
+    return step % self.config.curve_every == 0 or step == self.config.max_steps
+
+  def record(self, step: int, params) -> dict:
+    """Renders and scores the views with the parameters of step; logs and appends the row; returns it."""
+    params = jax.block_until_ready(sharding.local_copy(params))  # The steps dispatched so far count as training.
+    tic = time.perf_counter()
+    seconds = self.seconds_before + tic - self.start - self.eval_seconds
+    render_fn = inference.make_render_fn(self.config, self.model, params, step, compiled=self.compiled)
+    renders = [inference.render_image(render_fn, rays_lib.map_rays(lambda x, i=i: x[i], self.views.rays),
+                                      self.config.render_chunk_size)['rgb'] for i in range(len(self.views.ids))]
+    row = curve_row(step, seconds, self.views.images, renders, self.views.masks)
+    self.log.append(row)
+    elapsed = time.perf_counter() - tic
+    self.eval_seconds += elapsed
+    for name in ('psnr', 'psnr_masked'):
+      if name in row:
+        self.writer.add_scalar(f'curve/{name}', row[name], step)
+    self.writer.add_scalar('curve/eval_seconds', elapsed, step)
+    return row
