@@ -151,3 +151,19 @@ def test_command_line(runs, tmp_path):
   assert 'WARNING: LLFF mipnerf 3 views' in result.stderr
   written = {pathlib.Path(p).name for p in result.stdout.split()}
   assert written == {p.name for p in out.iterdir()} and {'llff.md', 'dtu.md', 'dtu_summary_object.csv'} <= written
+
+
+def test_summaries_show_the_papers_values_beside_the_runs(runs, tmp_path):
+  for i, scene in enumerate(['chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship']):
+    _write(runs, 'blender', scene, 8, 'nerf', _llff_values(i))
+  out = tmp_path / 'out'
+  assert tables.main([str(runs), '--out', str(out), '--allow-incomplete']) == 0
+  blender = _by(_read_csv(out / 'blender_summary.csv'), 'method')
+  assert float(blender['nerf (paper)']['8 views PSNR']) == 13.93
+  assert float(blender['nerf (paper)']['8 views LPIPS']) == 0.32
+  assert blender['nerf (paper)']['8 views Avg'] == ''              # Not in the paper's table: empty.
+  assert 'freenerf (paper)' not in blender                          # No FreeNeRF runs on Blender: no row.
+  llff = _by(_read_csv(out / 'llff_summary.csv'), 'method')
+  assert float(llff['mipnerf (paper)']['3 views PSNR']) == 16.11 and llff['mipnerf (paper)']['3 views SSIM'] == ''
+  dtu = _by(_read_csv(out / 'dtu_summary_object.csv'), 'method')
+  assert float(dtu['freenerf (paper)']['3 views PSNR']) == 19.92
