@@ -93,7 +93,7 @@ def validate(config: Config) -> None:
   _choice(model, 'pdf_padding', sampling.PDF_PADDINGS, 'MipNerfModel')
   _check_types(config)
   for name in ('max_steps', 'batch_size', 'render_chunk_size', 'checkpoint_every', 'checkpoint_keep',
-               'print_every'):
+               'print_every', 'render_path_frames'):
     if getattr(config, name) < 1:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected a positive integer')
   for name in ('n_input_views', 'freq_reg_end', 'occ_reg_range', 'occ_wb_range', 'lr_delay_steps'):
