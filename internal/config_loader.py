@@ -96,7 +96,8 @@ def validate(config: Config) -> None:
                'print_every', 'render_path_frames'):
     if getattr(config, name) < 1:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected a positive integer')
-  for name in ('n_input_views', 'freq_reg_end', 'occ_reg_range', 'occ_wb_range', 'lr_delay_steps'):
+  for name in ('n_input_views', 'freq_reg_end', 'occ_reg_range', 'occ_wb_range', 'lr_delay_steps',
+               'stuck_warning_steps'):
     if getattr(config, name) < 0:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected >= 0')
   if config.max_skipped_steps < 1:

@@ -20,6 +20,7 @@ from internal.evaluation import inference
 from internal.evaluation import metrics
 from internal.training import run_dir as run_dir_lib
 from internal.training import sharding
+from internal.training import stuck
 from internal.training import train_step as train_step_lib
 from internal.evaluation import vis
 from internal import progress
@@ -101,6 +102,7 @@ class Progress:
                          disable=not distributed.is_primary(), **progress.progress_kwargs())
     self.tic = time.time()
     self.skips = train_step_lib.SkipCounter(config.nonfinite_grad_policy, config.max_skipped_steps)
+    self.losses, self.warned_stuck = [], False  # (end step, mean loss) of every window, for stuck.is_stuck.
 
   def add(self, step: int, stats) -> None:
     """Records a step's stats; under policy 'raise' it waits for the step to check it (no overlap of steps)."""
@@ -129,9 +131,18 @@ class Progress:
     for k, v in means.items():
       self.writer.add_scalar(f'train/{k}', v, step)
     self.writer.add_scalar('train/skipped_steps', self.skips.total, step)
+    self._warn_if_stuck(step, means['loss'])
     self.bar.set_postfix(loss=f'{means["loss"]:.4f}', psnr=f'{means["psnr"]:.2f}',
                          rays_per_s=f'{means["rays_per_sec"]:.0f}', skipped=self.skips.total, refresh=False)
     self.window, self.tic = [], time.time()
+
+  def _warn_if_stuck(self, step: int, loss: float) -> None:
+    """Records the window's mean loss; says once (process 0) when training looks stuck (see stuck.is_stuck)."""
+    self.losses.append((step, loss))
+    if not self.warned_stuck and stuck.is_stuck(self.losses, self.config.stuck_warning_steps):
+      self.warned_stuck = True
+      if distributed.is_primary():
+        tqdm.tqdm.write(stuck.warning(self.config, self.losses))
 
   def close(self) -> None:
     """Closes the progress bar."""

@@ -26,7 +26,7 @@ NOT_FINGERPRINTED = (
     'expname', 'project', 'checkpoint_dir', 'overwrite', 'checkpoint_every', 'checkpoint_keep', 'print_every',
     'train_render_every', 'render_chunk_size', 'data_dir', 'dtu_mask_path', 'allow_missing_test_views',
     'render_factor', 'render_path_frames', 'eval_test_ids', 'eval_factor', 'lpips_weights_path',
-    'lpips_input_range', 'compute_lpips', 'max_skipped_steps', 'depth_reference_dir')
+    'lpips_input_range', 'compute_lpips', 'max_skipped_steps', 'depth_reference_dir', 'stuck_warning_steps')
 # flax bookkeeping fields of MLP and MipNerfModel, and precision (set from Config.precision, fingerprinted there).
 MODULE_NOT_FINGERPRINTED = ('parent', 'name', 'precision')
 # white_background is set from Config.white_background; the shared mlp is fingerprinted as MLP.*.
