@@ -4,6 +4,8 @@ A user error (a bad setting, a missing or malformed data file, a run directory t
 output that exists) prints `error: <message>` on stderr and exits with USAGE_ERROR_STATUS, the status argparse
 uses for bad flags. A run stopped for non-finite values (Config.max_skipped_steps consecutive skipped updates,
 or one under Config.nonfinite_grad_policy = 'raise') prints one line too and exits with NONFINITE_STATUS.
+Running out of accelerator memory is a user error too: its line names Config.batch_size (training, with XLA's
+estimate of the compiled step) or Config.render_chunk_size (rendering).
 Anything else is a bug and keeps its traceback (exit status 1). FREENERF_DEBUG=1 in the
 environment shows the traceback of user errors too.
 """
@@ -16,6 +18,7 @@ from internal import config_loader
 from internal import progress
 from internal.training import checkpoints
 from internal.training import distributed
+from internal.training import memory
 from internal.training import run_dir
 from internal.training import train_step
 
@@ -25,9 +28,10 @@ NONFINITE_STATUS = 3
 DEBUG_ENV = 'FREENERF_DEBUG'
 # ValueError covers Config validation, gin's unknown bindings and the loaders' DatasetError; FileNotFoundError
 # covers missing data and NoCheckpointError; FileExistsError is an evaluation or rendering that exists already;
-# PrimaryFailed is what the other processes of a several-process training say when process 0 met such an error.
+# PrimaryFailed is what the other processes of a several-process training say when process 0 met such an error;
+# OutOfMemoryError is XLA's RESOURCE_EXHAUSTED, named by the setting to lower.
 USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, run_dir.RunDirError,
-               checkpoints.NoCheckpointError, distributed.PrimaryFailed)
+               checkpoints.NoCheckpointError, distributed.PrimaryFailed, memory.OutOfMemoryError)
 
 
 def one_line(err: BaseException) -> str:

@@ -19,6 +19,7 @@ from internal.evaluation import evaluate
 from internal.evaluation import inference
 from internal.evaluation import metrics
 from internal.training import run_dir as run_dir_lib
+from internal.training import memory
 from internal.training import sharding
 from internal.training import stuck
 from internal.training import train_step as train_step_lib
@@ -217,27 +218,30 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
 def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: int):
   """Steps from state.step + 1 to last (or until a signal); saves every Config.checkpoint_every steps.
 
-  Returns (state, number of skipped updates). The stats are fetched and checked before every save.
+  Returns (state, number of skipped updates). The stats are fetched and checked before every save. Running out of
+  accelerator memory is an OutOfMemoryError naming Config.batch_size, with XLA's estimate of the step.
   """
   step_fn = train_step_lib.make_train_step(config, model)
   first = int(state.step) + 1
   progress = Progress(config, writer, first)
   test_set = None
+  needed = lambda: memory.compiled_bytes(step_fn, state, sharding.shard_batch(batcher(first), mesh), key)
   try:
-    for step in range(first, last + 1):
-      state, stats = step_fn(state, sharding.shard_batch(batcher(step), mesh), key)
-      progress.add(step, stats)
-      stopping = stop.stopping(step % config.print_every == 0 or step == last)
-      if step % config.print_every == 0 or step == last or stopping:
-        progress.flush(step)
-      if stopping:
-        break
-      if config.train_render_every > 0 and step % config.train_render_every == 0 and distributed.is_primary():
-        test_set = test_set if test_set is not None else datasets.load_dataset('test', config)
-        preview(config, model, state, step, test_set, writer)
-      if step % config.checkpoint_every == 0 and step < last:
-        progress.flush(step)
-        checkpoints.save(mngr, state)
+    with memory.naming_setting('in the training step', f'Config.batch_size = {config.batch_size}', needed):
+      for step in range(first, last + 1):
+        state, stats = step_fn(state, sharding.shard_batch(batcher(step), mesh), key)
+        progress.add(step, stats)
+        stopping = stop.stopping(step % config.print_every == 0 or step == last)
+        if step % config.print_every == 0 or step == last or stopping:
+          progress.flush(step)
+        if stopping:
+          break
+        if config.train_render_every > 0 and step % config.train_render_every == 0 and distributed.is_primary():
+          test_set = test_set if test_set is not None else datasets.load_dataset('test', config)
+          preview(config, model, state, step, test_set, writer)
+        if step % config.checkpoint_every == 0 and step < last:
+          progress.flush(step)
+          checkpoints.save(mngr, state)
   finally:
     progress.close()
   return state, progress.skips.total
