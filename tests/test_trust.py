@@ -1,22 +1,28 @@
 """Unhandled inputs and faults: each is a one-line user error naming the setting or file, or behaves correctly."""
 
 import errno
+import os
 import re
+import shutil
+import subprocess
 import pathlib
 import struct
 import zlib
 
+import gin
 import jax
 import numpy as np
 import pytest
 
 import eval as eval_script
+import render as render_script
 import train as train_script
 from internal import atomic
 from internal import cli
 from internal import rays as rays_lib
 from internal.datasets import image_io
 from internal.evaluation import inference
+from internal.training import checkpoints
 from internal.training import loop
 from internal.training import memory
 from internal.training import stuck
@@ -29,6 +35,7 @@ from test_checkpoints import DEMO, TINY, tiny_config
 def _cli(monkeypatch, capsys, main, *argv) -> tuple:
   """(exit status, stderr) of a script's main(argv) run as its command line runs it."""
   monkeypatch.delenv(cli.DEBUG_ENV, raising=False)
+  gin.clear_config()  # As in a new process.
   status = cli.run(lambda: main(['--gin_configs', DEMO, '--gin_bindings', *argv]))
   return status, capsys.readouterr().err
 
@@ -169,3 +176,76 @@ def test_rendering_out_of_memory_names_render_chunk_size(monkeypatch, capsys):
   monkeypatch.delenv(cli.DEBUG_ENV, raising=False)
   assert cli.run(lambda: inference.render_image(_out_of_memory, rays, 4)) == cli.USAGE_ERROR_STATUS
   _one_error_line(capsys.readouterr().err, 'out of accelerator memory rendering', 'Config.render_chunk_size = 4')
+
+
+def test_disk_full_errors_are_recognised_bare_and_as_orbax_wraps_them():
+  assert checkpoints.is_disk_full(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), 'x'))
+  assert checkpoints.is_disk_full(ValueError(
+      'RESOURCE_EXHAUSTED: Error writing "params.w/0" in OCDBT database at local file "/r/checkpoints/2.orbax-'
+      'checkpoint-tmp/": Failed to write 199981 bytes to file 5: No space left on device [os_error_code=\'28\']'))
+  assert not checkpoints.is_disk_full(OSError(errno.EACCES, os.strerror(errno.EACCES)))
+  assert not checkpoints.is_disk_full(ValueError('RESOURCE_EXHAUSTED: Out of memory'))
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+  """A 32 MiB tmpfs mounted at tmp_path/disk, unmounted afterwards; skips where mounting is not allowed."""
+  disk = tmp_path / 'disk'
+  disk.mkdir()
+  mount = subprocess.run(['mount', '-t', 'tmpfs', '-o', 'size=32m', 'tmpfs', str(disk)], capture_output=True,
+                         text=True, check=False)
+  if mount.returncode:
+    pytest.skip(f'cannot mount a small tmpfs here (needs root): {mount.stderr.strip()}')
+  yield disk
+  subprocess.run(['umount', str(disk)], check=True)
+
+
+def test_a_checkpoint_save_on_a_full_disk_keeps_the_previous_one_and_exits_4(small_disk, scene_dir, monkeypatch,
+                                                                              capsys):
+  bindings = (f"Config.checkpoint_dir = '{small_disk / 'run'}'", 'Config.max_steps = 6', 'Config.checkpoint_every = 3')
+  first = loop.train(tiny_config(scene_dir, small_disk / 'run', *bindings[1:]), stop_at_step=3)
+  kept = [np.asarray(x) for x in jax.tree.leaves(jax.device_get(first.state))]
+  step_dir = small_disk / 'run' / 'checkpoints' / '3'
+  checkpoint_bytes = sum(f.stat().st_size for f in step_dir.rglob('*') if f.is_file())
+  filler = small_disk / 'filler'
+  filler.write_bytes(b'\1' * (shutil.disk_usage(small_disk).free - checkpoint_bytes // 4))
+  status, errout = _cli(monkeypatch, capsys, train_script.main, *TINY, f"Config.data_dir = '{scene_dir}'", *bindings)
+  assert status == cli.DISK_FULL_STATUS == 4
+  _one_error_line(errout, 'no space left on the device while saving a checkpoint',
+                  'the newest intact checkpoint, step 3, is kept', 'run the same command again to resume')
+  filler.unlink()
+  assert checkpoints.latest_step(str(small_disk / 'run')) == 3
+  config = tiny_config(scene_dir, small_disk / 'run', *bindings[1:])
+  _, state = checkpoints.restore_model(config, str(small_disk / 'run'), random_rays(0, 8))
+  for a, b in zip(kept, jax.tree.leaves(jax.device_get(state))):
+    np.testing.assert_array_equal(a, b)
+
+
+def _recorded_run(run) -> None:
+  """A run directory holding the settings of tiny_config (what training records before its first step)."""
+  run_dir_lib.record_settings(run_dir_lib.prepare_run_dir(tiny_config('s', run)), tiny_config('s', run))
+
+
+@pytest.mark.parametrize('main', [eval_script.main, render_script.main])
+@pytest.mark.parametrize('binding, named', [
+    ('MLP.net_width = 48', 'MLP.net_width: 32 -> 48'),
+    ('MipNerfModel.num_samples = 8', 'MipNerfModel.num_samples: 16 -> 8'),
+    ('Config.factor = 2', 'Config.factor: 0 -> 2'),
+    ('Config.generated_size = (16, 20)', 'Config.generated_size: [32, 40] -> [16, 20]')])
+def test_eval_and_render_refuse_a_model_or_data_setting_other_than_the_runs(tmp_path, monkeypatch, capsys, main,
+                                                                            binding, named):
+  _recorded_run(tmp_path / 'run')
+  status, errout = _cli(monkeypatch, capsys, main, *TINY, "Config.data_dir = 's'",
+                        f"Config.checkpoint_dir = '{tmp_path / 'run'}'", binding)
+  assert status == cli.USAGE_ERROR_STATUS
+  _one_error_line(errout, 'was trained with different settings', named)
+
+
+@pytest.mark.parametrize('binding', [
+    'Config.render_chunk_size = 64', 'Config.eval_test_ids = [0, 2]', 'Config.compute_lpips = False',
+    "Config.lpips_weights_path = 'w.npz'", "Config.lpips_input_range = 'official'", "Config.depth_reference_dir = 'd'",
+    'Config.render_path_frames = 3', 'Config.render_factor = 2', 'Config.eval_factor = 2', 'Config.print_every = 7',
+    'Config.checkpoint_every = 9', 'Config.stuck_warning_steps = 0', "Config.data_dir = 'moved'"])
+def test_eval_and_render_settings_that_change_neither_model_nor_data_stay_free(tmp_path, binding):
+  _recorded_run(tmp_path / 'run')
+  assert run_dir_lib.check_run_dir(tiny_config('s', tmp_path / 'run', binding)) == str(tmp_path / 'run')

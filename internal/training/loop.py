@@ -205,13 +205,14 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
   primary = distributed.is_primary()
   writer = tensorboardX.SummaryWriter(os.path.join(run_dir, 'tensorboard')) if primary else NullWriter()
   last = min(config.max_steps, stop_at_step) if stop_at_step > 0 else config.max_steps
-  try:
-    with writer, stop_on_signals() as stop:
-      state, skipped = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last)
-    checkpoints.save(mngr, state)
-  finally:
-    mngr.wait_until_finished()
-    mngr.close()
+  with checkpoints.stop_when_disk_full(run_dir):
+    try:
+      with writer, stop_on_signals() as stop:
+        state, skipped = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last)
+      checkpoints.save(mngr, state)
+    finally:
+      mngr.wait_until_finished()
+      mngr.close()
   return TrainResult(model, state, run_dir, stop.signum, skipped)
 
 
