@@ -5,8 +5,8 @@ output that exists) prints `error: <message>` on stderr and exits with USAGE_ERR
 uses for bad flags. A run stopped for non-finite values (Config.max_skipped_steps consecutive skipped updates,
 or one under Config.nonfinite_grad_policy = 'raise') prints one line too and exits with NONFINITE_STATUS.
 A checkpoint save that finds the disk full (the earlier checkpoints stay intact) prints one line and exits with
-DISK_FULL_STATUS. Running out of accelerator memory is a user error too: its line names Config.batch_size (training, with XLA's
-estimate of the compiled step) or Config.render_chunk_size (rendering).
+DISK_FULL_STATUS. Running out of accelerator memory is a user error too: its line names Config.batch_size
+(training, with XLA's estimate of the compiled step) or Config.render_chunk_size (rendering).
 Anything else is a bug and keeps its traceback (exit status 1). FREENERF_DEBUG=1 in the
 environment shows the traceback of user errors too.
 """

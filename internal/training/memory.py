@@ -18,8 +18,8 @@ def is_out_of_memory(err: BaseException) -> bool:
 
 def compiled_bytes(jitted, *args):
   """Bytes XLA's memory analysis gives jitted(*args) compiled (arguments, outputs, temporaries), or None."""
-  abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), args)  # Donated arrays keep shapes.
   try:
+    abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), args)  # Donated arrays keep shapes.
     stats = jitted.lower(*abstract).compile().memory_analysis()
     return (stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes -
             stats.alias_size_in_bytes)
