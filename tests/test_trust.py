@@ -1,6 +1,7 @@
 """Unhandled inputs and faults: each is a one-line user error naming the setting or file, or behaves correctly."""
 
 import errno
+import logging
 import os
 import re
 import shutil
@@ -201,7 +202,7 @@ def small_disk(tmp_path):
 
 
 def test_a_checkpoint_save_on_a_full_disk_keeps_the_previous_one_and_exits_4(small_disk, scene_dir, monkeypatch,
-                                                                              capsys):
+                                                                              capsys, caplog):
   bindings = (f"Config.checkpoint_dir = '{small_disk / 'run'}'", 'Config.max_steps = 6', 'Config.checkpoint_every = 3')
   first = loop.train(tiny_config(scene_dir, small_disk / 'run', *bindings[1:]), stop_at_step=3)
   kept = [np.asarray(x) for x in jax.tree.leaves(jax.device_get(first.state))]
@@ -213,6 +214,7 @@ def test_a_checkpoint_save_on_a_full_disk_keeps_the_previous_one_and_exits_4(sma
   assert status == cli.DISK_FULL_STATUS == 4
   _one_error_line(errout, 'no space left on the device while saving a checkpoint',
                   'the newest intact checkpoint, step 3, is kept', 'run the same command again to resume')
+  assert not [r for r in caplog.records if r.name == 'absl' and r.levelno >= logging.ERROR]  # Orbax's tracebacks.
   filler.unlink()
   assert checkpoints.latest_step(str(small_disk / 'run')) == 3
   config = tiny_config(scene_dir, small_disk / 'run', *bindings[1:])
