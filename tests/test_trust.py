@@ -3,11 +3,11 @@
 import errno
 import logging
 import os
+import pathlib
 import re
 import shutil
-import subprocess
-import pathlib
 import struct
+import subprocess
 import zlib
 
 import gin
