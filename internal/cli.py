@@ -4,6 +4,9 @@ A user error (a bad setting, a missing or malformed data file, a run directory t
 output that exists) prints `error: <message>` on stderr and exits with USAGE_ERROR_STATUS, the status argparse
 uses for bad flags. A run stopped for non-finite values (Config.max_skipped_steps consecutive skipped updates,
 or one under Config.nonfinite_grad_policy = 'raise') prints one line too and exits with NONFINITE_STATUS.
+A checkpoint save that finds the disk full (the earlier checkpoints stay intact) prints one line and exits with
+DISK_FULL_STATUS. Running out of accelerator memory is a user error too: its line names Config.batch_size
+(training, with XLA's estimate of the compiled step) or Config.render_chunk_size (rendering).
 Anything else is a bug and keeps its traceback (exit status 1). FREENERF_DEBUG=1 in the
 environment shows the traceback of user errors too.
 """
@@ -16,18 +19,21 @@ from internal import config_loader
 from internal import progress
 from internal.training import checkpoints
 from internal.training import distributed
+from internal.training import memory
 from internal.training import run_dir
 from internal.training import train_step
 
 DEMO_CONFIG = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'configs', 'demo.gin')
 USAGE_ERROR_STATUS = 2
 NONFINITE_STATUS = 3
+DISK_FULL_STATUS = 4  # checkpoints.DiskFullError: free space and rerun the command to resume.
 DEBUG_ENV = 'FREENERF_DEBUG'
 # ValueError covers Config validation, gin's unknown bindings and the loaders' DatasetError; FileNotFoundError
 # covers missing data and NoCheckpointError; FileExistsError is an evaluation or rendering that exists already;
-# PrimaryFailed is what the other processes of a several-process training say when process 0 met such an error.
+# PrimaryFailed is what the other processes of a several-process training say when process 0 met such an error;
+# OutOfMemoryError is XLA's RESOURCE_EXHAUSTED, named by the setting to lower.
 USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, run_dir.RunDirError,
-               checkpoints.NoCheckpointError, distributed.PrimaryFailed)
+               checkpoints.NoCheckpointError, distributed.PrimaryFailed, memory.OutOfMemoryError)
 
 
 def one_line(err: BaseException) -> str:
@@ -35,16 +41,20 @@ def one_line(err: BaseException) -> str:
   return ' '.join(line.strip() for line in str(err).splitlines() if line.strip()) or type(err).__name__
 
 
+# Errors that stop a run for a reason of their own, with their exit status (a user error's is USAGE_ERROR_STATUS).
+OWN_STATUS = ((train_step.NonFiniteError, NONFINITE_STATUS), (checkpoints.DiskFullError, DISK_FULL_STATUS))
+
+
 def run(main) -> int:
-  """Calls main() -> exit status; a user error prints one line on stderr (status 2, or 3 for non-finite values)."""
+  """Calls main() -> exit status; a user error prints one line on stderr (status 2, or 3 / 4 of OWN_STATUS)."""
   progress.robust_streams()
   try:
     return main()
-  except (*USER_ERRORS, train_step.NonFiniteError) as err:
+  except (*USER_ERRORS, *(cls for cls, _ in OWN_STATUS)) as err:
     if os.environ.get(DEBUG_ENV, '') not in ('', '0'):
       raise
     print(f'error: {one_line(err)}', file=sys.stderr)
-    return NONFINITE_STATUS if isinstance(err, train_step.NonFiniteError) else USAGE_ERROR_STATUS
+    return next((status for cls, status in OWN_STATUS if isinstance(err, cls)), USAGE_ERROR_STATUS)
 
 
 MULTI_VALUE_FLAGS = ('--gin_configs', '--gin_bindings')

@@ -88,10 +88,11 @@ def validate(config: Config) -> None:
     base.check_choice(f'MipNerfModel.{name}', getattr(model, name), options, ValueError)
   _check_types(config)
   for name in ('max_steps', 'batch_size', 'render_chunk_size', 'checkpoint_every', 'checkpoint_keep',
-               'print_every'):
+               'print_every', 'render_path_frames'):
     if getattr(config, name) < 1:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected a positive integer')
-  for name in ('n_input_views', 'freq_reg_end', 'occ_reg_range', 'occ_wb_range', 'lr_delay_steps'):
+  for name in ('n_input_views', 'freq_reg_end', 'occ_reg_range', 'occ_wb_range', 'lr_delay_steps',
+               'stuck_warning_steps'):
     if getattr(config, name) < 0:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected >= 0')
   if config.max_skipped_steps < 1:

@@ -89,6 +89,11 @@ class Config:
   randomized: bool = True
   precision: str = 'float32'            # The MLP's numerics: one of precision.PRECISIONS.
 
+  # Training health.
+  # Warn once, naming Config.lr_init, when the training loss (window means of print_every steps) sets no new best,
+  # by a relative 1e-3, for this many steps within the first 4x as many steps of the run; 0 = never.
+  stuck_warning_steps: int = 500
+
   # FreeNeRF regularizers.
   # FreeNeRF's frequency regularization on/off (models/freq_schedule.py has all four switches).
   freq_reg: bool = False

@@ -223,8 +223,6 @@ def test_flags_repeat_and_take_several_values(tmp_path):
 # copy one project name ('dtu3_bkgd', 'llff3') into several files.
 NAMING = {'Config.expname', 'Config.project', 'Config.checkpoint_dir'}
 DIFFERENCES = {
-    # Our MLP draws per-sample noise by default; True restates the released single draw per batch.
-    '*': {'MLP.density_noise_shared'},
     # Released False; random-pose patches are only made for depth smoothness, which these configs leave off.
     'freenerf/': {'Config.load_random_rays'},
     'mipnerf/': {'Config.load_random_rays'},
@@ -257,7 +255,7 @@ def test_expanded_config_equals_the_released_file_but_for_documented_differences
   released, ours = _effective(_released(name)), _effective(ROOT / 'configs' / name)
   assert set(released) == set(ours)
   differing = {k for k in ours if ours[k] != released[k]}
-  documented = set().union(*[v for key, v in DIFFERENCES.items() if key == '*' or key in name])
+  documented = set().union(*[v for key, v in DIFFERENCES.items() if key in name])
   assert differing - NAMING == documented, {k: (released[k], ours[k]) for k in differing ^ documented}
 
 

@@ -32,7 +32,7 @@ def test_toy_llff_loads_and_falls_back_to_full_resolution(llff_root):
   os.rename(llff_root / 'toy' / 'images_8', llff_root / 'toy' / 'images')
   half = load_dataset('test', llff(llff_root, factor=2))   # No images_2/: images/ downsampled by 2.
   assert half.ids == [0, 8] and half.images.shape == (2, H // 2, W // 2, 3)
-  full = image_io.read_image(str(llff_root / 'toy' / 'images' / 'img08.png')).astype(np.float32) / 255.
+  full = image_io.read_image(str(llff_root / 'toy' / 'images' / 'img08.png'))
   np.testing.assert_allclose(half.images[1], full.reshape(3, 2, 4, 2, 3).mean((1, 3)), atol=1e-6)
   np.testing.assert_allclose(np.linalg.inv(half.pixtocams[0])[0, 0], 50. / 2., rtol=1e-6)
 

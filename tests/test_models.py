@@ -54,12 +54,12 @@ def _noise_shift(bindings):
   return raw(density(random.PRNGKey(3))) - raw(density(None))
 
 
-def test_density_noise_per_sample_by_default_and_shared_as_released():
-  per_sample = _noise_shift(['MLP.density_noise = 1.0'])
-  assert 0.6 < np.std(per_sample) < 1.4  # Independent N(0, 1) draws.
-  gin.clear_config()
-  shared = _noise_shift(['MLP.density_noise = 1.0', 'MLP.density_noise_shared = True'])
+def test_density_noise_shared_by_default_as_released_and_per_sample_on_request():
+  shared = _noise_shift(['MLP.density_noise = 1.0'])
   assert np.std(shared) < 1e-3 and abs(np.mean(shared)) > 1e-3  # One scalar for every sample.
+  gin.clear_config()
+  per_sample = _noise_shift(['MLP.density_noise = 1.0', 'MLP.density_noise_shared = False'])
+  assert 0.6 < np.std(per_sample) < 1.4  # Independent N(0, 1) draws.
 
 
 def test_no_mask_multiplication_in_graph_when_regularization_off():

@@ -27,8 +27,9 @@ def _stats(skipped=False):
 
 @pytest.mark.parametrize('policy', ['skip', 'raise'])
 def test_bar_advances_by_the_fetched_steps_at_each_flush(policy, monkeypatch):
-  monkeypatch.setattr(loop.cli, 'progress_kwargs', lambda: {'file': io.StringIO()})
-  config = types.SimpleNamespace(max_steps=10, nonfinite_grad_policy=policy, max_skipped_steps=5, batch_size=64)
+  monkeypatch.setattr(loop.progress, 'progress_kwargs', lambda: {'file': io.StringIO()})
+  config = types.SimpleNamespace(max_steps=10, nonfinite_grad_policy=policy, max_skipped_steps=5, batch_size=64,
+                                 stuck_warning_steps=0)
   writer = Writer()
   progress = loop.Progress(config, writer, first_step=3)  # Resumed after step 2.
   assert progress.bar.n == 2

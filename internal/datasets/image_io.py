@@ -8,12 +8,27 @@ from internal.datasets.base import DatasetError, check_choice, require_file
 DOWNSAMPLE_MODES = ('released', 'area')
 
 
+# Single-channel 16-bit PNGs (Pillow opens them as 'I;16*', older Pillow as 'I'): their values run to 65535, which
+# Image.convert would clip at 255 (an image trained saturated). 16-bit RGB(A) PNGs Pillow opens at 8 bits, by
+# their high byte, so they are read within 1/255 of their full-depth values.
+SIXTEEN_BIT_GREY_MODES = ('I;16', 'I;16B', 'I;16L', 'I')
+SIXTEEN_BIT_MAX = 65535.
+
+
+def _grey_to(grey: np.ndarray, mode: str) -> np.ndarray:
+  """Grey f32 [H,W] -> [H,W,C] of mode 'L' (C = 1), 'RGB' (3) or 'RGBA' (4, opaque)."""
+  channels = {'L': [grey], 'RGB': [grey] * 3, 'RGBA': [grey] * 3 + [np.ones_like(grey)]}[mode]
+  return np.stack(channels, axis=-1)
+
+
 def read_image(path: str, mode: str = 'RGB') -> np.ndarray:
-  """Reads an image file as uint8 [H,W,C] (C = 3 for 'RGB', 4 for 'RGBA'); clear error if unreadable."""
+  """An image file as f32 [H,W,C] in [0,1], scaled by its own depth (C: 1 'L', 3 'RGB', 4 'RGBA'); names it if bad."""
   require_file(path, 'image')
   try:
     with Image.open(path) as image:
-      return np.asarray(image.convert(mode))
+      if image.mode in SIXTEEN_BIT_GREY_MODES:
+        return _grey_to(np.asarray(image).astype(np.float32) / SIXTEEN_BIT_MAX, mode)
+      return np.asarray(image.convert(mode)).reshape(image.height, image.width, -1).astype(np.float32) / 255.
   except (OSError, SyntaxError, ValueError) as err:
     raise DatasetError(f'cannot read image {path!r} (expected a complete PNG/JPEG file): {err}') from err
 
@@ -75,17 +90,17 @@ def downsample(img: np.ndarray, factor: int, mode: str) -> np.ndarray:
 
 def load_rgb(path: str, factor: int, mode: str) -> np.ndarray:
   """Reads an RGB image as f32 [H//f,W//f,3] in [0,1], downsampled right after decoding."""
-  return downsample(read_image(path, 'RGB').astype(np.float32) / 255., factor, mode)
+  return downsample(read_image(path, 'RGB'), factor, mode)
 
 
 def load_rgba(path: str, factor: int, mode: str) -> np.ndarray:
   """Reads an image as f32 RGBA [H//f,W//f,4] in [0,1] (opaque alpha when the file has none)."""
-  return downsample(read_image(path, 'RGBA').astype(np.float32) / 255., factor, mode)
+  return downsample(read_image(path, 'RGBA'), factor, mode)
 
 
 def load_binary_mask(path: str, factor: int, mode: str) -> np.ndarray:
   """Released mask rule: RGB/255 == 1 per channel -> f32 {0,1} [H,W,3], then downsampled (3-channel float)."""
-  return downsample((read_image(path, 'RGB') == 255).astype(np.float32), factor, mode)
+  return downsample((read_image(path, 'RGB') == 1.).astype(np.float32), factor, mode)
 
 
 def load_stack(paths, load_fn) -> np.ndarray:

@@ -340,6 +340,6 @@ def load_ground_truth(scene_dir: str, rig: str, split: str, ids, factor: int, mo
   for stem in stems:
     path = base.require_file(os.path.join(scene_dir, 'depth', stem + '.npy'), 'generated scene depth')
     depths.append(image_io.downsample(np.load(path)[..., None], factor, mode)[..., 0])
-    masks.append(image_io.downsample(image_io.read_image(os.path.join(scene_dir, 'mask', stem + '.png'), 'L')
-                                     [..., None] / 255., factor, mode)[..., 0])
+    masks.append(image_io.downsample(image_io.read_image(os.path.join(scene_dir, 'mask', stem + '.png'), 'L'),
+                                     factor, mode)[..., 0])
   return np.stack(depths), np.stack(masks)

@@ -56,7 +56,7 @@ class MLP(nn.Module):
   density_activation: Callable[..., Any] = nn.softplus
   density_bias: float = -1.
   density_noise: float = 0.
-  density_noise_shared: bool = False  # True reproduces the released single draw per batch.
+  density_noise_shared: bool = True  # One draw per batch, as released; False draws one per sample.
   rgb_activation: Callable[..., Any] = nn.sigmoid
   rgb_padding: float = 0.001
   use_viewdirs: bool = True

@@ -5,7 +5,10 @@ in one line and the newest intact checkpoint is used instead; training moves the
 checkpoints/damaged_<step>_<time> (kept for the user, ignored by orbax) so that later saves are not confused by it.
 """
 
+import contextlib
+import errno
 import json
+import logging
 import os
 import sys
 import time
@@ -29,6 +32,53 @@ class NoCheckpointError(FileNotFoundError):
 
 class NoIntactCheckpointError(NoCheckpointError):
   """Every checkpoint of a run directory is damaged."""
+
+
+class DiskFullError(RuntimeError):
+  """A checkpoint save failed for lack of disk space; the checkpoints saved before it are intact."""
+
+
+def _says_disk_full(text: str) -> bool:
+  """True when an error message says a write found no space left (orbax and tensorstore wrap ENOSPC in text)."""
+  return os.strerror(errno.ENOSPC) in text or f"os_error_code='{errno.ENOSPC}'" in text
+
+
+def is_disk_full(err: BaseException) -> bool:
+  """True for an error of a write that found no space left: OSError ENOSPC, or orbax's wrapping of it (a ValueError
+  'RESOURCE_EXHAUSTED: ... No space left on device [os_error_code='28']')."""
+  return (isinstance(err, OSError) and err.errno == errno.ENOSPC) or _says_disk_full(str(err))
+
+
+def _drops_disk_full_records(record: logging.LogRecord) -> bool:
+  """A logging filter: False for orbax's records of a write that found the disk full (DiskFullError says it)."""
+  err = record.exc_info[1] if record.exc_info else None
+  return not (_says_disk_full(record.getMessage()) or (err is not None and is_disk_full(err)))
+
+
+@contextlib.contextmanager
+def stop_when_disk_full(run_dir: str):
+  """Turns a checkpoint save that ran out of disk space in the block into DiskFullError naming the intact step.
+
+  Orbax writes each step into a temporary folder and renames it when complete, so a failed save leaves the
+  checkpoints before it as they were (the temporary folder is removed when training next starts). Its save
+  threads log every failed write with a traceback (absl logger); those records are dropped for the one line.
+  """
+  absl_logger = logging.getLogger('absl')
+  absl_logger.addFilter(_drops_disk_full_records)
+  try:
+    yield
+  except Exception as err:  # pylint: disable=broad-except  (orbax re-raises the writer's error as it was)
+    if not is_disk_full(err):
+      raise
+    folder = os.path.join(run_dir, CHECKPOINT_SUBDIR)
+    try:
+      kept = f'the newest intact checkpoint, step {latest_step(run_dir)}, is kept'
+    except NoCheckpointError:
+      kept = 'no earlier checkpoint exists'
+    raise DiskFullError(f'no space left on the device while saving a checkpoint in {folder!r}; {kept}. Free disk '
+                        'space (or lower Config.checkpoint_keep) and run the same command again to resume') from err
+  finally:
+    absl_logger.removeFilter(_drops_disk_full_records)
 
 
 def manager(run_dir: str, keep: int) -> ocp.CheckpointManager:

@@ -20,7 +20,9 @@ from internal.evaluation import inference
 from internal.evaluation import learning_curve
 from internal.evaluation import metrics
 from internal.training import run_dir as run_dir_lib
+from internal.training import memory
 from internal.training import sharding
+from internal.training import stuck
 from internal.training import train_step as train_step_lib
 from internal.evaluation import vis
 from internal import progress
@@ -102,6 +104,7 @@ class Progress:
                          disable=not distributed.is_primary(), **progress.progress_kwargs())
     self.tic = time.time()
     self.skips = train_step_lib.SkipCounter(config.nonfinite_grad_policy, config.max_skipped_steps)
+    self.losses, self.warned_stuck = [], False  # (end step, mean loss) of every window, for stuck.is_stuck.
 
   def add(self, step: int, stats) -> None:
     """Records a step's stats; under policy 'raise' it waits for the step to check it (no overlap of steps)."""
@@ -130,9 +133,18 @@ class Progress:
     for k, v in means.items():
       self.writer.add_scalar(f'train/{k}', v, step)
     self.writer.add_scalar('train/skipped_steps', self.skips.total, step)
+    self._warn_if_stuck(step, means['loss'])
     self.bar.set_postfix(loss=f'{means["loss"]:.4f}', psnr=f'{means["psnr"]:.2f}',
                          rays_per_s=f'{means["rays_per_sec"]:.0f}', skipped=self.skips.total, refresh=False)
     self.window, self.tic = [], time.time()
+
+  def _warn_if_stuck(self, step: int, loss: float) -> None:
+    """Records the window's mean loss; says once (process 0) when training looks stuck (see stuck.is_stuck)."""
+    self.losses.append((step, loss))
+    if not self.warned_stuck and stuck.is_stuck(self.losses, self.config.stuck_warning_steps):
+      self.warned_stuck = True
+      if distributed.is_primary():
+        tqdm.tqdm.write(stuck.warning(self.config, self.losses))
 
   def close(self) -> None:
     """Closes the progress bar."""
@@ -196,13 +208,14 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
   curve = learning_curve.Recorder(config, model, curve_views, run_dir, writer, int(state.step)) if (
       curve_views is not None and primary) else None
   last = min(config.max_steps, stop_at_step) if stop_at_step > 0 else config.max_steps
-  try:
-    with writer, stop_on_signals() as stop:
-      state, skipped = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last, curve)
-    checkpoints.save(mngr, state)
-  finally:
-    mngr.wait_until_finished()
-    mngr.close()
+  with checkpoints.stop_when_disk_full(run_dir):
+    try:
+      with writer, stop_on_signals() as stop:
+        state, skipped = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last, curve)
+      checkpoints.save(mngr, state)
+    finally:
+      mngr.wait_until_finished()
+      mngr.close()
   return TrainResult(model, state, run_dir, stop.signum, skipped)
 
 
@@ -211,29 +224,32 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
 
   curve: the learning_curve.Recorder of process 0 when Config.curve_every > 0, else None.
 
-  Returns (state, number of skipped updates). The stats are fetched and checked before every save.
+  Returns (state, number of skipped updates). The stats are fetched and checked before every save. Running out of
+  accelerator memory is an OutOfMemoryError naming Config.batch_size, with XLA's estimate of the step.
   """
   step_fn = train_step_lib.make_train_step(config, model)
   first = int(state.step) + 1
   progress = Progress(config, writer, first)
   test_set = None
+  needed = lambda: memory.compiled_bytes(step_fn, state, sharding.shard_batch(batcher(first), mesh), key)
   try:
-    for step in range(first, last + 1):
-      state, stats = step_fn(state, sharding.shard_batch(batcher(step), mesh), key)
-      progress.add(step, stats)
-      stopping = stop.stopping(step % config.print_every == 0 or step == last)
-      if step % config.print_every == 0 or step == last or stopping:
-        progress.flush(step)
-      if stopping:
-        break
-      if config.train_render_every > 0 and step % config.train_render_every == 0 and distributed.is_primary():
-        test_set = test_set if test_set is not None else datasets.load_dataset('test', config)
-        preview(config, model, state, step, test_set, writer)
-      if curve is not None and curve.due(step):
-        curve.record(step, state.params)
-      if step % config.checkpoint_every == 0 and step < last:
-        progress.flush(step)
-        checkpoints.save(mngr, state)
+    with memory.naming_setting('in the training step', f'Config.batch_size = {config.batch_size}', needed):
+      for step in range(first, last + 1):
+        state, stats = step_fn(state, sharding.shard_batch(batcher(step), mesh), key)
+        progress.add(step, stats)
+        stopping = stop.stopping(step % config.print_every == 0 or step == last)
+        if step % config.print_every == 0 or step == last or stopping:
+          progress.flush(step)
+        if stopping:
+          break
+        if config.train_render_every > 0 and step % config.train_render_every == 0 and distributed.is_primary():
+          test_set = test_set if test_set is not None else datasets.load_dataset('test', config)
+          preview(config, model, state, step, test_set, writer)
+        if curve is not None and curve.due(step):
+          curve.record(step, state.params)
+        if step % config.checkpoint_every == 0 and step < last:
+          progress.flush(step)
+          checkpoints.save(mngr, state)
   finally:
     progress.close()
   return state, progress.skips.total

@@ -27,7 +27,7 @@ NOT_FINGERPRINTED = (
     'train_render_every', 'render_chunk_size', 'data_dir', 'dtu_mask_path', 'allow_missing_test_views',
     'render_factor', 'render_path_frames', 'eval_test_ids', 'eval_factor', 'lpips_weights_path',
     'lpips_input_range', 'compute_lpips', 'max_skipped_steps', 'depth_reference_dir', 'curve_every',
-    'curve_test_ids', 'curve_factor')
+    'curve_test_ids', 'curve_factor', 'stuck_warning_steps')
 # flax bookkeeping fields of the model and its MLP, and precision (set from Config.precision, fingerprinted there).
 MODULE_NOT_FINGERPRINTED = ('parent', 'name', 'precision')
 # white_background is set from Config.white_background; the MLPs a model holds are fingerprinted as <MLP class>.*.
@@ -192,20 +192,38 @@ def _acquire(path: str, holder: dict) -> None:
   raise RunDirError(f'could not take the training lock {path!r}; another process is taking it at the same time')
 
 
+def _require_not_file(run_dir: str) -> None:
+  """RunDirError naming Config.checkpoint_dir when it is an existing file, not a directory."""
+  if os.path.exists(run_dir) and not os.path.isdir(run_dir):
+    raise RunDirError(f'Config.checkpoint_dir {run_dir!r} is an existing file; expected a directory (a new one is '
+                      'created, an existing run directory is resumed)')
+
+
+def _unwritable(run_dir: str, err: OSError) -> RunDirError:
+  """The one-line error of a run directory that cannot be created or written (read-only, under a file, ...)."""
+  where = f' ({err.filename!r})' if err.filename else ''
+  return RunDirError(f'Config.checkpoint_dir {run_dir!r} cannot be written: {err.strerror or err}{where}; expected '
+                     'a writable directory (or a new one in a writable folder)')
+
+
 @contextlib.contextmanager
 def open_run(config):
   """prepare_run_dir under an exclusive lock file (<run>/train.lock) held until the block ends; yields run_dir.
 
   A second training of the same directory gets a RunDirError naming the holder; the lock of a killed process
-  (pid gone on this host) is taken over.
+  (pid gone on this host) is taken over. A file, or a directory that cannot be written, is a RunDirError too.
   """
   run_dir = config.checkpoint_dir
+  _require_not_file(run_dir)
   if read_fingerprint(run_dir) is None and _foreign_entries(run_dir):
     prepare_run_dir(config)  # Raises: never put a lock into a foreign folder.
-  os.makedirs(run_dir, exist_ok=True)
   path = os.path.join(run_dir, LOCK_FILE)
   holder = {'pid': os.getpid(), 'host': socket.gethostname(), 'started': time.strftime('%Y-%m-%d %H:%M:%S %z')}
-  _acquire(path, holder)
+  try:
+    os.makedirs(run_dir, exist_ok=True)
+    _acquire(path, holder)
+  except OSError as err:
+    raise _unwritable(run_dir, err) from err
   try:
     yield prepare_run_dir(config)
   finally:
@@ -216,6 +234,7 @@ def open_run(config):
 def check_run_dir(config) -> str:
   """Config.checkpoint_dir for eval/render: it must hold a run trained with the same settings."""
   run_dir = config.checkpoint_dir
+  _require_not_file(run_dir)
   stored = read_fingerprint(run_dir)
   if stored is None:
     raise RunDirError(f'Config.checkpoint_dir {run_dir!r} holds no run ({FINGERPRINT_FILE} is missing); '

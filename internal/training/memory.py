@@ -1,0 +1,46 @@
+"""Running out of accelerator memory as a one-line user error naming the setting that sizes the work."""
+
+import contextlib
+
+import jax
+
+MIB, GIB = 2.**20, 2.**30
+
+
+class OutOfMemoryError(RuntimeError):
+  """XLA could not allocate what a compiled training step or rendering needs (RESOURCE_EXHAUSTED)."""
+
+
+def is_out_of_memory(err: BaseException) -> bool:
+  """True for the error jax raises when XLA cannot allocate device memory (JaxRuntimeError RESOURCE_EXHAUSTED)."""
+  return isinstance(err, jax.errors.JaxRuntimeError) and 'RESOURCE_EXHAUSTED' in str(err)
+
+
+def compiled_bytes(jitted, *args):
+  """Bytes XLA's memory analysis gives jitted(*args) compiled (arguments, outputs, temporaries), or None."""
+  try:
+    abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), args)  # Donated arrays keep shapes.
+    stats = jitted.lower(*abstract).compile().memory_analysis()
+    return (stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes -
+            stats.alias_size_in_bytes)
+  except Exception:  # pylint: disable=broad-except  (the estimate only adds to the message; none is fine)
+    return None
+
+
+def size_text(num_bytes: int) -> str:
+  """'1.23 GiB' from 1 GiB on, else '12.3 MiB'."""
+  return f'{num_bytes / GIB:.2f} GiB' if num_bytes >= GIB else f'{num_bytes / MIB:.1f} MiB'
+
+
+@contextlib.contextmanager
+def naming_setting(what: str, setting: str, needed_bytes=lambda: None):
+  """Turns an out-of-memory error in the block into OutOfMemoryError: what ran out, XLA's estimate, what to lower."""
+  try:
+    yield
+  except jax.errors.JaxRuntimeError as err:
+    if not is_out_of_memory(err):
+      raise
+    needed = needed_bytes()
+    estimate = f'; XLA estimates {size_text(needed)} for it compiled' if needed else ''
+    reason = str(err).strip().splitlines()[0].rstrip('.')
+    raise OutOfMemoryError(f'out of accelerator memory {what} ({reason}{estimate}); lower {setting}') from err

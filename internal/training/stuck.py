@@ -1,0 +1,30 @@
+"""Stuck training: a loss that sets no new best for a while early in a run (e.g. a learning rate so large that the
+network died and renders one colour), which would otherwise train to the end without a word."""
+
+import math
+
+RELATIVE_IMPROVEMENT = 1e-3  # A window improves on the best loss when it is lower by more than this fraction.
+EARLY_FACTOR = 4  # Only the first EARLY_FACTOR * patience steps are watched: later plateaus are normal.
+
+
+def is_stuck(windows, patience: int) -> bool:
+  """Windows [(end step, mean loss), ...] in step order -> True when none improved on the best for patience steps.
+
+  The best is the lowest loss so far (non-finite means never improve); patience 0 turns the check off, and a last
+  window past step EARLY_FACTOR * patience is no longer early, so never stuck.
+  """
+  if patience <= 0 or not windows or windows[-1][0] > EARLY_FACTOR * patience:
+    return False
+  best, best_step = math.inf, windows[0][0]
+  for step, loss in windows:
+    if math.isfinite(loss) and loss < best * (1. - RELATIVE_IMPROVEMENT):
+      best, best_step = loss, step
+  return windows[-1][0] - best_step >= patience
+
+
+def warning(config, windows) -> str:
+  """The one-line warning about a stuck run whose window losses are windows, naming Config.lr_init."""
+  best = min((loss for _, loss in windows if math.isfinite(loss)), default=math.nan)
+  return (f'warning: the training loss set no new best for {config.stuck_warning_steps} steps (best {best:.4g}, '
+          f'now {windows[-1][1]:.4g} at step {windows[-1][0]}): the network may be dead or diverging; check '
+          f'Config.lr_init = {config.lr_init:g} (Config.stuck_warning_steps = 0 silences this)')
