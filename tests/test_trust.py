@@ -104,12 +104,24 @@ def test_a_16_bit_grey_png_reads_at_its_full_depth(tmp_path):
   np.testing.assert_array_equal(rgba[..., 3], 1.)
 
 
-def test_a_16_bit_rgba_png_reads_within_8_bits_of_its_values(tmp_path):
+def test_a_16_bit_rgba_png_reads_at_its_full_depth(tmp_path):
   rgba = np.random.default_rng(1).integers(0, 65536, (6, 8, 4)).astype(np.uint16)
   _write_png16(tmp_path / 'rgba.png', rgba)
-  read = image_io.load_rgba(str(tmp_path / 'rgba.png'), 1, 'released')
-  np.testing.assert_allclose(read, rgba / 65535., atol=1 / 255 + 1e-6)
+  read = image_io.read_image(str(tmp_path / 'rgba.png'), 'RGBA')
+  np.testing.assert_allclose(read, rgba / 65535., atol=1e-7)  # Within float32 rounding, not 1/255.
   assert read.dtype == np.float32 and read.max() <= 1.
+  np.testing.assert_allclose(image_io.read_image(str(tmp_path / 'rgba.png'), 'RGB'), rgba[..., :3] / 65535.,
+                             atol=1e-7)
+  luma = image_io.read_image(str(tmp_path / 'rgba.png'), 'L')[..., 0]
+  np.testing.assert_allclose(luma, rgba[..., :3] @ [0.299, 0.587, 0.114] / 65535., atol=1e-6)
+
+
+def test_a_truncated_16_bit_png_is_named(tmp_path):
+  _write_png16(tmp_path / 'rgba.png', np.zeros((6, 8, 4), np.uint16))
+  data = (tmp_path / 'rgba.png').read_bytes()
+  (tmp_path / 'rgba.png').write_bytes(data[:60])
+  with pytest.raises(image_io.DatasetError, match="cannot read image .*rgba.png"):
+    image_io.read_image(str(tmp_path / 'rgba.png'))
 
 
 def test_stuck_detector_on_flat_falling_and_late_losses():

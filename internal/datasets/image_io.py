@@ -2,34 +2,51 @@
 
 import numpy as np
 from PIL import Image
+import png  # pypng: decodes 16-bit PNGs at their full depth, which Pillow reads at 8 bits for RGB(A).
 
 from internal.datasets.base import DatasetError, check_choice, require_file
 
 DOWNSAMPLE_MODES = ('released', 'area')
 
 
-# Single-channel 16-bit PNGs (Pillow opens them as 'I;16*', older Pillow as 'I'): their values run to 65535, which
-# Image.convert would clip at 255 (an image trained saturated). 16-bit RGB(A) PNGs Pillow opens at 8 bits, by
-# their high byte, so they are read within 1/255 of their full-depth values.
-SIXTEEN_BIT_GREY_MODES = ('I;16', 'I;16B', 'I;16L', 'I')
-SIXTEEN_BIT_MAX = 65535.
+# 16-bit PNGs: Image.convert would clip a grey one at 255 (an image trained saturated) and Pillow opens RGB(A)
+# ones at 8 bits, so they are decoded with pypng and scaled by their own maximum, 65535.
+PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
+LUMA = np.array([0.299, 0.587, 0.114], np.float32)  # Pillow's RGB -> L weights.
 
 
-def _grey_to(grey: np.ndarray, mode: str) -> np.ndarray:
-  """Grey f32 [H,W] -> [H,W,C] of mode 'L' (C = 1), 'RGB' (3) or 'RGBA' (4, opaque)."""
-  channels = {'L': [grey], 'RGB': [grey] * 3, 'RGBA': [grey] * 3 + [np.ones_like(grey)]}[mode]
-  return np.stack(channels, axis=-1)
+def _png_bit_depth(path: str) -> int:
+  """The bit depth of a PNG file from its IHDR chunk; 8 for other files."""
+  with open(path, 'rb') as f:
+    head = f.read(25)
+  return head[24] if head[:8] == PNG_SIGNATURE and len(head) == 25 else 8
+
+
+def _to_mode(pixels: np.ndarray, mode: str) -> np.ndarray:
+  """f32 [H,W,C] grey (C 1-2) or colour (C 3-4, alpha last) -> [H,W,C'] of mode 'L', 'RGB' or 'RGBA'."""
+  colour = pixels[..., :3] if pixels.shape[-1] >= 3 else np.repeat(pixels[..., :1], 3, -1)
+  alpha = pixels[..., -1:] if pixels.shape[-1] in (2, 4) else np.ones_like(pixels[..., :1])
+  if mode == 'L':
+    return (colour @ LUMA)[..., None] if pixels.shape[-1] >= 3 else pixels[..., :1]
+  return colour if mode == 'RGB' else np.concatenate([colour, alpha], -1)
+
+
+def _read_png16(path: str, mode: str) -> np.ndarray:
+  """A 16-bit PNG as f32 [H,W,C] of mode, values / 65535."""
+  width, height, rows, info = png.Reader(filename=path).asDirect()
+  pixels = np.vstack([np.asarray(row, np.float32) for row in rows]) / (2.**info['bitdepth'] - 1.)
+  return _to_mode(pixels.reshape(height, width, info['planes']), mode)
 
 
 def read_image(path: str, mode: str = 'RGB') -> np.ndarray:
   """An image file as f32 [H,W,C] in [0,1], scaled by its own depth (C: 1 'L', 3 'RGB', 4 'RGBA'); names it if bad."""
   require_file(path, 'image')
   try:
+    if _png_bit_depth(path) == 16:
+      return _read_png16(path, mode)
     with Image.open(path) as image:
-      if image.mode in SIXTEEN_BIT_GREY_MODES:
-        return _grey_to(np.asarray(image).astype(np.float32) / SIXTEEN_BIT_MAX, mode)
       return np.asarray(image.convert(mode)).reshape(image.height, image.width, -1).astype(np.float32) / 255.
-  except (OSError, SyntaxError, ValueError) as err:
+  except (OSError, SyntaxError, ValueError, png.Error) as err:
     raise DatasetError(f'cannot read image {path!r} (expected a complete PNG/JPEG file): {err}') from err
 
 
