@@ -8,6 +8,7 @@ from conftest import SHARED_DATA
 from internal import config_loader
 from internal.evaluation import evaluate
 from internal.models import mip_nerf
+from internal.models import nerf
 from internal.training import loop
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -47,3 +48,15 @@ def test_mini_config_trains_and_evaluates_on_the_shared_scene(tmp_path, dataset,
   assert int(loop.train(config).state.step) == 3
   record = evaluate.evaluate(config)
   assert record['step'] == 3 and len(record['per_image']) == 1 and record['means']['psnr'] > 0.
+
+
+@pytest.mark.parametrize('method', ['nerf', 'freenerf'])
+def test_mini_blender_config_is_the_paper_config_at_the_cpu_scale(method):
+  paper = os.path.join(REPO, 'configs', method, f'blender8_{method}.gin')
+  config = config_loader.load_config([paper, os.path.join(REPO, 'configs', 'mini', 'blender.gin')])
+  mlp, model = nerf.NerfMLP(), nerf.NerfModel()
+  assert config.model == 'nerf' and config.n_input_views == 8 and config.factor == 8
+  assert (mlp.net_depth, mlp.net_width, model.num_coarse_samples, model.num_fine_samples) == (4, 64, 32, 32)
+  assert config.lr_final == pytest.approx(5e-4 * 0.1**(config.max_steps / 500_000), rel=1e-6)  # 0.1^(t/500k).
+  assert config.precrop_steps == round(500 * config.max_steps / 50_000)                         # 1% of the steps.
+  assert config.freq_reg == (method == 'freenerf')
