@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 from tensorboardX.proto import event_pb2
 
-from internal.training import checkpoints
 from internal import datasets
+from internal.evaluation import learning_curve
+from internal.training import checkpoints
 from internal.training import distributed
 from internal.training import loop
 from conftest import JAX_CACHE
@@ -89,15 +90,15 @@ def _state(scene_dir, run):
 
 @pytest.fixture(scope='module')
 def one_process(tmp_path_factory, scene_dir):
-  """(final TrainState, losses) of the run trained by this process alone (it also writes the scene)."""
+  """(final TrainState, losses, learning-curve rows) of the run trained by this process alone (it writes the scene)."""
   run = tmp_path_factory.mktemp('one') / 'run'
   state = loop.train(tiny_config(scene_dir, run, *BINDINGS)).state
-  return jax.device_get(state), _losses(run)
+  return jax.device_get(state), _losses(run), learning_curve.read_rows(learning_curve.csv_path(run))
 
 
 def _assert_close(state, losses, reference, first_logged: int = 1) -> None:
   """Parameters, optimizer state and the losses of steps first_logged.. equal the reference's within TOLERANCE."""
-  ref_state, ref_losses = reference
+  ref_state, ref_losses, _ = reference
   assert int(state.step) == int(ref_state.step) == STEPS
   diff = max(float(np.max(np.abs(a - b))) for a, b in zip(_leaves(state), _leaves(ref_state)))
   assert diff < TOLERANCE, diff
@@ -110,8 +111,11 @@ def test_two_processes_train_like_one(tmp_path, scene_dir, one_process):
   run = tmp_path / 'two'
   _finish(_launch(scene_dir, run))
   _assert_close(_state(scene_dir, run), _losses(run), one_process)
-  assert sorted(os.listdir(run)) == ['checkpoints', 'config.gin', 'config.json', 'tensorboard']
+  assert sorted(os.listdir(run)) == ['checkpoints', 'config.gin', 'config.json', learning_curve.CSV_FILE, 'tensorboard']
   assert len(glob.glob(str(run / 'tensorboard' / 'events.*'))) == 1  # Written by process 0 only.
+  curve, ref_curve = learning_curve.read_rows(learning_curve.csv_path(run)), one_process[2]
+  assert [r['step'] for r in curve] == [r['step'] for r in ref_curve] == [STEPS]  # The demo's curve: last step only.
+  assert abs(curve[0]['psnr'] - ref_curve[0]['psnr']) < 1e-3
 
 
 def test_two_processes_killed_after_a_checkpoint_resume_like_one(tmp_path, scene_dir, one_process):
