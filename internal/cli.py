@@ -23,7 +23,10 @@ from internal.training import memory
 from internal.training import run_dir
 from internal.training import train_step
 
-DEMO_CONFIG = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'configs', 'demo.gin')
+CONFIG_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'configs')
+DEMO_CONFIG = os.path.join(CONFIG_DIR, 'demo.gin')
+# The demo's FreeNeRF: the small CPU model (demo.gin) on its few-view scene (demo_forward3.gin).
+DEMO_CONFIGS = [DEMO_CONFIG, os.path.join(CONFIG_DIR, 'demo_forward3.gin')]
 USAGE_ERROR_STATUS = 2
 NONFINITE_STATUS = 3
 DISK_FULL_STATUS = 4  # checkpoints.DiskFullError: free space and rerun the command to resume.
@@ -88,5 +91,5 @@ def flag_parser(description: str) -> argparse.ArgumentParser:
 
 
 def config_from_flags(args: argparse.Namespace):
-  """The validated Config of parsed flags; configs/demo.gin when no --gin_configs was given."""
-  return config_loader.load_config(args.gin_configs or [DEMO_CONFIG], args.gin_bindings)
+  """The validated Config of parsed flags; the demo's FreeNeRF configs when no --gin_configs was given."""
+  return config_loader.load_config(args.gin_configs or DEMO_CONFIGS, args.gin_bindings)

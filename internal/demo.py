@@ -1,7 +1,8 @@
 """The demo: FreeNeRF and its mip-NeRF baseline, trained alike on a few views of the generated scene, side by side.
 
-Each method is one run directory; the baseline is configs/demo.gin followed by configs/demo_mipnerf.gin, which
-only names its run and switches the regularizers off. After both are trained, evaluated and rendered, `finish`
+Each method is one run directory; FreeNeRF is configs/demo.gin (the small model) then configs/demo_forward3.gin
+(the scene and its 3 views), the baseline adds configs/demo_mipnerf.gin, which only names its run and switches
+the regularizers off. After both are trained, evaluated and rendered, `finish`
 writes to the runs' parent folder demo.png (per shown test view a colour and a depth row: ground truth | mip-NeRF
 | FreeNeRF), demo_curves.png (both runs' learning curves: test PSNR against the step) and demo_orbit.mp4 (both
 orbits side by side, when imageio-ffmpeg is installed).
@@ -17,6 +18,7 @@ from PIL import Image, ImageDraw, ImageFont
 from internal.training import checkpoints
 from internal import config_loader
 from internal import datasets
+from internal.evaluation import depth_metrics
 from internal.evaluation import evaluate
 from internal.evaluation import inference
 from internal.evaluation import learning_curve
@@ -24,10 +26,9 @@ from internal.evaluation import render_path
 from internal.evaluation import vis
 from internal import cli
 
-CONFIG_DIR = os.path.dirname(cli.DEMO_CONFIG)
-METHODS = {'mip-NeRF': [cli.DEMO_CONFIG, os.path.join(CONFIG_DIR, 'demo_mipnerf.gin')],
-           'FreeNeRF': [cli.DEMO_CONFIG]}
-SHOWN_VIEWS = (0, 2, 4, 6)     # Positions in the test split: every 90 degrees of the test orbit.
+METHODS = {'mip-NeRF': cli.DEMO_CONFIGS + [os.path.join(cli.CONFIG_DIR, 'demo_mipnerf.gin')],
+           'FreeNeRF': cli.DEMO_CONFIGS}
+MAX_SHOWN_VIEWS = 4            # Test views in the picture, evenly spread over the test split.
 BLOCKS_PER_ROW = 2             # Test views side by side in the picture.
 SCALE = 2                      # Nearest-neighbour upscaling of the small renders.
 GAP, HEADER, LABEL_WIDTH, LINE = 4, 22, 56, 16
@@ -63,13 +64,27 @@ def evaluate_and_render(config) -> dict:
   return record
 
 
+def shown_positions(num_views: int, max_shown: int = MAX_SHOWN_VIEWS) -> list:
+  """Positions in a test split of num_views shown in the picture: every k-th, at most max_shown of them."""
+  return list(range(0, num_views, -(-num_views // max_shown)))
+
+
 def render_views(config, test_set, positions) -> list:
-  """Renderings {'rgb', 'distance_mean', ...} [H, W, ...] of the run's newest checkpoint at test positions."""
+  """Renderings {'rgb', 'distance_mean', ...} [H, W, ...] of the run's newest checkpoint at test positions.
+
+  distance_mean is the world ray parameter, as the ground-truth depths (converted back from NDC for the forward
+  rig), so that both share one colour scale.
+  """
   model, state = checkpoints.restore_model(config, config.checkpoint_dir,
                                            jax.tree.map(lambda x: x[0, 0, :8], test_set.rays))
   render_fn = inference.make_render_fn(config, model, state.params, int(state.step))
-  return [inference.render_image(render_fn, jax.tree.map(lambda x, i=i: x[i], test_set.rays),
-                                 config.render_chunk_size) for i in positions]
+  ndc = bool(datasets.loader.ndc(config))
+  out = []
+  for i in positions:
+    rendering = inference.render_image(render_fn, jax.tree.map(lambda x, i=i: x[i], test_set.rays),
+                                       config.render_chunk_size)
+    out.append(dict(rendering, distance_mean=depth_metrics.world_depth(test_set, i, rendering['distance_mean'], ndc)))
+  return out
 
 
 def grid(tiles, column_titles, row_titles, title: str = '', scale: int = SCALE) -> np.ndarray:
@@ -171,7 +186,7 @@ def finish(bindings=()) -> dict:
     method_cfgs[name] = config = method_config(name, bindings)
     records[name] = evaluate_and_render(config)
     test_set = datasets.load_dataset('test', config, ground_truth=True)
-    positions = [p for p in SHOWN_VIEWS if p < len(test_set.ids)]
+    positions = shown_positions(len(test_set.ids))
     renderings[name] = render_views(config, test_set, positions)
   out_dir = output_dir(method_cfgs)
   truth = [test_set.images[p] for p in positions], [test_set.depths[p] for p in positions]

@@ -17,11 +17,29 @@ from test_checkpoints import TINY
 import train
 
 REGULARIZERS = {'freq_reg', 'freq_reg_end', 'occ_reg_loss_mult'}
-# The pipeline check: the demo's model, samples, batching, schedule and step count on every training view without
-# regularizers (mip-NeRF). At the demo's 64 x 80 pixels it measured 25.56 dB test PSNR over the 8 test views; the
-# test reduces only the evaluation (no LPIPS).
+# The pipeline check: the demo's model, samples, batching, schedule, step count and scene on every training view
+# (all 17) without regularizers (mip-NeRF). It measured 24.93 dB test PSNR over the 3 test views (the object rig
+# from its 24 views: 25.56 dB); the test reduces only the evaluation (no LPIPS).
 PIPELINE = ['Config.n_input_views = 0', 'Config.compute_lpips = False']
-PIPELINE_MIN_PSNR = 25.
+PIPELINE_MIN_PSNR = 24.3
+# The demo's claim, with its settings (700 steps, 4 x 64 MLP, 2 x 32 samples, 512 rays), each a pair (mip-NeRF,
+# FreeNeRF) of test PSNRs in dB with FreeNeRF's CPU seconds of training (both alike), measured without LPIPS:
+#   object rig, 8 views, T = 350:                                      24.34, 23.40
+#   object rig, 4 views, 2,500 steps, T = 0.9 x steps:                 25.9,  22.4
+#   object rig, 3 views:                                               18.10, 16.43
+#   object rig, 4 views, fine checkers (ground 0.15, box 0.12, sphere stripes x6), T = 350 (4 test views):
+#                                                                      18.74, 19.09   (293 s)
+#   forward rig, 3 views, fine checkers (floor 0.2, wall 0.3), T = 630: 20.40, 20.92  (289 s)
+#   forward rig, 3 views, T = 630 (the demo):                          19.78, 21.39   (288 s)
+# and for the demo mean depth errors 2.69 vs 2.21 (scaled world units; mip-NeRF from all views: 24.93 dB, 2.15).
+# FreeNeRF's lead is 1.6 dB, not the paper's 3: the test asks for 1 dB, leaving 0.6 dB for other machines.
+FEW_VIEW_MIN_GAIN = 1.
+
+
+def test_shown_positions_spread_over_the_test_split():
+  assert demo.shown_positions(8) == [0, 2, 4, 6]     # The object rig's test orbit, every 90 degrees.
+  assert demo.shown_positions(3) == [0, 1, 2]        # The forward rig's 3 test views.
+  assert demo.shown_positions(24) == [0, 6, 12, 18] and demo.shown_positions(1) == [0]
 
 
 def test_the_two_demo_configs_differ_only_in_name_run_and_regularizers():
@@ -29,7 +47,8 @@ def test_the_two_demo_configs_differ_only_in_name_run_and_regularizers():
   free, mip = dataclasses.asdict(cfgs['FreeNeRF']), dataclasses.asdict(cfgs['mip-NeRF'])
   assert {k for k in free if free[k] != mip[k]} == {'expname', 'checkpoint_dir'} | REGULARIZERS
   assert (mip['freq_reg'], mip['freq_reg_end'], mip['occ_reg_loss_mult']) == (False, 0, 0.)
-  assert free['freq_reg'] and free['freq_reg_end'] == free['max_steps'] // 2 and free['occ_reg_loss_mult'] > 0
+  assert free['freq_reg'] and free['freq_reg_end'] == free['max_steps'] * 9 // 10 and free['occ_reg_loss_mult'] > 0
+  assert (free['generated_rig'], free['n_input_views'], free['near'], free['far']) == ('forward', 3, 0., 1.)
   assert os.path.dirname(free['checkpoint_dir']) == os.path.dirname(mip['checkpoint_dir']) == 'out/demo'
 
 
@@ -96,10 +115,10 @@ def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch,
     gin_text = (tmp_path / 'out' / 'demo' / run / 'config.gin').read_text()
     assert f"Config.expname = '{run}'" in gin_text and f'freq_reg = {run == "freenerf"}' in gin_text
     renders = tmp_path / 'out' / 'demo' / run / 'path_renders_step_4'
-    assert (renders / f'generated_object_{run}_color.mp4').stat().st_size > 0
+    assert (renders / f'generated_forward_{run}_color.mp4').stat().st_size > 0
   picture = np.asarray(Image.open(tmp_path / 'out' / 'demo' / demo.PICTURE))
-  views = len(demo.SHOWN_VIEWS) // demo.BLOCKS_PER_ROW
-  assert picture.shape == (demo.HEADER + demo.LINE + 2 * views * (32 * demo.SCALE + demo.GAP),
+  block_rows = 2  # The forward rig's 3 test views, 2 to a row.
+  assert picture.shape == (demo.HEADER + demo.LINE + 2 * block_rows * (32 * demo.SCALE + demo.GAP),
                            demo.LABEL_WIDTH + 3 * demo.BLOCKS_PER_ROW * (40 * demo.SCALE + demo.GAP), 3)
   assert (tmp_path / 'out' / 'demo' / demo.ORBIT_VIDEO).stat().st_size > 0
   with Image.open(tmp_path / 'out' / 'demo' / demo.CURVES) as curves:   # One point each: the last step.
@@ -116,3 +135,15 @@ def test_demo_settings_reconstruct_the_scene_from_all_views(tmp_path):
   loop.train(config)
   record = evaluate.evaluate(config)
   assert record['complete'] and record['means']['psnr'] >= PIPELINE_MIN_PSNR, record['means']
+
+
+def test_demo_settings_freenerf_beats_mipnerf_from_few_views(tmp_path):
+  psnrs = {}
+  for name in demo.METHODS:
+    config = demo.method_config(name, ['Config.compute_lpips = False', f"Config.data_dir = '{tmp_path / 'scene'}'",
+                                       f"Config.checkpoint_dir = '{tmp_path / name}'"])
+    loop.train(config)
+    record = evaluate.evaluate(config)
+    assert record['complete'], record
+    psnrs[name] = record['means']['psnr']
+  assert psnrs['FreeNeRF'] - psnrs['mip-NeRF'] >= FEW_VIEW_MIN_GAIN, psnrs
