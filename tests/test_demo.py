@@ -102,9 +102,9 @@ def test_curves_picture_needs_a_recorded_curve(tmp_path, monkeypatch):
     assert picture.format == 'PNG' and picture.size == (640, 440)
 
 
-def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch, scene_dir):
+def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch):
   monkeypatch.chdir(tmp_path)
-  bindings = TINY + [f"Config.data_dir = '{scene_dir}'", 'Config.max_steps = 4', 'Config.freq_reg_end = 3',
+  bindings = TINY + [f"Config.data_dir = '{tmp_path / 'forward_scene'}'", 'Config.max_steps = 4', 'Config.freq_reg_end = 3',
                      'Config.render_path_frames = 2', 'Config.compute_lpips = False', 'Config.eval_test_ids = [0, 1]']
   assert train.main(['--gin_bindings', *bindings]) == 0
   cfgs = demo.method_configs(bindings)
