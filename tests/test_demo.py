@@ -30,10 +30,15 @@ PIPELINE_MIN_PSNR = 24.3
 #   object rig, 4 views, fine checkers (ground 0.15, box 0.12, sphere stripes x6), T = 350 (4 test views):
 #                                                                      18.74, 19.09   (293 s)
 #   forward rig, 3 views, fine checkers (floor 0.2, wall 0.3), T = 630: 20.40, 20.92  (289 s)
-#   forward rig, 3 views, T = 630 (the demo):                          19.78, 21.39   (288 s)
+#   forward rig, 3 views, T = 630 (0.9 x steps, the paper's LLFF):     19.78, 21.39   (288 s)
+#   forward rig, 3 views, T = 630, 1,000 steps:                        20.19, 21.56
+#   forward rig, 3 views, T = 210 (0.3 x steps):                       19.78, 21.23
+#   forward rig, 3 views, T = 350 (0.5 x steps, the demo):             19.78, 21.94   (282 s)
+#   forward rig with cameras twice as far apart, 3 views, T = 350:     15.94, 15.78
+#   forward rig, 3 views, T = 350, plain NeRF 4 x 64, 32 + 32 samples:  19.78, 21.59
 # and for the demo mean depth errors 2.69 vs 2.21 (scaled world units; mip-NeRF from all views: 24.93 dB, 2.15).
-# FreeNeRF's lead is 1.6 dB, not the paper's 3: the test asks for 1 dB, leaving 0.6 dB for other machines.
-FEW_VIEW_MIN_GAIN = 1.
+# FreeNeRF's lead is 2.2 dB, not the paper's 3: the test asks for 1.5 dB, leaving 0.66 dB for other machines.
+FEW_VIEW_MIN_GAIN = 1.5
 
 
 def test_shown_positions_spread_over_the_test_split():
@@ -47,7 +52,7 @@ def test_the_two_demo_configs_differ_only_in_name_run_and_regularizers():
   free, mip = dataclasses.asdict(cfgs['FreeNeRF']), dataclasses.asdict(cfgs['mip-NeRF'])
   assert {k for k in free if free[k] != mip[k]} == {'expname', 'checkpoint_dir'} | REGULARIZERS
   assert (mip['freq_reg'], mip['freq_reg_end'], mip['occ_reg_loss_mult']) == (False, 0, 0.)
-  assert free['freq_reg'] and free['freq_reg_end'] == free['max_steps'] * 9 // 10 and free['occ_reg_loss_mult'] > 0
+  assert free['freq_reg'] and free['freq_reg_end'] == free['max_steps'] // 2 and free['occ_reg_loss_mult'] > 0
   assert (free['generated_rig'], free['n_input_views'], free['near'], free['far']) == ('forward', 3, 0., 1.)
   assert os.path.dirname(free['checkpoint_dir']) == os.path.dirname(mip['checkpoint_dir']) == 'out/demo'
 
