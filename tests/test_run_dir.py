@@ -104,3 +104,22 @@ def test_training_checks_the_test_split_before_it_starts(tmp_path, scene_dir):
   finally:
     os.rename(tmp_path / 'r_5.png', missing)
   assert os.listdir(tmp_path / 'run') == []
+
+
+def test_the_up_front_check_refuses_what_training_would_and_touches_nothing(tmp_path):
+  config = tiny_config('s', tmp_path / 'run')
+  run_dir_lib.check_trainable(config)                                  # A new folder: nothing is created.
+  assert not (tmp_path / 'run').exists()
+  run_dir_lib.record_settings(run_dir_lib.prepare_run_dir(config), config)
+  before = sorted(os.listdir(tmp_path / 'run'))
+  run_dir_lib.check_trainable(config)                                  # The same run: resumable.
+  other = tiny_config('s', tmp_path / 'run', 'Config.n_input_views = 4')
+  for check in (run_dir_lib.check_trainable, run_dir_lib.prepare_run_dir):
+    with pytest.raises(run_dir_lib.RunDirError, match=r"different settings \(Config.n_input_views: 8 -> 4\)"):
+      check(other)
+  assert sorted(os.listdir(tmp_path / 'run')) == before
+  run_dir_lib.check_trainable(tiny_config('s', tmp_path / 'run', 'Config.n_input_views = 4', 'Config.overwrite = True'))
+  (tmp_path / 'notes').mkdir()
+  (tmp_path / 'notes' / 'mine.txt').write_text('user file')
+  with pytest.raises(run_dir_lib.RunDirError, match='not empty and holds no run'):
+    run_dir_lib.check_trainable(tiny_config('s', tmp_path / 'notes'))

@@ -107,6 +107,20 @@ def _clear(run_dir: str) -> None:
       os.remove(path)
 
 
+def _settings_diff(run_dir: str, stored, config) -> str:
+  """How config differs from run_dir's stored run ('' when new or the same); RunDirError when it holds no run."""
+  if stored is None and _foreign_entries(run_dir):
+    raise RunDirError(f'Config.checkpoint_dir {run_dir!r} is not empty and holds no run ({FINGERPRINT_FILE} '
+                      'is missing); choose another Config.checkpoint_dir')
+  return '' if stored is None else differences(stored, config)
+
+
+def _other_run_error(run_dir: str, diff: str) -> RunDirError:
+  return RunDirError(
+      f'Config.checkpoint_dir {run_dir!r} holds a run with different settings ({diff}); choose another '
+      'Config.checkpoint_dir, or set Config.overwrite = True to delete that run and start over')
+
+
 def prepare_run_dir(config) -> str:
   """Creates or re-opens Config.checkpoint_dir for training; refuses to touch a different run.
 
@@ -122,18 +136,23 @@ def prepare_run_dir(config) -> str:
       raise
     _clear(run_dir)
     stored = None
-  if stored is None and _foreign_entries(run_dir):
-    raise RunDirError(f'Config.checkpoint_dir {run_dir!r} is not empty and holds no run ({FINGERPRINT_FILE} '
-                      'is missing); choose another Config.checkpoint_dir')
-  diff = '' if stored is None else differences(stored, config)
+  diff = _settings_diff(run_dir, stored, config)
   if diff:
     if not config.overwrite:
-      raise RunDirError(
-          f'Config.checkpoint_dir {run_dir!r} holds a run with different settings ({diff}); choose another '
-          'Config.checkpoint_dir, or set Config.overwrite = True to delete that run and start over')
+      raise _other_run_error(run_dir, diff)
     _clear(run_dir)
   os.makedirs(run_dir, exist_ok=True)
   return run_dir
+
+
+def check_trainable(config) -> None:
+  """Raises now, touching nothing, the RunDirError that training would raise for another run's Config.checkpoint_dir."""
+  run_dir = config.checkpoint_dir
+  if config.overwrite or not os.path.isdir(run_dir):
+    return
+  diff = _settings_diff(run_dir, read_fingerprint(run_dir), config)
+  if diff:
+    raise _other_run_error(run_dir, diff)
 
 
 def record_settings(run_dir: str, config) -> None:
