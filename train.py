@@ -1,7 +1,7 @@
-"""Trains FreeNeRF / mip-NeRF from gin configs; with no arguments it runs the demo end to end.
+"""Trains FreeNeRF / mip-NeRF / NeRF from gin configs; with no arguments it runs the demo end to end.
 
   python train.py --gin_configs=configs/freenerf/dtu3_freenerf.gin --gin_bindings="Config.dtu_scan = 'scan21'"
-  python train.py   # demo: FreeNeRF and mip-NeRF on a generated scene, evaluated, rendered, side by side
+  python train.py   # demo: FreeNeRF and NeRF on a generated scene, evaluated, rendered, side by side
 
 Training resumes from the newest checkpoint of Config.checkpoint_dir, and refuses a directory holding a run with
 other settings. SIGINT / SIGTERM save a checkpoint and exit (status 128 + signal); rerun the command to resume.
@@ -16,11 +16,15 @@ from internal import cli
 from internal import demo
 from internal.training import distributed
 from internal.training import loop
+from internal.training import run_dir
 
 
 def run_demo(bindings, stop_at_step: int = 0) -> int:
-  """The demo: trains mip-NeRF and FreeNeRF alike (configs/demo*.gin), then evaluates, renders and compares."""
-  out_dir = demo.output_dir(demo.method_configs(bindings))  # Checks both configs before any work.
+  """The demo: trains NeRF and FreeNeRF alike (configs/demo*.gin), then evaluates, renders and compares."""
+  method_cfgs = demo.method_configs(bindings)  # Checks both configs and run directories before any work.
+  for config in method_cfgs.values():
+    run_dir.check_trainable(config)
+  out_dir = demo.output_dir(method_cfgs)
   for name in demo.METHODS:
     status = train_and_report(demo.method_config(name, bindings), stop_at_step)
     if status:

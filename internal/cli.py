@@ -24,9 +24,8 @@ from internal.training import run_dir
 from internal.training import train_step
 
 CONFIG_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'configs')
-DEMO_CONFIG = os.path.join(CONFIG_DIR, 'demo.gin')
-# The demo's FreeNeRF: the small CPU model (demo.gin) on its few-view scene (demo_forward3.gin).
-DEMO_CONFIGS = [DEMO_CONFIG, os.path.join(CONFIG_DIR, 'demo_forward3.gin')]
+# The demo's FreeNeRF: the short CPU schedule (demo.gin), then its scene, 2 views and NeRF model (demo_forward.gin).
+DEMO_CONFIGS = [os.path.join(CONFIG_DIR, name) for name in ('demo.gin', 'demo_forward.gin')]
 USAGE_ERROR_STATUS = 2
 NONFINITE_STATUS = 3
 DISK_FULL_STATUS = 4  # checkpoints.DiskFullError: free space and rerun the command to resume.

@@ -1,17 +1,16 @@
-"""The demo: FreeNeRF and its mip-NeRF baseline, trained alike on a few views of the generated scene, side by side.
+"""The demo: FreeNeRF and its NeRF baseline, trained alike on 2 views of the generated scene, side by side.
 
-Each method is one run directory; FreeNeRF is configs/demo.gin (the small model) then configs/demo_forward3.gin
-(the scene and its 3 views), the baseline adds configs/demo_mipnerf.gin, which only names its run and switches
-the regularizers off. After both are trained, evaluated and rendered, `finish`
-writes to the runs' parent folder demo.png (per shown test view a colour and a depth row: ground truth | mip-NeRF
-| FreeNeRF), demo_curves.png (both runs' learning curves: test PSNR against the step) and demo_orbit.mp4 (both
-orbits side by side, when imageio-ffmpeg is installed).
+Each method is one run directory; FreeNeRF is configs/demo.gin (the short schedule) then configs/demo_forward.gin
+(the scene, its 2 views and the small NeRF), the baseline adds configs/demo_nerf.gin, which only names its run and
+switches the regularizers off. After both are trained, evaluated and rendered, `finish` writes to the runs'
+parent folder demo.png (per shown test view a colour and a depth row: ground truth | NeRF | FreeNeRF),
+demo_curves.png (both runs' learning curves: test PSNR against the step) and demo_orbit.mp4 (both orbits side by
+side, when imageio-ffmpeg is installed).
 """
 
 import os
 
 import gin
-import jax
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
@@ -20,15 +19,14 @@ from internal import config_loader
 from internal import datasets
 from internal.evaluation import depth_metrics
 from internal.evaluation import evaluate
-from internal.evaluation import inference
 from internal.evaluation import learning_curve
 from internal.evaluation import render_path
 from internal.evaluation import vis
 from internal import cli
 
-METHODS = {'mip-NeRF': cli.DEMO_CONFIGS + [os.path.join(cli.CONFIG_DIR, 'demo_mipnerf.gin')],
+METHODS = {'NeRF': cli.DEMO_CONFIGS + [os.path.join(cli.CONFIG_DIR, 'demo_nerf.gin')],
            'FreeNeRF': cli.DEMO_CONFIGS}
-MAX_SHOWN_VIEWS = 4            # Test views in the picture, evenly spread over the test split.
+MAX_SHOWN_VIEWS = 4            # Test views in the picture, evenly spread over the evaluated ones.
 BLOCKS_PER_ROW = 2             # Test views side by side in the picture.
 SCALE = 2                      # Nearest-neighbour upscaling of the small renders.
 GAP, HEADER, LABEL_WIDTH, LINE = 4, 22, 56, 16
@@ -65,25 +63,25 @@ def evaluate_and_render(config) -> dict:
 
 
 def shown_positions(num_views: int, max_shown: int = MAX_SHOWN_VIEWS) -> list:
-  """Positions in a test split of num_views shown in the picture: every k-th, at most max_shown of them."""
+  """Indices of the num_views evaluated test views shown in the picture: every k-th, at most max_shown of them."""
   return list(range(0, num_views, -(-num_views // max_shown)))
 
 
-def render_views(config, test_set, positions) -> list:
-  """Renderings {'rgb', 'distance_mean', ...} [H, W, ...] of the run's newest checkpoint at test positions.
+def evaluated_views(config, record: dict, test_set, positions) -> list:
+  """Renderings {'rgb', 'distance_mean'} [H, W, ...] at test positions, read back from the run's evaluation.
 
-  distance_mean is the world ray parameter, as the ground-truth depths (converted back from NDC for the forward
-  rig), so that both share one colour scale.
+  rgb is evaluation's colour PNG; distance_mean the world ray parameter of its raw depth file (converted back from
+  NDC for the forward rig), as the ground-truth depths, so that both share one colour scale.
   """
-  model, state = checkpoints.restore_model(config, config.checkpoint_dir,
-                                           jax.tree.map(lambda x: x[0, 0, :8], test_set.rays))
-  render_fn = inference.make_render_fn(config, model, state.params, int(state.step))
+  eval_dir = evaluate.output_dir(config.checkpoint_dir, record['step'])
   ndc = bool(datasets.loader.ndc(config))
   out = []
   for i in positions:
-    rendering = inference.render_image(render_fn, jax.tree.map(lambda x, i=i: x[i], test_set.rays),
-                                       config.render_chunk_size)
-    out.append(dict(rendering, distance_mean=depth_metrics.world_depth(test_set, i, rendering['distance_mean'], ndc)))
+    view_id = int(test_set.ids[i])
+    with Image.open(os.path.join(eval_dir, f'color_{view_id:03d}.png')) as image:
+      rgb = np.asarray(image.convert('RGB'), np.float32) / 255.
+    with np.load(depth_metrics.depth_file(eval_dir, view_id)) as depth:
+      out.append({'rgb': rgb, 'distance_mean': depth_metrics.world_depth(test_set, i, depth['distance'], ndc)})
   return out
 
 
@@ -184,10 +182,11 @@ def finish(bindings=()) -> dict:
   method_cfgs, records, renderings = {}, {}, {}
   for name in METHODS:
     method_cfgs[name] = config = method_config(name, bindings)
-    records[name] = evaluate_and_render(config)
+    records[name] = record = evaluate_and_render(config)
     test_set = datasets.load_dataset('test', config, ground_truth=True)
-    positions = shown_positions(len(test_set.ids))
-    renderings[name] = render_views(config, test_set, positions)
+    evaluated = record['test_positions']
+    positions = [evaluated[k] for k in shown_positions(len(evaluated))]
+    renderings[name] = evaluated_views(config, record, test_set, positions)
   out_dir = output_dir(method_cfgs)
   truth = [test_set.images[p] for p in positions], [test_set.depths[p] for p in positions]
   write_picture(truth, records, renderings, config.n_input_views, os.path.join(out_dir, PICTURE))
