@@ -96,7 +96,7 @@ def test_command_line(tmp_path, capsys):
   out = tmp_path / 'scene.npz'
   bindings = [f"Config.data_dir = '{tmp_path / 'scene'}'", 'Config.generated_size = (12, 16)']
   assert pack_scene.main(['--gin_bindings', *bindings, '--out', str(out)]) == 0
-  assert 'train 3 views 12x16' in capsys.readouterr().out and out.is_file()  # The demo's 3 views.
+  assert 'train 2 views 12x16' in capsys.readouterr().out and out.is_file()  # The demo's 2 views.
   with pytest.raises(SystemExit):
     pack_scene.main(['--out', str(tmp_path / 'scene.zip')])
 
