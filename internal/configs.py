@@ -19,6 +19,8 @@ class Config:
   project: str = 'freenerf'             # Unused; kept only so the released .gin files, which set it, parse.
   checkpoint_dir: str = 'out/demo'      # The run directory: checkpoints, settings, logs, evaluations, renders.
   overwrite: bool = False               # Allow training into a directory holding another run.
+  # Where eval.py and render.py write (test_preds_step_<step>/, path_renders_step_<step>/); '' = the run directory.
+  output_dir: str = ''
   jax_rng_seed: int = 20200823          # Seed of the model's initialization and of sampling noise (as released).
   np_rng_seed: int = 20201473           # Seed of the ray batches: a step's batch depends only on it and the step.
   checkpoint_every: int = 25000         # Steps between checkpoints (the last step is always saved).

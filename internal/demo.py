@@ -23,6 +23,7 @@ from internal.evaluation import learning_curve
 from internal.evaluation import render_path
 from internal.evaluation import vis
 from internal import cli
+from internal.training import run_dir
 
 METHODS = {'NeRF': cli.DEMO_CONFIGS + [os.path.join(cli.CONFIG_DIR, 'demo_nerf.gin')],
            'FreeNeRF': cli.DEMO_CONFIGS}
@@ -73,7 +74,7 @@ def evaluated_views(config, record: dict, test_set, positions) -> list:
   rgb is evaluation's colour PNG; distance_mean the world ray parameter of its raw depth file (converted back from
   NDC for the forward rig), as the ground-truth depths, so that both share one colour scale.
   """
-  eval_dir = evaluate.output_dir(config.checkpoint_dir, record['step'])
+  eval_dir = evaluate.output_dir(run_dir.outputs_root(config), record['step'])
   ndc = bool(datasets.loader.ndc(config))
   out = []
   for i in positions:
@@ -164,7 +165,7 @@ def write_orbit_video(method_cfgs: dict, path: str) -> bool:
   """Writes both methods' orbit renders side by side (colour row, depth row) as an mp4; False without ffmpeg."""
   if not render_path.can_write_video():
     return False
-  folders = {name: render_path.output_dir(cfg.checkpoint_dir, checkpoints.latest_step(cfg.checkpoint_dir))
+  folders = {name: render_path.output_dir(run_dir.outputs_root(cfg), checkpoints.latest_step(cfg.checkpoint_dir))
              for name, cfg in method_cfgs.items()}
   num_frames = next(iter(method_cfgs.values())).render_path_frames
 

@@ -53,21 +53,20 @@ def test_identical_settings_reopen_the_run_and_bookkeeping_may_change(tmp_path):
 def test_refuses_a_run_directory_with_other_settings(tmp_path):
   run = tmp_path / 'run'
   run_dir_lib.record_settings(run_dir_lib.prepare_run_dir(tiny_config('s', run)), tiny_config('s', run))
-  (run / 'marker').write_text('from the first run')
+  (run / 'notes.txt').write_text('the user\'s, next to the first run')
   with pytest.raises(run_dir_lib.RunDirError, match=r"run'.*Config\.max_steps: 700 -> 900.*Config\.overwrite"):
     run_dir_lib.prepare_run_dir(tiny_config('s', run, 'Config.max_steps = 900'))
   with pytest.raises(run_dir_lib.RunDirError, match='MLP.net_width'):
     run_dir_lib.prepare_run_dir(tiny_config('s', run, 'MLP.net_width = 48'))
-  assert (run / 'marker').exists()
   run_dir_lib.prepare_run_dir(tiny_config('s', run, 'Config.max_steps = 900', 'Config.overwrite = True'))
+  assert sorted(os.listdir(run)) == [run_dir_lib.MARKER_FILE, 'notes.txt']  # The run's files went, the user's stayed.
   run_dir_lib.record_settings(str(run), tiny_config('s', run, 'Config.max_steps = 900'))
-  assert not (run / 'marker').exists()
   assert run_dir_lib.read_fingerprint(str(run))['Config.max_steps'] == 900
 
 
 def test_refuses_a_foreign_non_empty_directory_even_with_overwrite(tmp_path):
   (tmp_path / 'notes.txt').write_text('not a run')
-  with pytest.raises(run_dir_lib.RunDirError, match='holds no run'):
+  with pytest.raises(run_dir_lib.RunDirError, match='is not a run of this project'):
     run_dir_lib.prepare_run_dir(tiny_config('s', tmp_path, 'Config.overwrite = True'))
   assert (tmp_path / 'notes.txt').exists()
 

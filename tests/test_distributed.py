@@ -20,6 +20,7 @@ from internal.evaluation import learning_curve
 from internal.training import checkpoints
 from internal.training import distributed
 from internal.training import loop
+from internal.training import run_dir as run_dir_lib
 from conftest import JAX_CACHE
 from test_checkpoints import DEMO, ROOT, TINY, _leaves, tiny_config
 
@@ -111,7 +112,8 @@ def test_two_processes_train_like_one(tmp_path, scene_dir, one_process):
   run = tmp_path / 'two'
   _finish(_launch(scene_dir, run))
   _assert_close(_state(scene_dir, run), _losses(run), one_process)
-  assert sorted(os.listdir(run)) == ['checkpoints', 'config.gin', 'config.json', learning_curve.CSV_FILE, 'tensorboard']
+  assert sorted(os.listdir(run)) == ['checkpoints', 'config.gin', 'config.json', run_dir_lib.MARKER_FILE,
+                                     learning_curve.CSV_FILE, 'tensorboard']
   assert len(glob.glob(str(run / 'tensorboard' / 'events.*'))) == 1  # Written by process 0 only.
   curve, ref_curve = learning_curve.read_rows(learning_curve.csv_path(run)), one_process[2]
   assert [r['step'] for r in curve] == [r['step'] for r in ref_curve] == [STEPS]  # The demo's curve: last step only.

@@ -71,13 +71,14 @@ def test_the_lock_of_a_killed_process_is_taken_over(tmp_path):
 @pytest.mark.parametrize('content', ['', '{"Config.max_steps": 8', '[1, 2]'])
 def test_an_empty_or_corrupt_config_json_is_a_clear_error(tmp_path, content):
   (tmp_path / 'run').mkdir()
+  run_dir_lib.record_settings(str(tmp_path / 'run'), tiny_config('s', tmp_path / 'run'))  # A run of ours.
   (tmp_path / 'run' / 'config.json').write_text(content)
   (tmp_path / 'run' / 'checkpoints').mkdir()
   for check in (run_dir_lib.prepare_run_dir, run_dir_lib.check_run_dir):
     with pytest.raises(run_dir_lib.RunDirError, match=r"config\.json' is empty or corrupt.*Config\.overwrite"):
       check(tiny_config('s', tmp_path / 'run'))
   run_dir_lib.prepare_run_dir(tiny_config('s', tmp_path / 'run', 'Config.overwrite = True'))
-  assert os.listdir(tmp_path / 'run') == []
+  assert os.listdir(tmp_path / 'run') == [run_dir_lib.MARKER_FILE]
 
 
 def test_a_failed_first_start_records_nothing_and_the_corrected_retry_runs(tmp_path, scene_dir):
@@ -90,8 +91,8 @@ def test_a_failed_first_start_records_nothing_and_the_corrected_retry_runs(tmp_p
                             f"Config.lpips_weights_path = '{tmp_path / 'no_such.pkl'}'"))
   assert run_dir_lib.read_fingerprint(str(run))['Config.n_input_views'] == 8
   assert checkpoints.latest_step(str(run)) == 2 and not (run / run_dir_lib.LOCK_FILE).exists()
-  assert sorted(os.listdir(run)) == ['checkpoints', 'config.gin', 'config.json', 'learning_curve.csv',
-                                     'tensorboard']                 # configs/demo.gin records learning curves.
+  assert sorted(os.listdir(run)) == ['checkpoints', 'config.gin', 'config.json', run_dir_lib.MARKER_FILE,
+                                     'learning_curve.csv', 'tensorboard']  # demo.gin records learning curves.
 
 
 def test_training_checks_the_test_split_before_it_starts(tmp_path, scene_dir):
@@ -121,5 +122,5 @@ def test_the_up_front_check_refuses_what_training_would_and_touches_nothing(tmp_
   run_dir_lib.check_trainable(tiny_config('s', tmp_path / 'run', 'Config.n_input_views = 4', 'Config.overwrite = True'))
   (tmp_path / 'notes').mkdir()
   (tmp_path / 'notes' / 'mine.txt').write_text('user file')
-  with pytest.raises(run_dir_lib.RunDirError, match='not empty and holds no run'):
+  with pytest.raises(run_dir_lib.RunDirError, match='is not a run of this project'):
     run_dir_lib.check_trainable(tiny_config('s', tmp_path / 'notes'))

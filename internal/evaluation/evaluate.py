@@ -21,15 +21,16 @@ from internal.training import run_dir as run_dir_lib
 from internal.evaluation import vis
 
 
-def output_dir(run_dir: str, step: int) -> str:
-  """<run_dir>/test_preds_step_<step>."""
-  return os.path.join(run_dir, f'test_preds_step_{step}')
+def output_dir(root: str, step: int) -> str:
+  """<root>/test_preds_step_<step>; root is run_dir.outputs_root(config): Config.output_dir or the run directory."""
+  return os.path.join(root, f'test_preds_step_{step}')
 
 
 def existing_record(config):
   """The metrics.json record of the run's newest step if that step was evaluated, else None."""
   run_dir = run_dir_lib.check_run_dir(config)
-  path = os.path.join(output_dir(run_dir, checkpoints.latest_step(run_dir)), results.METRICS_FILENAME)
+  out_dir = output_dir(run_dir_lib.outputs_root(config), checkpoints.latest_step(run_dir))
+  path = os.path.join(out_dir, results.METRICS_FILENAME)
   return results.read_record(path) if os.path.isfile(path) else None
 
 
@@ -102,11 +103,12 @@ def evaluate(config) -> dict:
   positions = select_positions(config, len(test_set.ids))
   model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], test_set.rays))
   step = int(state.step)  # The newest intact checkpoint's.
-  out_dir = output_dir(run_dir, step)
+  out_dir = output_dir(run_dir_lib.outputs_root(config), step)
   metrics_path = os.path.join(out_dir, results.METRICS_FILENAME)
   if os.path.exists(metrics_path) and not config.overwrite:
     raise FileExistsError(f'{metrics_path!r} exists (step {step} was evaluated already); set '
                           'Config.overwrite = True to evaluate again and replace it')
+  run_dir_lib.make_output_folder(config, out_dir)
   render_fn = inference.make_render_fn(config, model, state.params, step)
   lpips_fn, lpips_reason = load_lpips_fn(config)
   dataset, scene = loader.filed_as(config)
@@ -114,7 +116,6 @@ def evaluate(config) -> dict:
   depth_scores = [depth_metrics.scorer(test_set, ndc)]  # Exact depths (generated scenes).
   if config.depth_reference_dir:
     depth_scores.append(depth_metrics.reference_scorer(test_set, ndc, config.depth_reference_dir, positions))
-  os.makedirs(out_dir, exist_ok=True)
   per_image = []
   for i in positions:
     rendering = inference.render_image(render_fn, jax.tree.map(lambda x, i=i: x[i], test_set.rays),

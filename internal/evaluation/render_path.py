@@ -20,15 +20,15 @@ VIDEO_FPS = 30
 VIDEO_HINT = 'frames only; for mp4 videos: pip install imageio imageio-ffmpeg'
 
 
-def output_dir(run_dir: str, step: int) -> str:
-  """<run_dir>/path_renders_step_<step>."""
-  return os.path.join(run_dir, f'path_renders_step_{step}')
+def output_dir(root: str, step: int) -> str:
+  """<root>/path_renders_step_<step>; root is run_dir.outputs_root(config): Config.output_dir or the run directory."""
+  return os.path.join(root, f'path_renders_step_{step}')
 
 
 def existing_renders(config) -> bool:
   """True when the run's newest step has path renders already."""
   run_dir = run_dir_lib.check_run_dir(config)
-  out_dir = output_dir(run_dir, checkpoints.latest_step(run_dir))
+  out_dir = output_dir(run_dir_lib.outputs_root(config), checkpoints.latest_step(run_dir))
   return os.path.isdir(out_dir) and bool(os.listdir(out_dir))
 
 
@@ -54,12 +54,12 @@ def render(config) -> str:
   path_rays = datasets.render_path_rays(config)
   model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], path_rays))
   step = int(state.step)  # The newest intact checkpoint's.
-  out_dir = output_dir(run_dir, step)
+  out_dir = output_dir(run_dir_lib.outputs_root(config), step)
   if os.path.isdir(out_dir) and os.listdir(out_dir) and not config.overwrite:
     raise FileExistsError(f'{out_dir!r} holds renders of step {step} already; set Config.overwrite = True to '
                           'replace them')
+  run_dir_lib.make_output_folder(config, out_dir)
   render_fn = inference.make_render_fn(config, model, state.params, step)
-  os.makedirs(out_dir, exist_ok=True)
   frames = {'color': [], 'depth': [], 'opacity': []}
   depth_range = None
   num_frames = path_rays.origins.shape[0]

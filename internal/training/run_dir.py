@@ -1,16 +1,20 @@
 """Run directories: one run per Config.checkpoint_dir, never overwritten silently; gin flags of the scripts.
 
-A run directory holds `config.json` (the settings that change training, compared on every start),
-`config.gin` (the operative gin config, human readable and re-parsable), `checkpoints/<step>/` (orbax),
-`tensorboard/`, and the outputs of eval.py (`test_preds_step_<step>/`) and render.py (`path_renders_step_<step>/`).
+A run directory holds `freenerf_jax_run.json` (the marker: a run of this project), `config.json` (the settings
+that change training, compared on every start), `config.gin` (the operative gin config, human readable and
+re-parsable), `checkpoints/<step>/` (orbax), `tensorboard/`, and the outputs of eval.py (`test_preds_step_<step>/`)
+and render.py (`path_renders_step_<step>/`) unless Config.output_dir sends them elsewhere.
 """
 
 import contextlib
 import dataclasses
+import fnmatch
 import json
 import os
+import re
 import shutil
 import socket
+import tempfile
 import time
 
 import gin
@@ -21,10 +25,33 @@ from internal.models import registry
 FINGERPRINT_FILE = 'config.json'
 GIN_FILE = 'config.gin'
 LOCK_FILE = 'train.lock'  # Held by the training process: {'pid', 'host', 'started'}.
+# What makes a folder a run of this project (config.json is a name other tools write too): Config.overwrite deletes
+# only in such a folder, and only what WRITTEN names.
+MARKER_FILE = 'freenerf_jax_run.json'
+MARKER = {'run_of': 'FreeNeRF-JAX', 'note': 'A run directory of FreeNeRF-JAX (train.py). Config.overwrite = True '
+          'deletes only the files FreeNeRF-JAX wrote here; other files stay.'}
+# Runs of versions from before the marker are recognized by their config.json: only this project's settings have
+# every key of the form <gin class>.<field>, these among them.
+LEGACY_KEY = re.compile(r'(Config|MLP|MipNerfModel|NerfMLP|NerfModel)\.\w+')
+LEGACY_KEYS = {'Config.batch_size', 'Config.max_steps', 'Config.lr_init', 'Config.n_input_views'}
+_ATOMIC_TMP = '.{}.*.tmp'  # The temporary file of atomic.write_text(<name>) left by a crash.
+_OUTPUTS = {pattern: None for pattern in (
+    'color_[0-9]*.png', 'depth_[0-9]*.png', 'depth_[0-9]*.npz', 'opacity_[0-9]*.png', 'metrics.json',
+    'metrics.csv', '*_color.mp4', '*_depth.mp4', '*_opacity.mp4', _ATOMIC_TMP.format('metrics.*'))}
+# What this project writes into a run directory, by name pattern: None deletes the entry whole, a dict only the
+# entries of that folder it names (the folder goes when left empty). Config.overwrite deletes these alone, in this
+# order (the settings last, so that an interrupted overwrite still refuses other settings).
+WRITTEN = {
+    'checkpoints': {'[0-9]*': None, 'damaged_[0-9]*': None},  # orbax's step folders (and their temporaries).
+    'tensorboard': {'events.out.tfevents.*': None},
+    'test_preds_step_[0-9]*': _OUTPUTS, 'path_renders_step_[0-9]*': _OUTPUTS,
+    'learning_curve.csv': None, GIN_FILE: None,
+    **{_ATOMIC_TMP.format(name): None for name in ('learning_curve.csv', GIN_FILE, FINGERPRINT_FILE)},
+    FINGERPRINT_FILE: None}
 # Config fields that do not change what training computes: they may differ between a run and its resumption.
 NOT_FINGERPRINTED = (
-    'expname', 'project', 'checkpoint_dir', 'overwrite', 'checkpoint_every', 'checkpoint_keep', 'print_every',
-    'train_render_every', 'render_chunk_size', 'data_dir', 'dtu_mask_path', 'allow_missing_test_views',
+    'expname', 'project', 'checkpoint_dir', 'overwrite', 'output_dir', 'checkpoint_every', 'checkpoint_keep',
+    'print_every', 'train_render_every', 'render_chunk_size', 'data_dir', 'dtu_mask_path', 'allow_missing_test_views',
     'render_factor', 'render_path_frames', 'eval_test_ids', 'eval_factor', 'lpips_weights_path',
     'lpips_input_range', 'compute_lpips', 'max_skipped_steps', 'depth_reference_dir', 'curve_every',
     'curve_test_ids', 'curve_factor', 'stuck_warning_steps')
@@ -75,16 +102,21 @@ def differences(stored: dict, config) -> str:
   return '; '.join(parts) + more
 
 
+def _read_json(path: str):
+  """The JSON value in path; the error when it cannot be read or parsed."""
+  try:
+    with open(path) as f:
+      return json.load(f)
+  except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+    return err
+
+
 def read_fingerprint(run_dir: str):
   """The stored fingerprint of run_dir, or None when it holds none; RunDirError when it is unreadable."""
   path = os.path.join(run_dir, FINGERPRINT_FILE)
   if not os.path.isfile(path):
     return None
-  try:
-    with open(path) as f:
-      stored = json.load(f)
-  except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-    stored = err
+  stored = _read_json(path)
   if not isinstance(stored, dict):
     raise RunDirError(f'{path!r} is empty or corrupt ({stored}); expected the JSON settings of the run. Set '
                       'Config.overwrite = True to delete that run and start over, or choose another '
@@ -92,27 +124,78 @@ def read_fingerprint(run_dir: str):
   return stored
 
 
-def _foreign_entries(run_dir: str) -> list:
-  """Entries of run_dir other than the training lock (what makes a folder without config.json foreign)."""
-  return [e for e in os.listdir(run_dir) if e != LOCK_FILE] if os.path.isdir(run_dir) else []
+def is_marked(run_dir: str) -> bool:
+  """True when run_dir holds this project's marker file with its content."""
+  marker = _read_json(os.path.join(run_dir, MARKER_FILE))
+  return isinstance(marker, dict) and marker.get('run_of') == MARKER['run_of']
+
+
+def _is_legacy_fingerprint(stored) -> bool:
+  """True for settings written by a version of this project from before the marker: no other file has these names."""
+  return (isinstance(stored, dict) and LEGACY_KEYS <= stored.keys() and
+          all(isinstance(k, str) and LEGACY_KEY.fullmatch(k) for k in stored))
+
+
+def _entries(run_dir: str) -> list:
+  """Entries of run_dir other than the training lock and the marker (none: a folder a new run may use)."""
+  return [e for e in os.listdir(run_dir) if e not in (LOCK_FILE, MARKER_FILE)] if os.path.isdir(run_dir) else []
+
+
+def _check_ours(run_dir: str) -> None:
+  """RunDirError unless run_dir is new, empty, or a run of this project (its marker, or an earlier version's
+  settings): a folder of anything else is never touched, whatever Config.overwrite says."""
+  if not _entries(run_dir) or is_marked(run_dir):
+    return
+  path = os.path.join(run_dir, FINGERPRINT_FILE)
+  if os.path.isfile(path) and _is_legacy_fingerprint(_read_json(path)):
+    return
+  found = (f'its {FINGERPRINT_FILE} is not settings of this project' if os.path.isfile(path) else
+           f'it holds {sorted(_entries(run_dir))[:3]}')
+  raise RunDirError(f'Config.checkpoint_dir {run_dir!r} is not a run of this project (no {MARKER_FILE}; {found}); '
+                    'nothing in it is touched, even with Config.overwrite: choose another Config.checkpoint_dir')
+
+
+def _mark(run_dir: str) -> None:
+  """Writes the marker that makes run_dir a run of this project (once)."""
+  if not is_marked(run_dir):
+    atomic.write_text(os.path.join(run_dir, MARKER_FILE), json.dumps(MARKER, indent=1))
+
+
+def _delete_written(folder: str, patterns: dict) -> None:
+  """Deletes the entries of folder that patterns name, pattern by pattern (see WRITTEN); keeps every other one."""
+  entries = os.listdir(folder)
+  for pattern, inner in patterns.items():
+    for entry in fnmatch.filter(entries, pattern):
+      path = os.path.join(folder, entry)
+      is_folder = os.path.isdir(path) and not os.path.islink(path)
+      if inner is None and is_folder:
+        shutil.rmtree(path)
+      elif inner is None:
+        os.remove(path)  # A file, or a link (never what it points to).
+      elif is_folder:
+        _delete_written(path, inner)
+        with contextlib.suppress(OSError):
+          os.rmdir(path)  # Stays when it holds files this project did not write.
 
 
 def _clear(run_dir: str) -> None:
-  """Deletes everything in run_dir except the training lock."""
-  for entry in _foreign_entries(run_dir):
-    path = os.path.join(run_dir, entry)
-    if os.path.isdir(path) and not os.path.islink(path):
-      shutil.rmtree(path)
-    else:
-      os.remove(path)
+  """Deletes what this project wrote into run_dir (its settings last); the user's files, the marker and the
+  training lock stay."""
+  _delete_written(run_dir, WRITTEN)
 
 
-def _settings_diff(run_dir: str, stored, config) -> str:
-  """How config differs from run_dir's stored run ('' when new or the same); RunDirError when it holds no run."""
-  if stored is None and _foreign_entries(run_dir):
-    raise RunDirError(f'Config.checkpoint_dir {run_dir!r} is not empty and holds no run ({FINGERPRINT_FILE} '
-                      'is missing); choose another Config.checkpoint_dir')
-  return '' if stored is None else differences(stored, config)
+def _settings_diff(run_dir: str, config) -> str:
+  """How config differs from run_dir's run ('' when new or the same); RunDirError when its settings are unreadable
+  or missing while files of a run are there."""
+  stored = read_fingerprint(run_dir)
+  if stored is not None:
+    return differences(stored, config)
+  written = [e for e in _entries(run_dir) if any(fnmatch.fnmatch(e, p) for p in WRITTEN)]
+  if written:
+    raise RunDirError(f'Config.checkpoint_dir {run_dir!r} holds files of a run ({sorted(written)[:3]}) but not its '
+                      f'settings ({FINGERPRINT_FILE} is missing); set Config.overwrite = True to delete that run and '
+                      'start over, or choose another Config.checkpoint_dir')
+  return ''
 
 
 def _other_run_error(run_dir: str, diff: str) -> RunDirError:
@@ -124,39 +207,48 @@ def _other_run_error(run_dir: str, diff: str) -> RunDirError:
 def prepare_run_dir(config) -> str:
   """Creates or re-opens Config.checkpoint_dir for training; refuses to touch a different run.
 
-  Same settings: resume. Different settings (or an unreadable config.json): RunDirError unless
-  Config.overwrite, which deletes that run. A non-empty directory that is not a run directory is never touched.
-  The settings are recorded later, by record_settings, once the run has started.
+  Same settings: resume. Different settings (or unreadable ones): RunDirError unless Config.overwrite, which
+  deletes what this project wrote there (nothing else). A non-empty folder that is not a run of this project is
+  never touched. A run of an earlier version, without the marker, is marked. The settings are recorded later,
+  by record_settings, once the run has started.
   """
   run_dir = config.checkpoint_dir
+  _check_ours(run_dir)
   try:
-    stored = read_fingerprint(run_dir)
+    diff = _settings_diff(run_dir, config)
   except RunDirError:
     if not config.overwrite:
       raise
-    _clear(run_dir)
-    stored = None
-  diff = _settings_diff(run_dir, stored, config)
+    diff = 'unreadable'
   if diff:
     if not config.overwrite:
       raise _other_run_error(run_dir, diff)
     _clear(run_dir)
   os.makedirs(run_dir, exist_ok=True)
+  if _entries(run_dir):
+    _mark(run_dir)
   return run_dir
 
 
 def check_trainable(config) -> None:
-  """Raises now, touching nothing, the RunDirError that training would raise for another run's Config.checkpoint_dir."""
+  """Raises now, touching nothing, the RunDirError that training would raise for Config.checkpoint_dir."""
   run_dir = config.checkpoint_dir
-  if config.overwrite or not os.path.isdir(run_dir):
+  if not os.path.isdir(run_dir):
     return
-  diff = _settings_diff(run_dir, read_fingerprint(run_dir), config)
+  _check_ours(run_dir)
+  if config.overwrite:
+    return
+  diff = _settings_diff(run_dir, config)
   if diff:
     raise _other_run_error(run_dir, diff)
 
 
 def record_settings(run_dir: str, config) -> None:
-  """Writes config.json (once: the run's settings) and config.gin (the operative gin config), atomically."""
+  """Writes the marker and config.json (once: the run's settings), then config.gin (the operative gin config).
+
+  Each atomically; the marker first, so that every folder holding our config.json is marked.
+  """
+  _mark(run_dir)
   path = os.path.join(run_dir, FINGERPRINT_FILE)
   if not os.path.isfile(path):
     atomic.write_text(path, json.dumps(fingerprint(config), indent=1, sort_keys=True))
@@ -234,8 +326,7 @@ def open_run(config):
   """
   run_dir = config.checkpoint_dir
   _require_not_file(run_dir)
-  if read_fingerprint(run_dir) is None and _foreign_entries(run_dir):
-    prepare_run_dir(config)  # Raises: never put a lock into a foreign folder.
+  _check_ours(run_dir)  # Never put a lock into a folder of something else.
   path = os.path.join(run_dir, LOCK_FILE)
   holder = {'pid': os.getpid(), 'host': socket.gethostname(), 'started': time.strftime('%Y-%m-%d %H:%M:%S %z')}
   try:
@@ -254,6 +345,7 @@ def check_run_dir(config) -> str:
   """Config.checkpoint_dir for eval/render: it must hold a run trained with the same settings."""
   run_dir = config.checkpoint_dir
   _require_not_file(run_dir)
+  _check_ours(run_dir)
   stored = read_fingerprint(run_dir)
   if stored is None:
     raise RunDirError(f'Config.checkpoint_dir {run_dir!r} holds no run ({FINGERPRINT_FILE} is missing); '
@@ -263,3 +355,24 @@ def check_run_dir(config) -> str:
     raise RunDirError(f'Config.checkpoint_dir {run_dir!r} was trained with different settings ({diff}); pass '
                       'the gin configs and bindings used for training')
   return run_dir
+
+
+def outputs_root(config) -> str:
+  """Where eval.py and render.py write: Config.output_dir, or the run directory when it is ''."""
+  return config.output_dir or config.checkpoint_dir
+
+
+def make_output_folder(config, folder: str) -> None:
+  """Creates folder (under outputs_root) and checks it can be written; RunDirError naming the setting if not."""
+  try:
+    os.makedirs(folder, exist_ok=True)
+    with tempfile.TemporaryFile(dir=folder):
+      pass
+  except OSError as err:
+    why = f'{err.strerror or err}' + (f' ({err.filename!r})' if err.filename else '')
+    if config.output_dir:
+      raise RunDirError(f'Config.output_dir {config.output_dir!r} cannot be written: {why}; expected a writable '
+                        'folder for the outputs of eval.py and render.py') from err
+    raise RunDirError(f'Config.checkpoint_dir {config.checkpoint_dir!r} cannot be written: {why}; set '
+                      'Config.output_dir to a writable folder to write the outputs of eval.py and render.py '
+                      'there') from err
