@@ -3,10 +3,10 @@
   python render.py --gin_configs=configs/freenerf/llff3_freenerf.gin --gin_bindings="Config.llff_scan = 'fern'"
 
 Pass the gin configs and bindings used for training (none: the demo's FreeNeRF, configs/demo.gin then
-configs/demo_forward.gin). Writes
-<Config.checkpoint_dir>/path_renders_step_<step>/{color,depth,opacity}_<frame>.png; depth is the turbo map of
--log depth normalized by the 0.5 / 99.5 percentiles of frame 0. With imageio-ffmpeg installed it also writes
-<scene>_<expname>_{color,depth,opacity}.mp4 there. On a CPU use fewer frames and a lower resolution, e.g.
+configs/demo_forward.gin). Writes <Config.checkpoint_dir>/path_renders_step_<step>/{color,depth,opacity}_<frame>.png
+(or into Config.output_dir, when set); depth is the turbo map of -log depth normalized by the 0.5 / 99.5
+percentiles of frame 0. With imageio-ffmpeg installed it also writes <scene>_<expname>_{color,depth,opacity}.mp4
+there. On a CPU use fewer frames and a lower resolution, e.g.
 --gin_bindings="Config.render_path_frames = 30" "Config.render_factor = 8".
 """
 

@@ -227,6 +227,7 @@ def prepare_run_dir(config) -> str:
   os.makedirs(run_dir, exist_ok=True)
   if _entries(run_dir):
     _mark(run_dir)
+  _require_writable_parts(run_dir)
   return run_dir
 
 
@@ -312,8 +313,7 @@ def _require_not_file(run_dir: str) -> None:
 
 def _unwritable(run_dir: str, err: OSError) -> RunDirError:
   """The one-line error of a run directory that cannot be created or written (read-only, under a file, ...)."""
-  where = f' ({err.filename!r})' if err.filename else ''
-  return RunDirError(f'Config.checkpoint_dir {run_dir!r} cannot be written: {err.strerror or err}{where}; expected '
+  return RunDirError(f'Config.checkpoint_dir {run_dir!r} cannot be written: {_why(err)}; expected '
                      'a writable directory (or a new one in a writable folder)')
 
 
@@ -362,14 +362,39 @@ def outputs_root(config) -> str:
   return config.output_dir or config.checkpoint_dir
 
 
+def _probe_write(folder: str) -> None:
+  """Creates folder if needed and a file in it (deleted at once); OSError when it cannot be written."""
+  os.makedirs(folder, exist_ok=True)
+  try:
+    with tempfile.TemporaryFile(dir=folder):
+      pass
+  except OSError as err:  # Its filename is the probe's random name: name the folder instead.
+    raise OSError(err.errno, err.strerror, folder) from err
+
+
+def _why(err: OSError) -> str:
+  """'<reason> (<file>)' of an OSError."""
+  return f'{err.strerror or err}' + (f' ({err.filename!r})' if err.filename else '')
+
+
+def _require_writable_parts(run_dir: str) -> None:
+  """RunDirError naming the first existing folder of run_dir that training writes into but cannot."""
+  for name in ('checkpoints', 'tensorboard'):
+    folder = os.path.join(run_dir, name)
+    if os.path.isdir(folder):
+      try:
+        _probe_write(folder)
+      except OSError as err:
+        raise RunDirError(f'{folder!r} in Config.checkpoint_dir cannot be written: {_why(err)}; expected a '
+                          'writable folder (training saves into it)') from err
+
+
 def make_output_folder(config, folder: str) -> None:
   """Creates folder (under outputs_root) and checks it can be written; RunDirError naming the setting if not."""
   try:
-    os.makedirs(folder, exist_ok=True)
-    with tempfile.TemporaryFile(dir=folder):
-      pass
+    _probe_write(folder)
   except OSError as err:
-    why = f'{err.strerror or err}' + (f' ({err.filename!r})' if err.filename else '')
+    why = _why(err)
     if config.output_dir:
       raise RunDirError(f'Config.output_dir {config.output_dir!r} cannot be written: {why}; expected a writable '
                         'folder for the outputs of eval.py and render.py') from err
