@@ -99,6 +99,10 @@ def test_command_line(tmp_path, capsys):
   assert 'train 2 views 12x16' in capsys.readouterr().out and out.is_file()  # The demo's 2 views.
   with pytest.raises(SystemExit):
     pack_scene.main(['--out', str(tmp_path / 'scene.zip')])
+  out.write_bytes(b'the user\'s')
+  with pytest.raises(SystemExit):
+    pack_scene.main(['--gin_bindings', *bindings, '--out', str(out)])
+  assert out.read_bytes() == b'the user\'s' and 'exists; delete it' in capsys.readouterr().err
 
 
 @pytest.mark.skipif(not SHARED_DATA.is_dir(), reason=f'real scenes absent: {SHARED_DATA} does not exist')

@@ -36,6 +36,8 @@ def main(argv=None) -> int:
   args = parser.parse_args(argv)
   if not args.out.endswith('.npz'):
     parser.error(f'--out {args.out!r}: expected a file name ending in .npz')
+  if os.path.exists(args.out):
+    parser.error(f'--out {args.out!r} exists; delete it or choose another name (a pack never replaces a file)')
   config = cli.config_from_flags(args)
   datasets = pack(config, args.out)
   views = ', '.join(f'{split} {len(d.ids)} views {d.height}x{d.width}' for split, d in datasets.items())
