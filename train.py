@@ -58,7 +58,7 @@ def train_and_report(config, stop_at_step: int = 0) -> int:
   if result.signum is not None:
     print(f'Stopped by signal {result.signum} at step {step}; checkpoint saved in {result.run_dir!r}. '
           'Run the same command again to resume.')
-    return 128 + int(result.signum)
+    return cli.signal_status(result.signum)
   print(f'Trained to step {step}; run directory {result.run_dir!r}.')
   if result.skipped:
     print(f'{result.skipped} update(s) were skipped for non-finite values (see the log above and '

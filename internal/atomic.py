@@ -17,7 +17,9 @@ def write_text(path, text: str) -> None:
       os.fsync(f.fileno())
     os.chmod(tmp, 0o644)  # mkstemp creates 0600; metadata files are as readable as any other output.
     os.replace(tmp, path)
-  except BaseException:
+  except BaseException as err:
     with contextlib.suppress(FileNotFoundError):
       os.unlink(tmp)
+    if isinstance(err, OSError) and err.filename is None:  # A failed write or fsync: name the file (disk full).
+      raise OSError(err.errno, err.strerror, path) from err
     raise

@@ -4,15 +4,18 @@ A user error (a bad setting, a missing or malformed data file, a run directory t
 output that exists) prints `error: <message>` on stderr and exits with USAGE_ERROR_STATUS, the status argparse
 uses for bad flags. A run stopped for non-finite values (Config.max_skipped_steps consecutive skipped updates,
 or one under Config.nonfinite_grad_policy = 'raise') prints one line too and exits with NONFINITE_STATUS.
-A checkpoint save that finds the disk full (the earlier checkpoints stay intact) prints one line and exits with
-DISK_FULL_STATUS. Running out of accelerator memory is a user error too: its line names Config.batch_size
-(training, with XLA's estimate of the compiled step) or Config.render_chunk_size (rendering).
+A checkpoint save that finds the disk full (the earlier checkpoints stay intact), or any other write that does,
+prints one line and exits with DISK_FULL_STATUS. Running out of accelerator memory is a user error too: its line
+names Config.batch_size (training, with XLA's estimate of the compiled step) or Config.render_chunk_size
+(rendering). Ctrl-C outside the training loop (which saves a checkpoint and stops itself) prints
+`interrupted: ...` and exits with 128 + SIGINT.
 Anything else is a bug and keeps its traceback (exit status 1). FREENERF_DEBUG=1 in the
 environment shows the traceback of user errors too.
 """
 
 import argparse
 import os
+import signal
 import sys
 
 from internal import config_loader
@@ -28,7 +31,7 @@ CONFIG_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file
 DEMO_CONFIGS = [os.path.join(CONFIG_DIR, name) for name in ('demo.gin', 'demo_forward.gin')]
 USAGE_ERROR_STATUS = 2
 NONFINITE_STATUS = 3
-DISK_FULL_STATUS = 4  # checkpoints.DiskFullError: free space and rerun the command to resume.
+DISK_FULL_STATUS = 4  # checkpoints.DiskFullError or another write without space: free space and rerun the command.
 DEBUG_ENV = 'FREENERF_DEBUG'
 # ValueError covers Config validation, gin's unknown bindings and the loaders' DatasetError; FileNotFoundError
 # covers missing data and NoCheckpointError; FileExistsError is an evaluation or rendering that exists already;
@@ -47,16 +50,39 @@ def one_line(err: BaseException) -> str:
 OWN_STATUS = ((train_step.NonFiniteError, NONFINITE_STATUS), (checkpoints.DiskFullError, DISK_FULL_STATUS))
 
 
+def signal_status(signum) -> int:
+  """The exit status of a command stopped by signal signum (128 + signum, as shells report it)."""
+  return 128 + int(signum)
+
+
 def run(main) -> int:
-  """Calls main() -> exit status; a user error prints one line on stderr (status 2, or 3 / 4 of OWN_STATUS)."""
+  """Calls main() -> exit status; a user error prints one line on stderr (status 2, or 3 / 4 of OWN_STATUS).
+
+  Ctrl-C outside training's own handling (eval.py, render.py, training before its loop) prints one line too and
+  exits with signal_status(SIGINT), as training stopped by SIGINT does.
+  """
   progress.robust_streams()
+  debug = os.environ.get(DEBUG_ENV, '') not in ('', '0')
   try:
     return main()
   except (*USER_ERRORS, *(cls for cls, _ in OWN_STATUS)) as err:
-    if os.environ.get(DEBUG_ENV, '') not in ('', '0'):
+    if debug:
       raise
     print(f'error: {one_line(err)}', file=sys.stderr)
     return next((status for cls, status in OWN_STATUS if isinstance(err, cls)), USAGE_ERROR_STATUS)
+  except OSError as err:
+    if debug or not checkpoints.is_disk_full(err):
+      raise
+    where = f' writing {err.filename!r}' if err.filename else ''
+    print(f'error: no space left on the device{where}; free disk space and run the same command again',
+          file=sys.stderr)
+    return DISK_FULL_STATUS
+  except KeyboardInterrupt:
+    if debug:
+      raise
+    print('interrupted: stopped by Ctrl-C (SIGINT) before the command finished; what it wrote is kept, and the '
+          'same command run again finishes the work', file=sys.stderr)
+    return signal_status(signal.SIGINT)
 
 
 MULTI_VALUE_FLAGS = ('--gin_configs', '--gin_bindings')

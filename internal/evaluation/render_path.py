@@ -25,11 +25,16 @@ def output_dir(root: str, step: int) -> str:
   return os.path.join(root, f'path_renders_step_{step}')
 
 
+def last_frame(out_dir: str, config) -> str:
+  """The colour frame render writes last (of Config.render_path_frames): present once a render is complete."""
+  return os.path.join(out_dir, f'color_{config.render_path_frames - 1:03d}.png')
+
+
 def existing_renders(config) -> bool:
-  """True when the run's newest step has path renders already."""
+  """True when the run's newest step has complete path renders (an interrupted render is not)."""
   run_dir = run_dir_lib.check_run_dir(config)
   out_dir = output_dir(run_dir_lib.outputs_root(config), checkpoints.latest_step(run_dir))
-  return os.path.isdir(out_dir) and bool(os.listdir(out_dir))
+  return os.path.isfile(last_frame(out_dir, config))
 
 
 def can_write_video() -> bool:
@@ -49,13 +54,16 @@ def write_video(frames, path: str) -> None:
 
 
 def render(config) -> str:
-  """Renders every frame of the path; returns the output folder (refuses to replace one unless Config.overwrite)."""
+  """Renders every frame of the path; returns the output folder.
+
+  Refuses to replace a complete render unless Config.overwrite; the frames of an interrupted one are rendered again.
+  """
   run_dir = run_dir_lib.check_run_dir(config)
   path_rays = datasets.render_path_rays(config)
   model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], path_rays))
   step = int(state.step)  # The newest intact checkpoint's.
   out_dir = output_dir(run_dir_lib.outputs_root(config), step)
-  if os.path.isdir(out_dir) and os.listdir(out_dir) and not config.overwrite:
+  if os.path.isfile(last_frame(out_dir, config)) and not config.overwrite:
     raise FileExistsError(f'{out_dir!r} holds renders of step {step} already; set Config.overwrite = True to '
                           'replace them')
   run_dir_lib.make_output_folder(config, out_dir)

@@ -55,20 +55,53 @@ def _drops_disk_full_records(record: logging.LogRecord) -> bool:
   return not (_says_disk_full(record.getMessage()) or (err is not None and is_disk_full(err)))
 
 
+def _is_closed_loop_error(unraisable) -> bool:
+  """True for the error of a callback into the event loop of an orbax save that already failed and closed it."""
+  return isinstance(unraisable.exc_value, RuntimeError) and str(unraisable.exc_value) == 'Event loop is closed'
+
+
+def _drop_failed_save_reports():
+  """Drops orbax's own reports of a write that found the disk full; returns the function that stops dropping them.
+
+  They are the absl records of its save threads, asyncio's 'Future exception was never retrieved' (logged when
+  the failed write is garbage collected, possibly at exit) and, from writes still running when the save failed,
+  'Event loop is closed' errors that Python reports as unraisable.
+  """
+  loggers = [logging.getLogger(name) for name in ('absl', 'asyncio')]
+  for logger in loggers:
+    logger.addFilter(_drops_disk_full_records)
+  previous = sys.unraisablehook
+
+  def hook(unraisable):
+    if not _is_closed_loop_error(unraisable):
+      previous(unraisable)
+
+  sys.unraisablehook = hook
+
+  def restore():
+    for logger in loggers:
+      logger.removeFilter(_drops_disk_full_records)
+    if sys.unraisablehook is hook:
+      sys.unraisablehook = previous
+  return restore
+
+
 @contextlib.contextmanager
 def stop_when_disk_full(run_dir: str):
   """Turns a checkpoint save that ran out of disk space in the block into DiskFullError naming the intact step.
 
   Orbax writes each step into a temporary folder and renames it when complete, so a failed save leaves the
-  checkpoints before it as they were (the temporary folder is removed when training next starts). Its save
-  threads log every failed write with a traceback (absl logger); those records are dropped for the one line.
+  checkpoints before it as they were (the temporary folder is removed when training next starts). Orbax's own
+  tracebacks of the failed writes are dropped for the one line, also after the block: some come when its
+  abandoned writes end or are collected, later.
   """
-  absl_logger = logging.getLogger('absl')
-  absl_logger.addFilter(_drops_disk_full_records)
+  restore = _drop_failed_save_reports()
+  full = False
   try:
     yield
   except Exception as err:  # pylint: disable=broad-except  (orbax re-raises the writer's error as it was)
-    if not is_disk_full(err):
+    full = is_disk_full(err)
+    if not full:
       raise
     folder = os.path.join(run_dir, CHECKPOINT_SUBDIR)
     try:
@@ -78,7 +111,8 @@ def stop_when_disk_full(run_dir: str):
     raise DiskFullError(f'no space left on the device while saving a checkpoint in {folder!r}; {kept}. Free disk '
                         'space (or lower Config.checkpoint_keep) and run the same command again to resume') from err
   finally:
-    absl_logger.removeFilter(_drops_disk_full_records)
+    if not full:
+      restore()
 
 
 def manager(run_dir: str, keep: int) -> ocp.CheckpointManager:

@@ -1,0 +1,86 @@
+"""A full disk ends in one line and exit status 4: orbax's late reports of its failed writes print nothing."""
+
+import errno
+import logging
+import os
+import shutil
+import subprocess
+import sys
+import types
+
+import pytest
+
+from conftest import JAX_CACHE
+from internal import atomic
+from internal import cli
+from internal.training import checkpoints
+from internal.training import loop
+from test_checkpoints import DEMO, ROOT, TINY, tiny_config
+from test_trust import small_disk  # pylint: disable=unused-import  (a fixture)
+
+NO_SPACE = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_orbax_reports_after_a_failed_save_are_dropped_and_others_kept(tmp_path, monkeypatch, capsys):
+  passed_on = []
+  monkeypatch.setattr(sys, 'unraisablehook', passed_on.append)
+  asyncio_logger = logging.getLogger('asyncio')
+  monkeypatch.setattr(asyncio_logger, 'filters', [])
+  records = []
+  handler = logging.Handler()
+  handler.emit = records.append
+  asyncio_logger.addHandler(handler)
+  try:
+    with pytest.raises(checkpoints.DiskFullError, match='no space left on the device while saving'):
+      with checkpoints.stop_when_disk_full(str(tmp_path)):
+        raise NO_SPACE
+    # What orbax's abandoned writes report later: a future never retrieved, callbacks into its closed loop.
+    asyncio_logger.error('Future exception was never retrieved', exc_info=(OSError, NO_SPACE, None))
+    asyncio_logger.error('Task exception was never retrieved: something else')
+    closed = types.SimpleNamespace(exc_value=RuntimeError('Event loop is closed'), object=None)
+    other = types.SimpleNamespace(exc_value=RuntimeError('a bug'), object=None)
+    sys.unraisablehook(closed)
+    sys.unraisablehook(other)
+  finally:
+    asyncio_logger.removeHandler(handler)
+  assert [r.getMessage() for r in records] == ['Task exception was never retrieved: something else']
+  assert passed_on == [other]
+
+
+def test_the_filters_go_when_training_ends_without_a_full_disk(tmp_path, monkeypatch):
+  hook = sys.unraisablehook
+  monkeypatch.setattr(logging.getLogger('asyncio'), 'filters', [])
+  with pytest.raises(KeyError):
+    with checkpoints.stop_when_disk_full(str(tmp_path)):
+      raise KeyError('a bug')
+  assert sys.unraisablehook is hook and not logging.getLogger('asyncio').filters
+
+
+def test_a_full_disk_while_writing_a_settings_file_is_one_line_naming_it(tmp_path, monkeypatch, capsys):
+  def no_space(fd):
+    raise NO_SPACE
+  monkeypatch.setattr(os, 'fsync', no_space)
+  monkeypatch.delenv(cli.DEBUG_ENV, raising=False)
+  assert cli.run(lambda: atomic.write_text(tmp_path / 'config.gin', 'text')) == cli.DISK_FULL_STATUS
+  assert capsys.readouterr().err == (f"error: no space left on the device writing {str(tmp_path / 'config.gin')!r}; "
+                                     'free disk space and run the same command again\n')
+  assert os.listdir(tmp_path) == []
+
+
+def test_a_full_disk_during_a_save_prints_no_traceback(small_disk, scene_dir):
+  run = small_disk / 'run'
+  bindings = ['Config.max_steps = 6', 'Config.checkpoint_every = 3']
+  loop.train(tiny_config(scene_dir, run, *bindings), stop_at_step=3)
+  checkpoint_bytes = sum(f.stat().st_size for f in (run / 'checkpoints' / '3').rglob('*') if f.is_file())
+  free = shutil.disk_usage(small_disk).free
+  (small_disk / 'filler').write_bytes(b'\1' * (free - checkpoint_bytes // 2))  # Room for half a checkpoint.
+  env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=JAX_CACHE, JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS='0')
+  env.pop(cli.DEBUG_ENV, None)
+  done = subprocess.run([sys.executable, 'train.py', '--gin_configs', DEMO, '--gin_bindings', *TINY, *bindings,
+                         f"Config.data_dir = '{scene_dir}'", f"Config.checkpoint_dir = '{run}'"], cwd=ROOT, env=env,
+                        capture_output=True, text=True, check=False)
+  assert done.returncode == cli.DISK_FULL_STATUS, done.stderr[-3000:]
+  assert 'Traceback' not in done.stderr and 'ERROR' not in done.stderr, done.stderr[-3000:]
+  last = done.stderr.strip().splitlines()[-1]
+  assert last.startswith('error: no space left on the device while saving a checkpoint'), done.stderr[-3000:]
+  assert 'step 3, is kept' in last
