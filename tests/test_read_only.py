@@ -103,4 +103,9 @@ def test_a_read_only_checkpoints_folder_is_named_before_training(tmp_path, scene
   _one_error_line(errout, f"{str(run / 'checkpoints')!r} in Config.checkpoint_dir cannot be written",
                   'expected a writable folder')
   assert 'Traceback' not in errout and 'never awaited' not in errout and 'step/s' not in errout  # No step ran.
-  assert sorted(os.listdir(run / 'checkpoints')) == ['2']
+  with read_only(run / 'checkpoints'):
+    status, errout = _cli(monkeypatch, capsys, train_script.main, *TINY, f"Config.data_dir = '{scene_dir}'",
+                          f"Config.checkpoint_dir = '{run}'", 'Config.max_steps = 5', 'Config.overwrite = True')
+  assert status == cli.USAGE_ERROR_STATUS
+  _one_error_line(errout, f'Config.checkpoint_dir {str(run)!r} cannot be written', str(run / 'checkpoints'))
+  assert sorted(os.listdir(run / 'checkpoints')) == ['2'] and (run / 'config.json').exists()

@@ -223,7 +223,10 @@ def prepare_run_dir(config) -> str:
   if diff:
     if not config.overwrite:
       raise _other_run_error(run_dir, diff)
-    _clear(run_dir)
+    try:
+      _clear(run_dir)
+    except OSError as err:  # A read-only part: named, and what was not deleted yet stays (settings last).
+      raise _unwritable(run_dir, err) from err
   os.makedirs(run_dir, exist_ok=True)
   if _entries(run_dir):
     _mark(run_dir)
