@@ -161,6 +161,17 @@ def _mark(run_dir: str) -> None:
     atomic.write_text(os.path.join(run_dir, MARKER_FILE), json.dumps(MARKER, indent=1))
 
 
+def _delete(path: str, is_folder: bool) -> None:
+  """Deletes a file, a link (never what it points to) or a folder with its content; OSError naming path."""
+  try:
+    if is_folder:
+      shutil.rmtree(path)
+    else:
+      os.remove(path)
+  except OSError as err:  # rmtree names the failing entry relative to the folder it was in.
+    raise OSError(err.errno, err.strerror, path) from err
+
+
 def _delete_written(folder: str, patterns: dict) -> None:
   """Deletes the entries of folder that patterns name, pattern by pattern (see WRITTEN); keeps every other one."""
   entries = os.listdir(folder)
@@ -168,10 +179,8 @@ def _delete_written(folder: str, patterns: dict) -> None:
     for entry in fnmatch.filter(entries, pattern):
       path = os.path.join(folder, entry)
       is_folder = os.path.isdir(path) and not os.path.islink(path)
-      if inner is None and is_folder:
-        shutil.rmtree(path)
-      elif inner is None:
-        os.remove(path)  # A file, or a link (never what it points to).
+      if inner is None:
+        _delete(path, is_folder)
       elif is_folder:
         _delete_written(path, inner)
         with contextlib.suppress(OSError):
