@@ -18,7 +18,8 @@ class Config:
   expname: str = 'demo'                 # The experiment's name: the `method` column of tools.tables.
   project: str = 'freenerf'             # Unused; kept only so the released .gin files, which set it, parse.
   checkpoint_dir: str = 'out/demo'      # The run directory: checkpoints, settings, logs, evaluations, renders.
-  overwrite: bool = False               # Allow training into a directory holding another run.
+  # Allow training into a directory holding another run of this project (deletes only the files it wrote there).
+  overwrite: bool = False
   # Where eval.py and render.py write (test_preds_step_<step>/, path_renders_step_<step>/); '' = the run directory.
   output_dir: str = ''
   jax_rng_seed: int = 20200823          # Seed of the model's initialization and of sampling noise (as released).
