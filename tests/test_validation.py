@@ -59,16 +59,12 @@ def test_bad_settings_raise_value_errors_naming_them(binding, message):
     _load(binding)
 
 
-@pytest.mark.parametrize('binding, message', [
-    ('NerfModel.num_coarse_samples = 0', r'^NerfModel.num_coarse_samples = 0; expected an integer >= 1'),
-    ('NerfModel.num_fine_samples = -1', r'^NerfModel.num_fine_samples = -1; expected an integer >= 0'),
-    ('NerfMLP.net_width = 0', r'^NerfMLP.net_width = 0; expected an integer >= 1'),
-    ('NerfMLP.net_width_viewdirs = 0', r'^NerfMLP.net_width_viewdirs = 0; expected an integer >= 1'),
-])
-def test_sizes_of_the_nerf_model_are_checked_when_it_is_the_model(binding, message):
-  with pytest.raises(ValueError, match=message):
-    _load("Config.model = 'nerf'", binding)
-  _load(binding)  # mip-NeRF's run does not build the NeRF model.
+def test_sizes_of_the_nerf_model_are_checked_when_it_is_the_model():
+  for binding, minimum in (('NerfModel.num_coarse_samples = 0', 1), ('NerfModel.num_fine_samples = -1', 0),
+                           ('NerfMLP.net_width = 0', 1), ('NerfMLP.net_width_viewdirs = 0', 1)):
+    with pytest.raises(ValueError, match=rf'^{re.escape(binding)}; expected an integer >= {minimum}$'):
+      _load("Config.model = 'nerf'", binding)
+    _load(binding)  # mip-NeRF's run does not build the NeRF model.
 
 
 @pytest.mark.parametrize('name, options', [

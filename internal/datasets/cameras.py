@@ -1,4 +1,4 @@
-"""Camera algebra: projection-matrix decomposition, pose recentering/rescaling and render paths."""
+"""Camera algebra: checks of read cameras, projection decomposition, pose recentering/rescaling, render paths."""
 
 from typing import Sequence
 
