@@ -7,16 +7,17 @@ or one under Config.nonfinite_grad_policy = 'raise') prints one line too and exi
 A checkpoint save that finds the disk full (the earlier checkpoints stay intact), or any other write that does,
 prints one line and exits with DISK_FULL_STATUS. Running out of accelerator memory is a user error too: its line
 names Config.batch_size (training, with XLA's estimate of the compiled step) or Config.render_chunk_size
-(rendering). Ctrl-C outside the training loop (which saves a checkpoint and stops itself) prints
-`interrupted: ...` and exits with 128 + SIGINT.
+(rendering); so is running out of host memory drawing the training batch (Config.batch_size). Ctrl-C outside the
+training loop (which saves a checkpoint and stops itself) prints `interrupted: ...` and exits with 128 + SIGINT.
 Anything else is a bug and keeps its traceback (exit status 1). FREENERF_DEBUG=1 in the
-environment shows the traceback of user errors too.
+environment shows the traceback of user errors too. Warnings print as one line `warning: <message>`.
 """
 
 import argparse
 import os
 import signal
 import sys
+import warnings
 
 from internal import config_loader
 from internal import progress
@@ -36,7 +37,7 @@ DEBUG_ENV = 'FREENERF_DEBUG'
 # ValueError covers Config validation, gin's unknown bindings and the loaders' DatasetError; FileNotFoundError
 # covers missing data and NoCheckpointError; FileExistsError is an evaluation or rendering that exists already;
 # PrimaryFailed is what the other processes of a several-process training say when process 0 met such an error;
-# OutOfMemoryError is XLA's RESOURCE_EXHAUSTED, named by the setting to lower.
+# OutOfMemoryError is XLA's RESOURCE_EXHAUSTED or the host batch's MemoryError, named by the setting to lower.
 USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, run_dir.RunDirError,
                checkpoints.NoCheckpointError, distributed.PrimaryFailed, memory.OutOfMemoryError)
 
@@ -55,14 +56,22 @@ def signal_status(signum) -> int:
   return 128 + int(signum)
 
 
+def format_warning(message, category, filename, lineno, line=None) -> str:
+  """A warning as the scripts print it: one line `warning: ...`, without Python's file, line and source."""
+  del category, filename, lineno, line
+  return f'warning: {one_line(message)}\n' if str(message).strip() else 'warning\n'
+
+
 def run(main) -> int:
   """Calls main() -> exit status; a user error prints one line on stderr (status 2, or 3 / 4 of OWN_STATUS).
 
   Ctrl-C outside training's own handling (eval.py, render.py, training before its loop) prints one line too and
-  exits with signal_status(SIGINT), as training stopped by SIGINT does.
+  exits with signal_status(SIGINT), as training stopped by SIGINT does. Warnings print as one line
+  `warning: ...` while main runs.
   """
   progress.robust_streams()
   debug = os.environ.get(DEBUG_ENV, '') not in ('', '0')
+  python_format, warnings.formatwarning = warnings.formatwarning, format_warning
   try:
     return main()
   except (*USER_ERRORS, *(cls for cls, _ in OWN_STATUS)) as err:
@@ -83,6 +92,8 @@ def run(main) -> int:
     print('interrupted: stopped by Ctrl-C (SIGINT) before the command finished; what it wrote is kept, and the '
           'same command run again finishes the work', file=sys.stderr)
     return signal_status(signal.SIGINT)
+  finally:
+    warnings.formatwarning = python_format
 
 
 MULTI_VALUE_FLAGS = ('--gin_configs', '--gin_bindings')

@@ -1,8 +1,11 @@
 """Reading a Config from .gin files and bindings, and checking every setting before any work."""
 
+import ast
 import dataclasses
+import logging
 import math
 import os
+import re
 import warnings
 from typing import Sequence
 
@@ -39,17 +42,38 @@ def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ())
   for path in gin_configs:
     if not os.path.isfile(path):
       raise FileNotFoundError(f'gin config {path!r} does not exist')
+  logging.root.addFilter(_not_gin_path_noise)
   try:
     gin.parse_config_files_and_bindings(list(gin_configs), list(gin_bindings), skip_unknown=False)
   except SyntaxError as err:  # gin reports a malformed value as a SyntaxError; it is a bad setting.
     raise ValueError(f'cannot parse the gin configs {list(gin_configs)} / bindings {list(gin_bindings)}: '
                      f'{err}') from err
+  except OSError as err:
+    _raise_missing_include(err)
+    raise
   except ValueError as err:
     for name in SET_FROM_CONFIG:
       if f"denylisted kwarg '{name}'" in str(err):
         raise ValueError(f'{str(err).splitlines()[-1].strip()}: the model\'s {name} is set from Config.{name}, '
                          f'the one setting of it; bind Config.{name} instead') from err
     raise
+  finally:
+    logging.root.removeFilter(_not_gin_path_noise)
+
+
+def _not_gin_path_noise(record: logging.LogRecord) -> bool:
+  """False for gin's 'Path not found' log line of each place it looked for an include (the error names them)."""
+  return not record.getMessage().startswith('Path not found: ')
+
+
+def _raise_missing_include(err: OSError) -> None:
+  """Raises FileNotFoundError naming the gin file, its line and the include that gin could not open (if so)."""
+  missing = re.search(r'Unable to open file: (.+?)\. Searched config paths: (\[.*?\])', str(err))
+  where = re.search(r'In file "(.+?)", line (\d+)', str(err))  # The innermost including file comes first.
+  if missing and where:
+    searched = list(dict.fromkeys(path or os.getcwd() for path in ast.literal_eval(missing.group(2))))
+    raise FileNotFoundError(f'gin config {where.group(1)!r}, line {where.group(2)}: include {missing.group(1)!r} '
+                            f'does not exist (looked for it in {searched})') from err
 
 
 def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> Config:
@@ -88,13 +112,15 @@ def validate(config: Config) -> None:
     base.check_choice(f'MipNerfModel.{name}', getattr(model, name), options, ValueError)
   _check_types(config)
   for name in ('max_steps', 'batch_size', 'render_chunk_size', 'checkpoint_every', 'checkpoint_keep',
-               'print_every', 'render_path_frames'):
+               'print_every', 'render_path_frames', 'eval_factor'):
     if getattr(config, name) < 1:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected a positive integer')
   for name in ('n_input_views', 'freq_reg_end', 'occ_reg_range', 'occ_wb_range', 'lr_delay_steps',
-               'stuck_warning_steps'):
+               'stuck_warning_steps', 'factor', 'render_factor'):
     if getattr(config, name) < 0:
       raise ValueError(f'Config.{name} = {getattr(config, name)}; expected >= 0')
+  _check_generated_size(config.generated_size)
+  _check_model_sizes(config.model)
   if config.max_skipped_steps < 1:
     raise ValueError(f'Config.max_skipped_steps = {config.max_skipped_steps}; expected >= 1')
   if config.far <= config.near:
@@ -117,6 +143,30 @@ def validate(config: Config) -> None:
   _warn_on_unused_regularizer(config)
   _validate_regnerf(config)
   _validate_curve(config)
+
+
+def _check_generated_size(size) -> None:
+  """Raises a ValueError naming Config.generated_size unless it is two positive integers (H, W)."""
+  if (not isinstance(size, (list, tuple)) or len(size) != 2
+      or any(isinstance(n, bool) or not isinstance(n, int) or n < 1 for n in size)):
+    raise ValueError(f'Config.generated_size = {size!r}; expected two positive integers (height, width)')
+
+
+# The model settings that size its network and samples, with their least workable value (below it the model
+# cannot be built or trained); each model's and MLP's own, under their gin names.
+MODEL_MINIMUMS = {'MipNerfModel': (('num_samples', 1), ('num_levels', 1)),
+                  'MLP': (('net_width', 1), ('net_depth_viewdirs', 1), ('net_width_viewdirs', 1)),
+                  'NerfModel': (('num_coarse_samples', 1), ('num_fine_samples', 0)),
+                  'NerfMLP': (('net_width', 1), ('net_width_viewdirs', 1))}
+
+
+def _check_model_sizes(model: str) -> None:
+  """Raises a ValueError naming the binding (e.g. MipNerfModel.num_samples) of a model size out of range."""
+  for gin_name, module in registry.gin_modules(model):
+    for name, minimum in MODEL_MINIMUMS.get(gin_name, ()):
+      value = getattr(module, name)
+      if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f'{gin_name}.{name} = {value!r}; expected an integer >= {minimum}')
 
 
 def _check_ndc_near_far(config: Config) -> None:

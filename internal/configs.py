@@ -94,7 +94,8 @@ class Config:
 
   # Training health.
   # Warn once, naming Config.lr_init, when the training loss (window means of print_every steps) sets no new best,
-  # by a relative 1e-3, for this many steps within the first 4x as many steps of the run; 0 = never.
+  # by a relative 1e-3, for this many steps within the first 4x as many steps of the run; 0 = never. A run shorter
+  # than 4x this is watched whole, with a quarter of its steps (at least 4 windows) in place of this.
   stuck_warning_steps: int = 500
 
   # FreeNeRF regularizers.

@@ -1,5 +1,6 @@
 """Bad values are refused before any work: Config ranges and types, non-finite cameras, mixed image sizes."""
 
+import dataclasses
 import json
 import os
 import re
@@ -17,10 +18,10 @@ from internal.evaluation import lpips
 from internal.models import precision
 from internal.models import sampling
 from internal.training import train_step
-from internal.datasets import batching, image_io, loader, synthetic
+from internal.datasets import batching, image_io, loader, packed, synthetic
 from internal.datasets import blender as blender_lib
 from internal.datasets import DatasetError, dtu, load_dataset
-from test_datasets_dtu_layouts import config as dtu_config, synthetic_projections, write_idr
+from test_datasets_dtu_layouts import config as dtu_config, synthetic_projections, write_idr, write_regnerf
 from test_datasets_errors import blender, llff
 
 
@@ -42,10 +43,28 @@ def _load(*bindings):
     ('Config.max_steps = 1e5', r'Config.max_steps = 100000.0; expected int'),
     ('Config.nope = 1', "doesn't have a parameter named 'nope'"),
     ('Config.near = ', 'cannot parse the gin'),
+    ('Config.factor = -2', r'^Config.factor = -2; expected >= 0'),
+    ('Config.render_factor = -1', r'^Config.render_factor = -1; expected >= 0'),
+    ('Config.eval_factor = 0', r'^Config.eval_factor = 0; expected a positive integer'),
+    ('Config.curve_factor = 0', r'^Config.curve_factor = 0; expected a positive integer'),
+    ('Config.generated_size = (0, 0)', r'^Config.generated_size = \(0, 0\); expected two positive integers'),
+    ('Config.generated_size = (32,)', r'^Config.generated_size = \(32,\); expected two positive integers'),
+    ('MipNerfModel.num_samples = 0', r'^MipNerfModel.num_samples = 0; expected an integer >= 1'),
+    ('MipNerfModel.num_levels = 0', r'^MipNerfModel.num_levels = 0; expected an integer >= 1'),
+    ('MLP.net_width = 0', r'^MLP.net_width = 0; expected an integer >= 1'),
+    ('MLP.net_depth_viewdirs = 0', r'^MLP.net_depth_viewdirs = 0; expected an integer >= 1'),
 ])
 def test_bad_settings_raise_value_errors_naming_them(binding, message):
   with pytest.raises(ValueError, match=message):
     _load(binding)
+
+
+def test_sizes_of_the_nerf_model_are_checked_when_it_is_the_model():
+  for binding, minimum in (('NerfModel.num_coarse_samples = 0', 1), ('NerfModel.num_fine_samples = -1', 0),
+                           ('NerfMLP.net_width = 0', 1), ('NerfMLP.net_width_viewdirs = 0', 1)):
+    with pytest.raises(ValueError, match=rf'^{re.escape(binding)}; expected an integer >= {minimum}$'):
+      _load("Config.model = 'nerf'", binding)
+    _load(binding)  # mip-NeRF's run does not build the NeRF model.
 
 
 @pytest.mark.parametrize('name, options', [
@@ -114,30 +133,73 @@ def test_regularizers_that_cannot_act_warn():
     _load('Config.occ_reg_loss_mult = 0.01', 'Config.occ_reg_range = 20', 'MipNerfModel.num_samples = 16')
 
 
-def test_nan_in_llff_poses_or_bounds_names_the_file(llff_root):
+def test_nan_in_llff_bounds_names_the_file(llff_root):
   path = llff_root / 'toy' / 'poses_bounds.npy'
   data = np.load(path)
   data[3, 16] = np.nan
   np.save(path, data)
-  with pytest.raises(DatasetError, match=r"poses_bounds\.npy'.*entries \[3\] are not finite"):
+  with pytest.raises(DatasetError, match=r"poses_bounds\.npy': the near/far bounds of entries \[3\] are not finite"):
     load_dataset('train', llff(llff_root, n_input_views=3))
 
 
-def test_nan_in_blender_pose_names_the_file(blender_root):
+ZERO_COLUMN = np.array([[0., 1., 0.], [0., 0., 1.], [0., 0., 0.]])  # A rotation whose first column is zero.
+
+
+@pytest.mark.parametrize('problem, message', [('nan', 'holds NaN or Inf'), ('zero', 'is degenerate: its 3x3 part')])
+def test_a_bad_llff_pose_names_the_file_and_its_image(llff_root, problem, message):
+  path = llff_root / 'toy' / 'poses_bounds.npy'
+  data = np.load(path)
+  pose = data[:, :15].reshape(-1, 3, 5)
+  pose[4, :, :3] = ZERO_COLUMN if problem == 'zero' else np.nan
+  data[:, :15] = pose.reshape(-1, 15)
+  np.save(path, data)
+  with pytest.raises(DatasetError, match=rf"poses_bounds\.npy': the pose of image 4 \('img04\.png'\) {message}"):
+    load_dataset('test', llff(llff_root))  # Test views 0 and 8: image 4 is refused all the same.
+
+
+@pytest.mark.parametrize('problem, message', [('nan', 'holds NaN or Inf'), ('zero', 'is degenerate: its 3x3 part')])
+def test_a_bad_blender_pose_names_the_file_and_its_frame(blender_root, problem, message):
   path = blender_root / 'toy' / 'transforms_train.json'
   meta = json.loads(path.read_text())
-  meta['frames'][1]['transform_matrix'][0][3] = float('nan')
+  matrix = np.eye(4)
+  matrix[:3, :3] = ZERO_COLUMN if problem == 'zero' else np.nan
+  meta['frames'][1]['transform_matrix'] = matrix.tolist()
   path.write_text(json.dumps(meta))
-  with pytest.raises(DatasetError, match=r"transforms_train\.json.*r_1 has a transform_matrix with NaN"):
+  with pytest.raises(DatasetError, match=rf"transforms_train\.json': the transform_matrix of frame 1 "
+                                         rf"\('\./train/r_1'\) {message}"):
     load_dataset('train', blender(blender_root))
 
 
-def test_nan_in_dtu_cameras_names_the_file(tmp_path):
+@pytest.mark.parametrize('problem, message', [('nan', 'holds NaN or Inf'), ('zero', 'is degenerate: its 3x3 part')])
+def test_a_bad_dtu_camera_names_the_file_and_the_camera(tmp_path, problem, message):
   projs = synthetic_projections()
-  projs[7, 1, 2] = np.inf
-  write_idr(tmp_path, 'scan24', projs)
-  with pytest.raises(DatasetError, match=r"cameras_sphere\.npz'.*world_mat of entries \[7\] are not finite"):
-    load_dataset('train', dtu_config(tmp_path, 'scan24'))
+  if problem == 'zero':
+    projs[7] = 0.  # The world_mat of zeros that numpy called a "Singular matrix".
+  else:
+    projs[7, 1, 2] = np.inf
+  write_idr(tmp_path / 'idr', 'scan24', projs)
+  with pytest.raises(DatasetError, match=rf"cameras_sphere\.npz': the projection of camera 7 \(world_mat_7\) "
+                                         rf"{message}"):
+    load_dataset('train', dtu_config(tmp_path / 'idr', 'scan24'))
+  write_regnerf(tmp_path, 'scan24', projs)
+  with pytest.raises(DatasetError, match=rf"pos_008\.txt': the projection matrix of camera 7 {message}"):
+    load_dataset('train', dtu_config(tmp_path / 'Rectified', 'scan24'))
+
+
+def test_a_bad_camera_in_a_packed_scene_names_the_pack_and_the_view(tmp_path):
+  gin.clear_config()
+  source = configs.Config(data_dir=str(tmp_path / 'scene'), generated_size=(8, 10), n_input_views=2)
+  pack = str(tmp_path / 'scene.npz')
+  packed.write_pack(pack, loader.pack_arrays(source, {split: load_dataset(split, source) for split in ('train',
+                                                                                                        'test')}))
+  with np.load(pack) as f:
+    arrays = {k: f[k] for k in f.files}
+  arrays['test/camtoworlds'][1, :3, :3] = ZERO_COLUMN
+  np.savez(pack, **arrays)
+  reloaded = dataclasses.replace(source, dataset_loader='packed', data_dir=pack)
+  load_dataset('train', reloaded)
+  with pytest.raises(DatasetError, match=r"scene\.npz': the camtoworld of test view 1 \(id \d+\) is degenerate"):
+    load_dataset('test', reloaded)
 
 
 def test_image_of_another_size_names_the_file_and_the_expected_size(llff_root):

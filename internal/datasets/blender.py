@@ -25,11 +25,12 @@ def read_transforms(scene_dir: str, split: str) -> dict:
     for frame in meta['frames']:
       if np.shape(frame['transform_matrix']) != (4, 4):
         raise ValueError(f'frame {frame.get("file_path")} has a transform_matrix that is not 4x4')
-      if not np.isfinite(np.asarray(frame['transform_matrix'], np.float64)).all():
-        raise ValueError(f'frame {frame.get("file_path")} has a transform_matrix with NaN or Inf')
+    matrices = np.array([frame['transform_matrix'] for frame in meta['frames']], np.float64)
   except (OSError, ValueError, KeyError, TypeError) as err:
     raise base.DatasetError(f'cannot read camera file {path!r} (expected JSON with camera_angle_x and frames of '
                             f'file_path + 4x4 transform_matrix): {err!r}') from err
+  labels = [f'frame {i} ({frame.get("file_path")!r})' for i, frame in enumerate(meta['frames'])]
+  cameras.check_cameras(matrices, path, labels, 'transform_matrix')
   return meta
 
 

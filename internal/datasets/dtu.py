@@ -62,8 +62,8 @@ def calibration_dir(scan_dir: str) -> str:
   return os.path.join(scan_dir, '..', '..', 'Calibration', 'cal18')
 
 
-def read_projection_txt(path: str) -> np.ndarray:
-  """[3,4] projection matrix from a cal18 pos_XXX.txt file."""
+def read_projection_txt(path: str, camera: int) -> np.ndarray:
+  """[3,4] projection matrix of the camera (0-based view id) from a cal18 pos_XXX.txt file."""
   base.require_file(path, 'DTU camera (RegNeRF layout expects <data_dir>/<scan>/../../Calibration/cal18)')
   try:
     proj = np.loadtxt(path, dtype=np.float64)
@@ -71,14 +71,14 @@ def read_projection_txt(path: str) -> np.ndarray:
     raise base.DatasetError(f'cannot read camera file {path!r} (expected a 3x4 matrix of numbers): {err}') from err
   if proj.shape != (3, 4):
     raise base.DatasetError(f'camera file {path!r} holds shape {proj.shape}; expected a 3x4 projection matrix')
-  base.check_finite(proj[None], path, 'the projection matrix')
+  cameras.check_cameras(proj[None], path, [f'camera {camera}'], 'projection matrix')
   return proj
 
 
 def regnerf_projections(scan_dir: str, n_cameras: int) -> np.ndarray:
   """[n,3,4] projections pos_001..pos_n (view i is pos_{i+1:03d}.txt)."""
   folder = calibration_dir(scan_dir)
-  return np.stack([read_projection_txt(os.path.join(folder, f'pos_{i + 1:03d}.txt')) for i in range(n_cameras)])
+  return np.stack([read_projection_txt(os.path.join(folder, f'pos_{i + 1:03d}.txt'), i) for i in range(n_cameras)])
 
 
 def idr_projections(scan_dir: str, n_cameras: int) -> np.ndarray:
@@ -93,8 +93,9 @@ def idr_projections(scan_dir: str, n_cameras: int) -> np.ndarray:
                             f'world_mat_{n_cameras - 1}, each 4x4 = K[R|t]): {err}') from err
   if not mats or any(m.shape not in ((4, 4), (3, 4)) for m in mats):
     raise base.DatasetError(f'camera file {path!r}: expected world_mat_i arrays of shape 4x4 or 3x4')
-  base.check_finite(np.stack(mats[:count]), path, 'world_mat')
-  return np.stack([m[:3, :4] for m in mats])
+  projections = np.stack([m[:3, :4] for m in mats])
+  cameras.check_cameras(projections, path, [f'camera {i} (world_mat_{i})' for i in range(count)], 'projection')
+  return projections
 
 
 def idr_image_dir(scan_dir: str) -> str:

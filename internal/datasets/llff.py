@@ -1,6 +1,7 @@
 """LLFF loader: poses_bounds.npy + images_{factor}/, NDC rays, every llffhold-th image for test."""
 
 import os
+import warnings
 
 import numpy as np
 
@@ -18,6 +19,9 @@ def image_folder(scene_dir: str, factor: int) -> tuple:
   for k in sorted((k for k in range(1, factor + 1) if factor % k == 0), reverse=True):
     folder = os.path.join(scene_dir, f'images_{k}' if k > 1 else 'images')
     if os.path.isdir(folder):
+      if k != factor:
+        warnings.warn(f'LLFF: {os.path.join(scene_dir, f"images_{factor}")!r} does not exist (downsampling factor '
+                      f'{factor}); building the images from {folder!r}, downsampled by {factor // k}', stacklevel=2)
       return folder, factor // k
   found = [e for e in base.listing(scene_dir) if e.startswith('images')]
   raise base.DatasetNotFoundError(f'LLFF: {os.path.join(scene_dir, f"images_{factor}")!r} does not exist '
@@ -29,8 +33,12 @@ def image_files(folder: str) -> list:
   return [os.path.join(folder, f) for f in base.listing(folder) if f.endswith(IMAGE_EXTENSIONS)]
 
 
-def read_poses_bounds(scene_dir: str) -> np.ndarray:
-  """[N,17] rows of poses_bounds.npy (3x5 [R|t|hwf] row-major, then near, far)."""
+def read_poses_bounds(scene_dir: str, image_paths=None) -> np.ndarray:
+  """[N,17] rows of poses_bounds.npy (3x5 [R|t|hwf] row-major, then near, far), cameras and bounds checked.
+
+  image_paths [N] (the images the rows belong to, in order) name the image of a bad camera; of another count
+  they cannot be matched to the rows (the caller refuses that), so only the row is named.
+  """
   path = base.require_file(os.path.join(scene_dir, 'poses_bounds.npy'), 'LLFF poses')
   try:
     data = np.load(path)
@@ -39,7 +47,11 @@ def read_poses_bounds(scene_dir: str) -> np.ndarray:
                             f'{err}') from err
   if data.ndim != 2 or data.shape[1] != 17 or not data.shape[0]:
     raise base.DatasetError(f'{path!r} has shape {data.shape}; expected [N, 17] (3x5 pose + 2 bounds per image)')
-  base.check_finite(data, path, 'the poses or bounds')
+  names = [f' ({os.path.basename(p)!r})' for p in image_paths or ()]
+  names = names if len(names) == len(data) else [''] * len(data)
+  labels = [f'image {i}{name}' for i, name in enumerate(names)]
+  cameras.check_cameras(data[:, :15].reshape(-1, 3, 5), path, labels, 'pose')
+  base.check_finite(data[:, 15:17], path, 'the near/far bounds')
   if (data[:, 15:17] <= 0).any():
     raise base.DatasetError(f'{path!r}: the near/far bounds (columns 15, 16) must be positive; found minimum '
                             f'{data[:, 15:17].min()}')
@@ -75,7 +87,7 @@ def scene_setup(scene_dir: str, factor: int) -> tuple:
   """(image paths, extra downsampling factor, poses_bounds [N,17]); the counts must agree."""
   folder, extra = image_folder(scene_dir, factor)
   paths = image_files(folder)
-  poses_bounds = read_poses_bounds(scene_dir)
+  poses_bounds = read_poses_bounds(scene_dir, paths)
   if len(paths) != len(poses_bounds):
     raise base.DatasetError(f'LLFF: {len(paths)} images in {folder!r} but {len(poses_bounds)} poses in '
                             f'{os.path.join(scene_dir, "poses_bounds.npy")!r}; expected one pose per image')

@@ -207,6 +207,9 @@ def load_packed(split: str, config) -> base.Dataset:
   check_settings(config, meta, config.data_dir)
   info = meta['splits'][split]
   c2w, pixtocams = arrays[f'{split}/camtoworlds'], arrays[f'{split}/pixtocams']
+  labels = [f'{split} view {i} (id {view})' for i, view in enumerate(info['ids'])]
+  cameras.check_cameras(c2w, config.data_dir, labels, 'camtoworld')
+  cameras.check_cameras(pixtocams, config.data_dir, labels, 'pixtocam')
   params = {**meta['ray_params'], 'focal': float(arrays.get(f'{split}/focal', 0.))}
   rays = raygen.stack_rays((make_rays(meta['ray_kind'], c2w[i], pixtocams[i], info['height'], info['width'], params)
                             for i in range(len(c2w))), len(c2w))

@@ -141,7 +141,7 @@ class Progress:
   def _warn_if_stuck(self, step: int, loss: float) -> None:
     """Records the window's mean loss; says once (process 0) when training looks stuck (see stuck.is_stuck)."""
     self.losses.append((step, loss))
-    if not self.warned_stuck and stuck.is_stuck(self.losses, self.config.stuck_warning_steps):
+    if not self.warned_stuck and stuck.is_stuck(self.losses, stuck.patience(self.config)):
       self.warned_stuck = True
       if distributed.is_primary():
         tqdm.tqdm.write(stuck.warning(self.config, self.losses))
@@ -164,6 +164,14 @@ def preview(config, model, state, step: int, test_set, writer) -> None:
 def _example_rays(batcher):
   """A few rays of the first batch, to initialize the model's shapes."""
   return jax.tree.map(lambda x: x[:8], batcher(0)['rays'])
+
+
+def _host_memory_named(config, batcher):
+  """batcher(step) whose running out of host memory is an OutOfMemoryError naming Config.batch_size."""
+  def batch(step: int) -> dict:
+    with memory.naming_host_setting('drawing the training batch', f'Config.batch_size = {config.batch_size}'):
+      return batcher(step)
+  return batch
 
 
 def _check_batch(config, mesh) -> None:
@@ -194,7 +202,7 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
   mesh = sharding.data_mesh()
   _check_batch(config, mesh)
   dataset = distributed.primary_first(lambda: datasets.load_dataset('train', config), 'loading the data')
-  batcher = datasets.make_batcher(dataset, config)
+  batcher = _host_memory_named(config, datasets.make_batcher(dataset, config))
   curve_views = learning_curve.load_views(config, evaluate.check_eval_inputs(config))
   init_key, train_key = random.split(random.PRNGKey(config.jax_rng_seed))
   model, state = train_step_lib.create_train_state(config, init_key, _example_rays(batcher))

@@ -1,4 +1,4 @@
-"""Running out of accelerator memory as a one-line user error naming the setting that sizes the work."""
+"""Running out of accelerator or host memory as a one-line user error naming the setting that sizes the work."""
 
 import contextlib
 
@@ -8,7 +8,8 @@ MIB, GIB = 2.**20, 2.**30
 
 
 class OutOfMemoryError(RuntimeError):
-  """XLA could not allocate what a compiled training step or rendering needs (RESOURCE_EXHAUSTED)."""
+  """XLA could not allocate what a compiled training step or rendering needs (RESOURCE_EXHAUSTED), or numpy what
+  the host's batch needs (MemoryError)."""
 
 
 def is_out_of_memory(err: BaseException) -> bool:
@@ -44,3 +45,13 @@ def naming_setting(what: str, setting: str, needed_bytes=lambda: None):
     estimate = f'; XLA estimates {size_text(needed)} for it compiled' if needed else ''
     reason = str(err).strip().splitlines()[0].rstrip('.')
     raise OutOfMemoryError(f'out of accelerator memory {what} ({reason}{estimate}); lower {setting}') from err
+
+
+@contextlib.contextmanager
+def naming_host_setting(what: str, setting: str):
+  """Turns numpy's MemoryError in the block (host memory or the process's address-space limit ran out, before
+  XLA's allocator saw anything) into OutOfMemoryError: what ran out, numpy's words, what to lower."""
+  try:
+    yield
+  except MemoryError as err:
+    raise OutOfMemoryError(f'out of host memory {what} ({str(err).strip().rstrip(".")}); lower {setting}') from err

@@ -5,6 +5,17 @@ import math
 
 RELATIVE_IMPROVEMENT = 1e-3  # A window improves on the best loss when it is lower by more than this fraction.
 EARLY_FACTOR = 4  # Only the first EARLY_FACTOR * patience steps are watched: later plateaus are normal.
+MIN_WINDOWS = 4  # A patience scaled to a short run spans at least this many logged windows (noise of one window).
+
+
+def patience(config) -> int:
+  """Steps without a new best that count as stuck (0 = off): Config.stuck_warning_steps, or, in a run shorter than
+  the EARLY_FACTOR x as many steps it would watch, a 1 / EARLY_FACTOR of the run (at least MIN_WINDOWS windows of
+  Config.print_every steps), so that a network that died early is named in short runs too."""
+  if config.stuck_warning_steps <= 0:
+    return 0
+  scaled = max(config.max_steps // EARLY_FACTOR, MIN_WINDOWS * config.print_every)
+  return min(config.stuck_warning_steps, scaled)
 
 
 def is_stuck(windows, patience: int) -> bool:
@@ -25,6 +36,6 @@ def is_stuck(windows, patience: int) -> bool:
 def warning(config, windows) -> str:
   """The one-line warning about a stuck run whose window losses are windows, naming Config.lr_init."""
   best = min((loss for _, loss in windows if math.isfinite(loss)), default=math.nan)
-  return (f'warning: the training loss set no new best for {config.stuck_warning_steps} steps (best {best:.4g}, '
+  return (f'warning: the training loss set no new best for {patience(config)} steps (best {best:.4g}, '
           f'now {windows[-1][1]:.4g} at step {windows[-1][0]}): the network may be dead or diverging; check '
           f'Config.lr_init = {config.lr_init:g} (Config.stuck_warning_steps = 0 silences this)')
