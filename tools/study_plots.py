@@ -15,15 +15,6 @@ from tools import study_stats
 CURVE_METRICS = ('psnr', 'psnr_masked')
 
 
-def _number(value) -> Optional[float]:
-  """A finite float, or None."""
-  try:
-    value = float(value)
-  except (TypeError, ValueError):
-    return None
-  return value if math.isfinite(value) else None
-
-
 def pareto_front(points: Sequence[Tuple[float, float]], lower_is_better: bool) -> List[Tuple[float, float]]:
   """Points [(cost, metric)] not dominated by a cheaper-or-equal, better-or-equal other point, by cost."""
   sign = -1. if lower_is_better else 1.
@@ -51,8 +42,8 @@ def _series(study: study_spec.Study, rows: List[dict], x: str, metric: str, posi
   others = [a.name for a in study.axes if a.name not in (x, study_spec.SEED_AXIS)]
   lines = {}
   for row in rows:
-    y = _number(row.get(metric))
-    xv = positions.get(row.get(x)) if positions is not None else _number(row.get(x))
+    y = study_stats.finite(row.get(metric))
+    xv = positions.get(row.get(x)) if positions is not None else study_stats.finite(row.get(x))
     if y is None or xv is None:
       continue
     name = ' '.join([row['method'], row['scene']] + [f'{a}={row[a]}' for a in others])
