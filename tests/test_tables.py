@@ -27,11 +27,13 @@ def _dtu_values(i):
   return {**full, **{f'{k}_masked': v + 1. for k, v in full.items()}}
 
 
-def _write(root, dataset, scene, views, method, values, step=1000, complete=True):
-  """Writes a one-image metrics.json under root/<method>/<dataset><views>/<scene>/ and returns its path."""
-  run = root / method / f'{dataset}{views}' / scene / f'step{step}'
+def _write(root, dataset, scene, views, method, values, step=1000, complete=True, seeds=None):
+  """Writes a one-image metrics.json under root/<method>/<dataset><views>/<scene>/[seeds]/ and returns its path."""
+  run = root / method / f'{dataset}{views}' / scene / f'step{step}' / str(seeds)
   run.mkdir(parents=True)
   record = results.make_record(dataset, scene, views, method, step, [{'id': 0, **values}], complete)
+  if seeds is not None:
+    record['seeds'] = seeds
   results.write_record(run / results.METRICS_FILENAME, record)
   return run / results.METRICS_FILENAME
 
@@ -167,3 +169,20 @@ def test_summaries_show_the_papers_values_beside_the_runs(runs, tmp_path):
   assert float(llff['mipnerf (paper)']['3 views PSNR']) == 16.11 and llff['mipnerf (paper)']['3 views SSIM'] == ''
   dtu = _by(_read_csv(out / 'dtu_summary_object.csv'), 'method')
   assert float(dtu['freenerf (paper)']['3 views PSNR']) == 19.92
+
+
+def test_seeds_are_pooled_with_mean_spread_and_n(tmp_path):
+  root = tmp_path / 'runs'
+  offsets = (0., 1., 2.5)  # Seed k adds offsets[k] dB to every scene.
+  for k, offset in enumerate(offsets):
+    for i, scene in enumerate(LLFF):
+      _write(root, 'llff', scene, 3, 'freenerf', {**_llff_values(i), 'psnr': 19. + 0.2 * i + offset}, seeds=[k, k])
+  assert tables.main([str(root), '--out', str(tmp_path / 'out')]) == 0
+  scenes = _by(_read_csv(tmp_path / 'out' / 'llff_freenerf_3views.csv'), 'scene')
+  assert scenes['fern']['seeds'] == '3' and float(scenes['fern']['PSNR']) == pytest.approx(19. + 3.5 / 3)
+  assert float(scenes['fern']['PSNR std']) == pytest.approx(1.2583057, abs=1e-6)  # stdev of 0, 1, 2.5.
+  assert float(scenes['fern']['SSIM std']) == 0.  # Equal over seeds.
+  summary = _read_csv(tmp_path / 'out' / 'llff_summary.csv')[0]
+  assert float(summary['3 views PSNR']) == pytest.approx(19.7 + 3.5 / 3)
+  assert float(summary['3 views PSNR std']) == pytest.approx(1.2583057, abs=1e-6)
+  assert '± 1.26' in (tmp_path / 'out' / 'llff.md').read_text()

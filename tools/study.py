@@ -1,7 +1,7 @@
 """Runs a study or a paper table: every cell (method x scene x axis points) trained and evaluated in its own run.
 
 Usage: python -m tools.study STUDY.toml [--out out/studies] [--data_root data] [--jobs N] [--gpus 0,1,...]
-                             [--shard K/N] [--list] [--plots-only] [--gin_bindings B ...]
+                             [--shard K/N] [--list [--estimate]] [--plots-only] [--gin_bindings B ...]
 
 Each cell runs `train(config)` then eval's `evaluate(config)` in a subprocess (`python -m tools.study
 --run-cell <cell dir>`: gin state stays per process and cells can run in parallel) in the run directory
@@ -14,6 +14,10 @@ every N-th cell from K (one command per host on a shared folder). At the end (al
 results of all finished cells are gathered into <out>/<study>/results.csv and <metric>_vs_<x>.png plots, and
 the cells' learning curves (Config.curve_every > 0) into psnr_vs_step.png (and psnr_masked_vs_step.png on DTU).
 `python -m tools.tables <out>/<study>` gathers the same runs into the paper's tables.
+With seeds (a `seeds` key or an axis named seed) results also give per cell the mean, spread and n over seeds and
+the paired comparisons with their 95% intervals (tools/study_stats.py). `--list --estimate` measures each distinct
+setting of the pending cells on this machine (about a minute each) and prints the expected wall time before any
+cell runs (tools/study_cost.py).
 """
 
 import argparse
@@ -30,14 +34,19 @@ from typing import Dict, List, Optional
 
 from internal import cli
 from tools import study_export
+from tools import study_cost
 from tools import study_plots
 from tools import study_spec
+from tools import study_stats
 
 CELL_FILE = 'cell.json'
 SPEC_FILE = 'cell_spec.json'
 LOG_FILE = 'log.txt'
 RUN_SUBDIR = study_export.RUN_SUBDIR  # The cell's run directory (Config.checkpoint_dir) inside its folder.
 RESULTS_FILE = 'results.csv'
+SUMMARY_FILE = 'summary.csv'          # Per cell pooled over seeds: mean, std, n of each plotted metric.
+COMPARISONS_FILE = 'comparisons.csv'  # The paired comparisons with their intervals and verdicts.
+COMPARISONS_MD = 'comparisons.md'
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
@@ -118,6 +127,51 @@ def run_cell(path: str) -> dict:
   os.replace(os.path.join(path, CELL_FILE + '.tmp'), os.path.join(path, CELL_FILE))
   gin.clear_config()
   return cell
+
+
+def measure_cell(path: str) -> dict:
+  """The estimated {'train', 'eval'} seconds of the cell in folder path, measured on this machine."""
+  import gin  # pylint: disable=import-outside-toplevel
+  from internal import config_loader  # pylint: disable=import-outside-toplevel
+  with open(os.path.join(path, SPEC_FILE)) as f:
+    spec = json.load(f)
+  gin.clear_config()
+  config = config_loader.load_config(spec['gin_configs'], spec['gin_bindings'])
+  return study_cost.cell_seconds(config, study_cost.measure(config))
+
+
+def estimate(paths: List[str]) -> List[tuple]:
+  """(path, {'train', 'eval'} seconds) of each cell folder; one measuring process per distinct setting."""
+  known, estimates = {}, []
+  for path in paths:
+    with open(os.path.join(path, SPEC_FILE)) as f:
+      key = study_cost.signature(json.load(f))
+    if key not in known:
+      print(f'measuring {path} ...', flush=True)
+      python_path = os.pathsep.join([REPO] + [p for p in [os.environ.get('PYTHONPATH')] if p])
+      result = subprocess.run([sys.executable, '-m', 'tools.study', '--measure-cell', path], capture_output=True,
+                              text=True, env={**os.environ, 'PYTHONPATH': python_path}, check=False)
+      if result.returncode:
+        raise RuntimeError(f'measuring {path} failed: {result.stderr.strip().splitlines()[-1:]}')
+      known[key] = json.loads(result.stdout.strip().splitlines()[-1])
+    estimates.append((path, known[key]))
+  return estimates
+
+
+def _list(study: study_spec.Study, args) -> None:
+  """--list: each cell's state (and measured times when done); with --estimate the pending cells' expected times."""
+  pending = []
+  for cell in study_spec.cells(study):
+    path, record = cell_dir(study, cell, args.out), read_cell(cell_dir(study, cell, args.out))
+    if record:
+      took = study_cost.format_duration(record['train_seconds'] + record['eval_seconds'])
+      print(f'done    {path}  (took {took})')
+    else:
+      print(f'pending {path}')
+      pending.append(cell)
+  if args.estimate and pending:
+    paths = [write_spec(study, c, args.out, args.data_root, tuple(args.gin_bindings)) for c in pending]
+    print('\n'.join(study_cost.summary_lines(estimate(paths), args.jobs)))
 
 
 def _subprocess_cell(path: str, env: Dict[str, str]) -> int:
@@ -202,18 +256,52 @@ def gather_curves(study: study_spec.Study, out: str) -> List[dict]:
   return rows
 
 
-def write_results(study: study_spec.Study, out: str) -> List[str]:
-  """Writes results.csv and the plots (learning curves too, where recorded); returns the written paths."""
-  rows = gather(study, out)
+def _write_csv(path: str, rows: List[dict]) -> str:
+  """Writes rows (dicts; None as empty) to path as CSV with the union of their keys; returns path."""
   fields = list(dict.fromkeys(k for row in rows for k in row))
-  path = os.path.join(study_dir(study, out), RESULTS_FILE)
   os.makedirs(os.path.dirname(path), exist_ok=True)
   with open(path, 'w', newline='') as f:
     writer = csv.DictWriter(f, fieldnames=fields)
     writer.writeheader()
     writer.writerows({k: ('' if row.get(k) is None else row.get(k)) for k in fields} for row in rows)
-  return [path] + study_plots.write_plots(study, rows, study_dir(study, out)) + study_plots.write_curve_plots(
-      study, gather_curves(study, out), study_dir(study, out))
+  return path
+
+
+def _number(value, digits: int = 3) -> str:
+  return '' if value is None else f'{value:.{digits}f}'
+
+
+def comparisons_markdown(comparisons: List[study_stats.Comparison]) -> str:
+  """The comparisons as a Markdown table: a - b, n, mean, interval, verdict (undecided ones in bold)."""
+  lines = ['| metric | a - b | n | mean | 95% interval | verdict |', '|---|---|---|---|---|---|']
+  for c in comparisons:
+    verdict = f'**{c.verdict}**' if c.verdict.startswith(study_stats.UNDECIDED) else c.verdict
+    interval = f'[{_number(c.low)}, {_number(c.high)}]' if c.low is not None else 'none'
+    lines.append(f'| {c.metric} | {c.a} - {c.b} ({c.axis}) | {c.n} | {_number(c.mean)} | {interval} | {verdict} |')
+  return '\n'.join(lines) + '\n'
+
+
+def write_statistics(study: study_spec.Study, rows: List[dict], out_dir: str) -> List[str]:
+  """summary.csv (per cell over seeds: mean, std, n) and the comparisons (CSV, Markdown); the written paths."""
+  summary = [s for metric in study.plot.metrics for s in study_stats.summarize(study, rows, metric)]
+  comparisons = [c for metric in study.plot.metrics for c in study_stats.compare(study, rows, metric)]
+  written = [_write_csv(os.path.join(out_dir, SUMMARY_FILE), summary)] if summary else []
+  if comparisons:
+    written.append(_write_csv(os.path.join(out_dir, COMPARISONS_FILE), [c.row() for c in comparisons]))
+    with open(os.path.join(out_dir, COMPARISONS_MD), 'w') as f:
+      f.write(comparisons_markdown(comparisons))
+    written.append(os.path.join(out_dir, COMPARISONS_MD))
+  return written
+
+
+def write_results(study: study_spec.Study, out: str) -> List[str]:
+  """Writes results.csv, the statistics over seeds and the plots (learning curves too, where recorded);
+  returns the written paths."""
+  rows = gather(study, out)
+  out_dir = study_dir(study, out)
+  path = _write_csv(os.path.join(out_dir, RESULTS_FILE), rows)
+  return ([path] + write_statistics(study, rows, out_dir) + study_plots.write_plots(study, rows, out_dir)
+          + study_plots.write_curve_plots(study, gather_curves(study, out), out_dir))
 
 
 def run_study(study: study_spec.Study, out: str, data_root: str = 'data', jobs: int = 1,
@@ -238,15 +326,21 @@ def main(argv=None) -> int:
   parser.add_argument('--gpus', help='comma-separated GPU ids, one worker each (overrides --jobs)')
   parser.add_argument('--shard', help='K/N: run every N-th cell starting at K (one command per host)')
   parser.add_argument('--list', action='store_true', help='list the cells and their state, run nothing')
+  parser.add_argument('--estimate', action='store_true', help='with --list: measure each distinct setting of '
+                      'the pending cells here (about a minute each) and print the expected wall time')
   parser.add_argument('--plots-only', action='store_true', help='only gather results.csv and the plots')
   parser.add_argument('--gin_bindings', action='extend', nargs='+', default=[], metavar='BINDING',
                       help='gin bindings appended to every cell (after the study file\'s own)')
   parser.add_argument('--export', metavar='DIR', help='after the run, copy results, plots, per-cell metrics, '
                       'side-by-side pictures and provenance (no checkpoints) into DIR, to be committed')
   parser.add_argument('--run-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
+  parser.add_argument('--measure-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
   args = parser.parse_args(argv)
   if args.run_cell:
     print(json.dumps(run_cell(args.run_cell), indent=1))
+    return 0
+  if args.measure_cell:
+    print(json.dumps(measure_cell(args.measure_cell)))
     return 0
   if not args.study:
     parser.error('a study file is required')
@@ -255,11 +349,11 @@ def main(argv=None) -> int:
   if args.export and os.path.isdir(args.export) and os.listdir(args.export):
     parser.error(f'--export {args.export}: the folder exists and is not empty; export into a new folder (or '
                  'delete that one) so that earlier results are not overwritten')
+  if args.estimate and not args.list:
+    parser.error('--estimate goes with --list')
   study = study_spec.load(args.study)
   if args.list:
-    for cell in study_spec.cells(study):
-      done = read_cell(cell_dir(study, cell, args.out)) is not None
-      print(f'{"done   " if done else "pending"} {cell_dir(study, cell, args.out)}')
+    _list(study, args)
     return 0
   if args.plots_only:
     for path in write_results(study, args.out):

@@ -1,10 +1,10 @@
 """Copies a study's results into a folder meant to be committed: what was run, on what, and what came out.
 
-<dest>/ gets results.csv and the plots, the study file, per cell <cell>/cell.json, the evaluation's
-metrics.json and metrics.csv and the run's learning_curve.csv where recorded (no checkpoints), a side-by-side
-picture per scene (ground truth, then each method's render of the first evaluated test views), table.md (per
-cell its metrics, wall times and commit) and provenance.json: the command, the commit each cell ran at, the
-machine and the package versions.
+<dest>/ gets results.csv, the statistics over seeds (summary.csv, comparisons.csv and .md) and the plots, the
+study file, per cell <cell>/cell.json, the evaluation's metrics.json and metrics.csv and the run's
+learning_curve.csv where recorded (no checkpoints), a side-by-side picture per scene (ground truth, then each
+method's render of the first evaluated test views, of the first seed), table.md (per cell its metrics, wall times
+and commit) and provenance.json: the command, the commit each cell ran at, the machine and the package versions.
 """
 
 import json
@@ -116,11 +116,17 @@ def markdown_table(cells: List[dict]) -> str:
   return '\n'.join(lines) + '\n'
 
 
+def _first_seed(study: study_spec.Study):
+  """The label of the study's first seed (the one its side-by-side pictures show), None without seeds."""
+  axis = next((a for a in study.axes if a.name == study_spec.SEED_AXIS), None)
+  return axis.points[0].label if axis else None
+
+
 def export(study: study_spec.Study, study_file: str, study_folder: str, dest: str, command: str) -> List[str]:
   """Copies the study's finished cells, results and plots into dest; returns the pictures written."""
   os.makedirs(dest, exist_ok=True)
   for name in sorted(os.listdir(study_folder)):
-    if name.endswith(('.csv', '.png')):
+    if name.endswith(('.csv', '.png', '.md')):
       shutil.copy2(os.path.join(study_folder, name), dest)
   shutil.copy2(study_file, dest)
   finished, paths = [], {}
@@ -132,8 +138,11 @@ def export(study: study_spec.Study, study_file: str, study_folder: str, dest: st
       paths[cell.cell_id] = path
       _copy_cell(path, finished[-1], dest)
   pictures = []
+  first_seed = _first_seed(study)
   for scene in dict.fromkeys(c['scene'] for c in finished):
-    cells = [c for c in finished if c['scene'] == scene]
+    cells = [c for c in finished if c['scene'] == scene and c['labels'].get(study_spec.SEED_AXIS) == first_seed]
+    if not cells:
+      continue
     pictures.append(os.path.join(dest, f'side_by_side_{scene}.png'))
     _scene_picture(cells, paths, _ground_truth(paths[cells[0]['cell']], cells[0], PICTURE_VIEWS), pictures[-1])
   with open(os.path.join(dest, TABLE_FILE), 'w') as f:

@@ -1,5 +1,7 @@
 """Plots of a study's results: a metric against an axis (one line per method / scene / other labels, the paper's
-values dashed beside ours) or against a recorded cost (wall time, GFLOP per step) with the Pareto front marked."""
+values dashed beside ours) or against a recorded cost (wall time, GFLOP per step) with the Pareto front marked.
+With a seed axis each line is the mean over seeds with error bars of one standard deviation, each seed a dot;
+the paired comparisons get a plot of their intervals, undecided ones marked in red."""
 
 import math
 import os
@@ -7,18 +9,10 @@ from typing import List, Optional, Sequence, Tuple
 
 from internal.evaluation import vis
 from tools import study_spec
+from tools import study_stats
 
 # Learning-curve metrics (internal/evaluation/learning_curve.py) plotted against the training step.
 CURVE_METRICS = ('psnr', 'psnr_masked')
-
-
-def _number(value) -> Optional[float]:
-  """A finite float, or None."""
-  try:
-    value = float(value)
-  except (TypeError, ValueError):
-    return None
-  return value if math.isfinite(value) else None
 
 
 def pareto_front(points: Sequence[Tuple[float, float]], lower_is_better: bool) -> List[Tuple[float, float]]:
@@ -43,12 +37,13 @@ def _axis_positions(study: study_spec.Study, x: str):
 
 
 def _series(study: study_spec.Study, rows: List[dict], x: str, metric: str, positions) -> dict:
-  """{line name: [(x, y)]}: one line per method, scene and the labels of the axes other than x."""
-  others = [a.name for a in study.axes if a.name != x]
+  """{line name: [(x, y)]}: one line per method, scene and the labels of the axes other than x and the seed
+  (the seeds of a line share its x values)."""
+  others = [a.name for a in study.axes if a.name not in (x, study_spec.SEED_AXIS)]
   lines = {}
   for row in rows:
-    y = _number(row.get(metric))
-    xv = positions.get(row.get(x)) if positions is not None else _number(row.get(x))
+    y = study_stats.finite(row.get(metric))
+    xv = positions.get(row.get(x)) if positions is not None else study_stats.finite(row.get(x))
     if y is None or xv is None:
       continue
     name = ' '.join([row['method'], row['scene']] + [f'{a}={row[a]}' for a in others])
@@ -62,7 +57,10 @@ def plot(study: study_spec.Study, rows: List[dict], x: str, metric: str, path: s
   lines = _series(study, rows, x, metric, positions)
   if not lines:
     return False
-  fig, ax = vis.line_figure(lines, joined=positions is not None)
+  if study.has_seeds and x != study_spec.SEED_AXIS:
+    fig, ax = _seed_figure(lines, joined=positions is not None)
+  else:
+    fig, ax = vis.line_figure(lines, joined=positions is not None and x != study_spec.SEED_AXIS)
   for curve in study.paper:
     if curve.metric == metric and curve.x == x:
       ax.plot(*zip(*curve.points), marker='x', linestyle='--', color='black',
@@ -77,9 +75,50 @@ def plot(study: study_spec.Study, rows: List[dict], x: str, metric: str, path: s
   return True
 
 
+def _seed_figure(lines: dict, joined: bool) -> tuple:
+  """(figure, axes): per line the mean over seeds at each x with +-1 std error bars, and every seed as a dot."""
+  fig, ax = vis.line_figure({})
+  for name, points in lines.items():
+    xs = sorted({px for px, _ in points})
+    groups = [study_stats.spread([py for px, py in points if px == x]) for x in xs]
+    n = max(g['n'] for g in groups)
+    line = ax.errorbar(xs, [g['mean'] for g in groups], yerr=[g['std'] or 0. for g in groups], marker='o',
+                       capsize=4, linestyle='-' if joined else 'none', label=f'{name} (mean +-1 std, n={n})')
+    ax.scatter(*zip(*points), s=12, alpha=.45, color=line[0].get_color())
+  return fig, ax
+
+
+def comparison_plot(study: study_spec.Study, comparisons, metric: str, path: str) -> bool:
+  """Draws each comparison's paired mean difference and 95% interval (red: undecided); False when none."""
+  if not comparisons:
+    return False
+  fig, ax = vis.line_figure({})
+  for i, c in enumerate(comparisons):
+    undecided = c.verdict.startswith(study_stats.UNDECIDED)
+    color = 'red' if undecided else 'black'
+    if c.low is not None:
+      ax.plot([c.low, c.high], [i, i], color=color, linewidth=2)
+    ax.plot([c.mean], [i], marker='o', color=color)
+    ax.annotate(f'{c.verdict} (n={c.n})', (c.mean, i), textcoords='offset points', xytext=(0, 7), ha='center',
+                color=color, fontsize=8, fontweight='bold' if undecided else 'normal')
+  ax.axvline(0., color='grey', linestyle='--')
+  ax.set_yticks(range(len(comparisons)), [f'{c.a} - {c.b}' for c in comparisons])
+  ax.set_ylim(-.6, len(comparisons) - .2)
+  if any(c.verdict.startswith(study_stats.UNDECIDED) for c in comparisons):
+    ax.plot([], [], color='red', label=f'{study_stats.UNDECIDED}: no difference shown')
+  vis.save_figure(fig, ax, f'paired difference of {metric}, mean and {study_stats.LEVEL:.0%} interval', '',
+                  f'{study.name}: {metric}, paired over seeds and scenes', path)
+  return True
+
+
 def write_plots(study: study_spec.Study, rows: List[dict], out_dir: str) -> List[str]:
-  """<metric>_vs_<x>.png for every plotted metric and x that has data; returns the written paths."""
+  """<metric>_vs_<x>.png for every plotted metric and x that has data, and compare_<metric>.png for the paired
+  comparisons; returns the written paths."""
   written = []
+  for metric in study.plot.metrics:
+    path = os.path.join(out_dir, f'compare_{metric}.png')
+    if comparison_plot(study, study_stats.compare(study, rows, metric), metric, path):
+      written.append(path)
   for x in study.plot.x:
     for metric in study.plot.metrics:
       path = os.path.join(out_dir, f'{metric}_vs_{x}.png')

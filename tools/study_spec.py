@@ -8,6 +8,8 @@ A study file (see studies/*.toml):
   [scenes.<s>]   bindings = [...]
   [[axis]]  name = "T"  binding = "Config.freq_reg_end"  values = [100, 500]          # a swept binding, or
   [[axis]]  name = "M"  points = [{label = "M=5", value = 5, bindings = [...], configs = [...]}, ...]
+  seeds = 3  (or [0, 1, 2])                 # replicates: the seed axis, last; binds both of a cell's seeds
+  [[compare]]  a = "freenerf"  b = "mipnerf"  axis = "method"   # paired a - b over seeds and scenes (95% CI)
   [plot]  x = ["T"]  metrics = ["psnr"]  pareto = false
   [[paper]]  method = "mipnerf"  metric = "psnr"  x = "ratio"  points = [[0.1, 17.62], [1.0, 9.01]]
 
@@ -16,6 +18,11 @@ points' configs, the study's, method's, scene's and points' bindings, then Confi
 Config.checkpoint_dir set by the runner. Configs and bindings are templates (str.format): {out} (the --out
 root), {data_root} (--data_root), {study}, {method}, {scene} and each axis name (the cell's label on that axis);
 write {{ and }} for literal braces.
+
+Seeds: `seeds = N` (seeds 0 .. N-1) or a list adds the axis SEED_AXIS, whose point s binds Config.jax_rng_seed = s
+(initialization, sampling noise) and Config.np_rng_seed = s (the ray batches). An axis of that name written by hand
+is a seed axis too. Results over it are replicates: tools/study_stats.py gives per cell mean, spread and n, and each
+[[compare]] entry (default: every other method against the first) the paired difference with its interval.
 """
 
 import dataclasses
@@ -29,6 +36,9 @@ from internal.evaluation import metric_registry
 
 # Axis named VIEWS_AXIS is the tables' view count: it stays out of Config.expname (the tables' method column).
 VIEWS_AXIS = 'views'
+# Axis named SEED_AXIS holds replicates (statistics pool over it); it stays out of Config.expname too.
+SEED_AXIS = 'seed'
+SEED_BINDINGS = ('Config.jax_rng_seed', 'Config.np_rng_seed')
 # Recorded per-cell numbers that can serve as a plot's x besides the axes.
 RECORDED_X = ('train_seconds', 'eval_seconds', 'steps_per_sec', 'gflops_per_step', 'peak_rss_mb')
 # Metrics where lower is better (the Pareto front keeps the low ones).
@@ -80,6 +90,15 @@ class PaperCurve:
 
 
 @dataclasses.dataclass(frozen=True)
+class Compare:
+  """A paired comparison: the cells labelled a minus those labelled b on `axis` ('method' or an axis name),
+  matched on every other label (scene, seed, the other axes)."""
+  axis: str
+  a: str
+  b: str
+
+
+@dataclasses.dataclass(frozen=True)
 class Study:
   """A parsed study file: its cells are the product methods x scenes x axis points."""
   name: str
@@ -90,6 +109,11 @@ class Study:
   axes: Tuple[Axis, ...]
   plot: Plot
   paper: Tuple[PaperCurve, ...]
+  compare: Tuple[Compare, ...] = ()
+
+  @property
+  def has_seeds(self) -> bool:
+    return any(a.name == SEED_AXIS for a in self.axes)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,8 +131,9 @@ class Cell:
 
   @property
   def expname(self) -> str:
-    """Config.expname: the method plus the labels of every axis except the view count."""
-    return '_'.join([self.method] + [f'{axis}={p.label}' for axis, p in self.points if axis != VIEWS_AXIS])
+    """Config.expname: the method plus the labels of every axis except the view count and the seed."""
+    return '_'.join([self.method] + [f'{axis}={p.label}' for axis, p in self.points
+                                     if axis not in (VIEWS_AXIS, SEED_AXIS)])
 
   def labels(self) -> Dict[str, str]:
     return {axis: p.label for axis, p in self.points}
@@ -232,6 +257,49 @@ def _paper(r: _Reader, entries: list, axes) -> Tuple[PaperCurve, ...]:
   return tuple(curves)
 
 
+def _seed_axis(r: _Reader, data: dict) -> Tuple[Axis, ...]:
+  """The seed axis of `seeds = N` or `seeds = [s, ...]` (none without the key)."""
+  if 'seeds' not in data:
+    return ()
+  seeds = data['seeds']
+  if isinstance(seeds, int) and not isinstance(seeds, bool):
+    if seeds < 1:
+      r.fail('seeds', f'{seeds}; expected a count >= 1 or a list of seeds')
+    seeds = list(range(seeds))
+  if (not isinstance(seeds, list) or not seeds or len(set(seeds)) < len(seeds)
+      or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)):
+    r.fail('seeds', f'{seeds!r}; expected a count >= 1 or a list of distinct integers >= 0')
+  if any(a.get('name') == SEED_AXIS for a in data.get('axis', []) if isinstance(a, dict)):
+    r.fail('seeds', f'the study also has an axis named {SEED_AXIS!r}; give one or the other')
+  return (Axis(SEED_AXIS, tuple(Point(str(s), float(s), tuple(f'{b} = {s}' for b in SEED_BINDINGS))
+                                for s in seeds)),)
+
+
+def _comparisons(r: _Reader, data: dict, study: Study) -> Tuple[Compare, ...]:
+  """The [[compare]] entries, checked against the labels; default: every other method against the first."""
+  labels = {'method': [m.name for m in study.methods], **{a.name: [p.label for p in a.points] for a in study.axes}}
+  entries = r.get(data, 'compare', '', list, [])
+  if not entries:
+    return tuple(Compare('method', m.name, study.methods[0].name) for m in study.methods[1:])
+  comparisons = []
+  for i, table in enumerate(entries):
+    at = f'compare[{i}]'
+    if not isinstance(table, dict):
+      r.fail(at, f'{table!r}; expected a table {{a, b, axis}}')
+    r.unknown(table, ('a', 'b', 'axis'), at)
+    axis = r.get(table, 'axis', at, str, 'method')
+    if axis not in labels or axis == SEED_AXIS:
+      r.fail(f'{at}.axis', f'{axis!r}; expected "method" or an axis other than the seed: {sorted(labels)}')
+    a, b = r.get(table, 'a', at, str), r.get(table, 'b', at, str)
+    for key, label in (('a', a), ('b', b)):
+      if label not in labels[axis]:
+        r.fail(f'{at}.{key}', f'{label!r} is not a label of {axis}: {labels[axis]}')
+    if a == b:
+      r.fail(at, f'a and b are both {a!r}')
+    comparisons.append(Compare(axis, a, b))
+  return tuple(comparisons)
+
+
 def parse(text: str, path: str) -> Study:
   """The Study of a TOML text (path names it in errors)."""
   r = _Reader(path)
@@ -239,7 +307,8 @@ def parse(text: str, path: str) -> Study:
     data = tomllib.loads(text)
   except tomllib.TOMLDecodeError as e:
     raise StudyError(f'{path}: not valid TOML: {e}') from e
-  r.unknown(data, ('name', 'description', 'bindings', 'methods', 'scenes', 'axis', 'plot', 'paper'), '')
+  r.unknown(data, ('name', 'description', 'bindings', 'methods', 'scenes', 'axis', 'seeds', 'compare', 'plot',
+                   'paper'), '')
   name = r.get(data, 'name', '', str)
   if not name or '/' in name or name.startswith('.'):
     r.fail('name', f'{name!r}; expected a folder name')
@@ -252,6 +321,7 @@ def parse(text: str, path: str) -> Study:
     r.unknown(table, ('bindings',), f'scenes.{s}')
     scenes.append((s, r.strings(table, 'bindings', f'scenes.{s}')))
   axes = tuple(_axis(r, a, f'axis[{i}]') for i, a in enumerate(r.get(data, 'axis', '', list, [])))
+  axes += _seed_axis(r, data)
   axis_names = [a.name for a in axes]
   if len(set(axis_names)) < len(axis_names):
     r.fail('axis', f'axis names {axis_names} repeat')
@@ -268,6 +338,7 @@ def parse(text: str, path: str) -> Study:
       r.fail('plot.x', f'{x!r} is neither an axis {axis_names} nor a recorded value {list(RECORDED_X)}')
   study = Study(name, path, r.strings(data, 'bindings', ''), tuple(methods), tuple(scenes), axes, plot,
                 _paper(r, r.get(data, 'paper', '', list, []), axis_names))
+  study = dataclasses.replace(study, compare=_comparisons(r, data, study))
   _check_templates(study, r)
   return study
 

@@ -9,12 +9,17 @@ convention, also for the 'Avg' column: the mean of per-image avg_error). A mean 
 scene list of the protocol (DTU: the 15 pixelNeRF test scans, LLFF: the 8 scenes), with every run complete and
 the metric present; otherwise the cell is left empty and a warning names what is missing. --allow-incomplete
 averages what exists instead and marks such means with '*'.
+
+Runs of one scene that differ only in their seeds (metrics.json's `seeds`, written by eval.py) are replicates: the
+scene's value is their mean, shown with the standard deviation over seeds and n; a summary mean over scenes is
+shown with the standard deviation over seeds of the per-seed means when every scene has the same seeds.
 """
 
 import argparse
 import csv
 import dataclasses
 import pathlib
+import statistics
 import sys
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -50,12 +55,18 @@ def find_metrics_files(roots: Sequence[str]) -> List[pathlib.Path]:
   return list(dict.fromkeys(path.resolve() for path in found))
 
 
+def _seeds(record: dict) -> Optional[tuple]:
+  """The record's seeds (jax, numpy) as a tuple, None for records written before seeds were recorded."""
+  return tuple(record['seeds']) if record.get('seeds') is not None else None
+
+
 def collect(paths: Sequence[pathlib.Path]) -> Tuple[Dict[Key, dict], List[str]]:
-  """Records by (dataset, method, views, scene); of several runs the highest step is kept, with a warning."""
+  """Records by (dataset, method, views, scene), replicates over seeds pooled (see pool_seeds); of several runs
+  with the same seeds the highest step is kept, with a warning."""
   chosen, sources, warnings = {}, {}, []
   for path in paths:
     record = results.read_record(path)
-    key = (record['dataset'], record['method'], record['n_input_views'], record['scene'])
+    key = (record['dataset'], record['method'], record['n_input_views'], record['scene'], _seeds(record))
     if key in chosen:
       if chosen[key]['step'] == record['step']:
         raise ValueError(f'{sources[key]} and {path} both hold {key} at step {record["step"]}')
@@ -64,15 +75,39 @@ def collect(paths: Sequence[pathlib.Path]) -> Tuple[Dict[Key, dict], List[str]]:
       warnings.append(f'{_label(key[:3])} {key[3]}: using step {record["step"]} ({path}), '
                       f'ignoring step {chosen[key]["step"]} ({sources[key]})')
     chosen[key], sources[key] = record, path
-  return chosen, warnings
+  return pool_seeds(chosen), warnings
+
+
+def pool_seeds(records: Dict[tuple, dict]) -> Dict[Key, dict]:
+  """{(dataset, method, views, scene): record} whose means are the mean over its seeds' records, with
+  'std' {metric: standard deviation over seeds, None for one seed}, 'n_seeds' and 'by_seed' {seeds: means}."""
+  replicates: Dict[Key, Dict[Optional[tuple], dict]] = {}
+  for key, record in records.items():
+    replicates.setdefault(key[:4], {})[key[4]] = record
+  pooled = {}
+  for key, by_seed in replicates.items():
+    runs = list(by_seed.values())
+    metrics = list(dict.fromkeys(m for r in runs for m in r['means']))
+    values = {m: [r['means'].get(m) for r in runs] for m in metrics}
+    pooled[key] = {**runs[0], 'step': min(r['step'] for r in runs), 'complete': all(r['complete'] for r in runs),
+                   'means': {m: results.mean(v) for m, v in values.items()},
+                   'std': {m: _std(v) for m, v in values.items()}, 'n_seeds': len(runs),
+                   'by_seed': {seeds: r['means'] for seeds, r in by_seed.items()}}
+  return pooled
+
+
+def _std(values: Sequence[Optional[float]]) -> Optional[float]:
+  """Sample standard deviation of values; None for fewer than two or a missing one."""
+  return statistics.stdev(values) if len(values) > 1 and None not in values else None
 
 
 @dataclasses.dataclass(frozen=True)
 class Value:
-  """A metric cell: number None = empty; mark '*' = mean over an incomplete set."""
+  """A metric cell: number None = empty; mark '*' = mean over an incomplete set; std over seeds where known."""
   number: Optional[float]
   metric: str
   mark: str = ''
+  std: Optional[float] = None
 
 
 @dataclasses.dataclass
@@ -113,11 +148,21 @@ def _scene_mean(scenes: Dict[str, dict], dataset: str, metric: str, allow_incomp
   expected = results.EXPECTED_SCENES[dataset]
   values = [scenes[s]['means'].get(metric) for s in expected if s in scenes]
   usable = [v for v in values if v is not None]
+  std = _seed_spread([scenes[s] for s in expected if s in scenes], metric)
   if len(usable) == len(expected) and all(scenes[s]['complete'] for s in expected):
-    return Value(results.mean(usable), metric)
+    return Value(results.mean(usable), metric, std=std)
   if allow_incomplete and usable:
-    return Value(results.mean(usable), metric, '*')
+    return Value(results.mean(usable), metric, '*', std)
   return Value(None, metric)
+
+
+def _seed_spread(records: List[dict], metric: str) -> Optional[float]:
+  """Standard deviation over seeds of the mean over records (scenes) per seed, when every record has the same
+  two or more seeds; else None."""
+  seeds = {frozenset(r.get('by_seed', {None: None})) for r in records}
+  if len(seeds) != 1 or len(next(iter(seeds))) < 2:
+    return None
+  return _std([results.mean([r['by_seed'][seed].get(metric) for r in records]) for seed in next(iter(seeds))])
 
 
 def _metric_columns(dataset: str) -> List[Tuple[str, str]]:
@@ -141,16 +186,17 @@ def _scene_table(group: Tuple[str, str, int], scenes: Dict[str, dict], allow_inc
   for scene in results.EXPECTED_SCENES[dataset] + tuple(extras):
     record = scenes.get(scene)
     if record is None:
-      rows.append([scene, '', 'missing'] + [Value(None, m) for _, m in columns])
+      rows.append([scene, '', '', 'missing'] + [Value(None, m) for _, m in columns])
       continue
     note = 'not a protocol scene' if scene in extras else ('' if record['complete'] else 'incomplete')
-    rows.append([scene, str(record['step']), note] + [Value(record['means'].get(m), m) for _, m in columns])
-  rows.append(['mean', '', ''] + [_scene_mean(scenes, dataset, m, allow_incomplete) for _, m in columns])
+    rows.append([scene, str(record['step']), str(record['n_seeds']), note]
+                + [Value(record['means'].get(m), m, std=record['std'].get(m)) for _, m in columns])
+  rows.append(['mean', '', '', ''] + [_scene_mean(scenes, dataset, m, allow_incomplete) for _, m in columns])
   gaps = _gaps(scenes, dataset)
   notes = [_note(gaps, allow_incomplete)] if gaps else []
   notes += [f'{s} is not one of the protocol\'s test scenes: shown, not averaged' for s in extras]
   return Table(f'{dataset}_{group[1]}_{group[2]}views', _label(group) + ', per scene',
-               ['scene', 'step', 'note'] + [title for title, _ in columns], rows, notes)
+               ['scene', 'step', 'seeds', 'note'] + [title for title, _ in columns], rows, notes)
 
 
 def _summary_tables(dataset: str, groups: Dict[Tuple[str, str, int], Dict[str, dict]],
@@ -208,7 +254,8 @@ def _format(cell, digits: Optional[int], empty: str) -> str:
   if cell.number is None:
     return empty + cell.mark
   places = digits if digits is not None else (2 if cell.metric.startswith('psnr') else 3)
-  return f'{cell.number:.{places}f}{cell.mark}'
+  spread = f' ± {cell.std:.{places}f}' if cell.std is not None and digits is None else ''
+  return f'{cell.number:.{places}f}{spread}{cell.mark}'
 
 
 def to_markdown(table: Table) -> str:
@@ -220,12 +267,28 @@ def to_markdown(table: Table) -> str:
   return '\n'.join(lines) + '\n'
 
 
+def _csv_cells(cells: list, with_std: bool) -> List[str]:
+  """A row's cells as CSV text (6 decimals); with_std: each Value followed by its spread over seeds."""
+  out = []
+  for cell in cells:
+    out.append(_format(cell, 6, ''))
+    if with_std and isinstance(cell, Value):
+      out.append(_format(Value(cell.std, cell.metric), 6, ''))
+  return out
+
+
 def write_csv(table: Table, path: pathlib.Path) -> None:
-  """A table as CSV with 6 decimals and empty cells for missing values."""
+  """A table as CSV with 6 decimals and empty cells for missing values; where any value has a spread over
+  seeds, a '<column> std' column follows each metric column."""
+  with_std = any(isinstance(c, Value) and c.std is not None for row in table.rows for c in row)
+  header = table.header
+  if with_std:
+    header = [x for title, cell in zip(table.header, table.rows[0])
+              for x in ([title, f'{title} std'] if isinstance(cell, Value) else [title])]
   with open(path, 'w', newline='') as f:
     writer = csv.writer(f)
-    writer.writerow(table.header)
-    writer.writerows([_format(c, 6, '') for c in row] for row in table.rows)
+    writer.writerow(header)
+    writer.writerows(_csv_cells(row, with_std) for row in table.rows)
 
 
 def write_tables(tables: Dict[str, List[Table]], out_dir) -> List[pathlib.Path]:

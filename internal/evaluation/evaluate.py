@@ -130,6 +130,7 @@ def evaluate(config) -> dict:
   record = results.make_record(dataset, scene, config.n_input_views, config.expname, step, per_image,
                               is_complete(config))
   record.update(lpips_missing_reason=lpips_reason, eval_factor=config.eval_factor,
+                seeds=[config.jax_rng_seed, config.np_rng_seed],
                 test_positions=positions, run_dir=os.path.abspath(run_dir))
   write_csv(per_image, os.path.join(out_dir, 'metrics.csv'))
   results.write_record(metrics_path, record)

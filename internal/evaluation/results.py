@@ -15,7 +15,8 @@ METRICS_FILENAME = 'metrics.json'
 #    "method": str (e.g. "freenerf", "mipnerf"), "step": int,
 #    "means": {metric: float or null}, the mean over test views of each per-image value (null: not available),
 #    "per_image": [{"id": int, metric: float or null, ...}], one entry per evaluated test view, in test order,
-#    "complete": bool, true when every test view was evaluated at full resolution}
+#    "complete": bool, true when every test view was evaluated at full resolution,
+#    optional "seeds": [Config.jax_rng_seed, Config.np_rng_seed]: runs that differ only here are replicates}
 # Metric names are those of internal/evaluation/metric_registry.py.
 RECORD_FIELDS = {'dataset': str, 'scene': str, 'n_input_views': int, 'method': str, 'step': int,
                  'means': dict, 'per_image': list, 'complete': bool}

@@ -67,12 +67,13 @@ def line_figure(lines: dict, joined: bool = True) -> tuple:
 
 
 def save_figure(fig, ax, x_label: str, y_label: str, title: str, path: str) -> None:
-  """Labels the axes, adds a grid and the legend and writes the figure to path as a PNG at 100 dpi."""
+  """Labels the axes, adds a grid and the legend (if anything is labelled) and writes the figure to path as a PNG at 100 dpi."""
   ax.set_xlabel(x_label)
   ax.set_ylabel(y_label)
   ax.set_title(title)
   ax.grid(alpha=.3)
-  ax.legend(fontsize=7)
+  if ax.get_legend_handles_labels()[0]:
+    ax.legend(fontsize=7)
   fig.tight_layout()
   os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
   fig.savefig(path, dpi=100)

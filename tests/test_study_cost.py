@@ -1,0 +1,67 @@
+"""tools.study_cost and `tools.study --list --estimate`: a study's expected wall time before it runs."""
+
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+from internal import configs
+from tools import study_cost
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+TINY = f'''
+name = "cost"
+seeds = 2
+bindings = ["MLP.net_depth = 2", "MLP.net_width = 16", "MLP.net_width_viewdirs = 16",
+            "MipNerfModel.num_samples = 8", "Config.batch_size = 64", "Config.max_steps = 40",
+            "Config.compute_lpips = False", "Config.render_chunk_size = 192", "Config.curve_every = 10",
+            "Config.generated_size = (12, 16)", "Config.data_dir = '{{out}}/scenes/{{scene}}'"]
+[methods.freenerf]
+configs = ["{REPO}/configs/demo.gin"]
+[scenes.object]
+bindings = ["Config.generated_rig = 'object'"]
+'''
+
+
+def test_cell_seconds_scale_the_measurement():
+  config = configs.Config(max_steps=1000, curve_every=100, curve_test_ids=(0, 1), curve_factor=4, eval_factor=1)
+  measured = {'setup_seconds': 30., 'step_seconds': .2, 'view_seconds': 3.2, 'eval_views': 5, 'curve_views': 2}
+  seconds = study_cost.cell_seconds(config, measured)
+  # 10 curve points x 2 views at 1/16 of the pixels of an evaluated view.
+  assert seconds == {'train': pytest.approx(30. + 200. + 10 * 2 * 3.2 / 16), 'eval': pytest.approx(16.)}
+
+
+def test_signature_ignores_seeds_run_folder_and_name():
+  spec = {'gin_configs': ['a.gin'], 'gin_bindings': ['Config.max_steps = 5', 'Config.jax_rng_seed = 1',
+                                                     'Config.np_rng_seed = 1', "Config.checkpoint_dir = 'x'"]}
+  other = {'gin_configs': ['a.gin'], 'gin_bindings': ['Config.max_steps = 5', 'Config.jax_rng_seed = 2',
+                                                      'Config.np_rng_seed = 2', "Config.expname = 'y'"]}
+  assert study_cost.signature(spec) == study_cost.signature(other)
+  assert study_cost.signature(spec) != study_cost.signature({**spec, 'gin_bindings': ['Config.max_steps = 6']})
+
+
+def test_durations_read_as_a_person_would():
+  assert [study_cost.format_duration(s) for s in (40, 720, 3900)] == ['40 s', '12 min', '1 h 05 min']
+
+
+def test_list_estimate_measures_each_setting_once(tmp_path):
+  path = tmp_path / 'cost.toml'
+  path.write_text(TINY)
+  out = str(tmp_path / 'out')
+  result = subprocess.run([sys.executable, '-m', 'tools.study', str(path), '--out', out, '--list', '--estimate'],
+                          cwd=REPO, capture_output=True, text=True, timeout=600, check=True)
+  lines = result.stdout.splitlines()
+  assert sum(line.startswith('measuring') for line in lines) == 1  # Two seeds, one setting.
+  estimates = [line for line in lines if line.startswith('estimate')]
+  assert len(estimates) == 2 and estimates[0].split('(')[0] == estimates[1].split('(')[0]
+  assert lines[-1].startswith('total for 2 pending cell(s): ')
+  assert not list(pathlib.Path(out).rglob('checkpoints'))  # Nothing trained in the cells' folders.
+
+
+def test_estimate_needs_list(tmp_path):
+  path = tmp_path / 'cost.toml'
+  path.write_text(TINY)
+  result = subprocess.run([sys.executable, '-m', 'tools.study', str(path), '--estimate'], cwd=REPO,
+                          capture_output=True, text=True, check=False)
+  assert result.returncode == 2 and '--estimate goes with --list' in result.stderr

@@ -1,0 +1,134 @@
+"""tools.study_stats and the seed axis of study files: statistics checked on constructed results with known values."""
+
+import math
+import re
+
+import numpy as np
+from PIL import Image
+import pytest
+
+from tools import study as study_lib
+from tools import study_plots
+from tools import study_spec
+from tools import study_stats
+
+SEEDED = '''
+name = "seeded"
+seeds = 3
+[methods.freenerf]
+configs = ["configs/demo.gin"]
+[methods.mipnerf]
+configs = ["configs/demo.gin"]
+[scenes.s1]
+[scenes.s2]
+[plot]
+metrics = ["psnr", "lpips"]
+'''
+T_975 = {3: 3.182446305284263, 4: 2.7764451051977987}  # Student's t quantiles from a table (df: value).
+
+
+def _rows(offsets, noise=((0., .3, -.2), (.1, -.4, .25))):
+  """Rows of SEEDED: mipnerf psnr 10 + noise, freenerf = mipnerf + offsets[scene][seed]; lpips = psnr / 100."""
+  rows = []
+  for s, scene in enumerate(('s1', 's2')):
+    for seed in range(3):
+      base = 10. + noise[s][seed]
+      for method, value in (('mipnerf', base), ('freenerf', base + offsets[s][seed])):
+        rows.append({'method': method, 'scene': scene, 'seed': str(seed), 'psnr': value, 'lpips': value / 100.})
+  return rows
+
+
+@pytest.fixture(name='study')
+def fixture_study():
+  return study_spec.parse(SEEDED, 'seeded.toml')
+
+
+def test_seeds_become_an_axis_binding_both_seeds_and_stay_out_of_expname(study):
+  axis = study.axes[-1]
+  assert axis.name == 'seed' and [p.label for p in axis.points] == ['0', '1', '2']
+  assert axis.points[2].bindings == ('Config.jax_rng_seed = 2', 'Config.np_rng_seed = 2')
+  cell = study_spec.cells(study)[2]
+  assert cell.cell_id == 'freenerf__s1__seed=2' and cell.expname == 'freenerf'
+  assert study.compare == (study_spec.Compare('method', 'mipnerf', 'freenerf'),)
+
+
+def test_seed_lists_and_explicit_comparisons():
+  study = study_spec.parse(SEEDED.replace('seeds = 3', 'seeds = [7, 11]')
+                           + '[[compare]]\na = "freenerf"\nb = "mipnerf"\n', 'x.toml')
+  assert [p.label for p in study.axes[-1].points] == ['7', '11']
+  assert study.compare == (study_spec.Compare('method', 'freenerf', 'mipnerf'),)
+
+
+@pytest.mark.parametrize('extra, message', [
+    ('seeds = 0', 'seeds: 0; expected a count >= 1'),
+    ('seeds = [1, 1]', 'expected a count >= 1 or a list of distinct integers'),
+    ('seeds = ["a"]', 'expected a count >= 1 or a list of distinct integers'),
+    ('seeds = 2\n[[axis]]\nname = "seed"\nbinding = "Config.jax_rng_seed"\nvalues = [1]', 'also has an axis'),
+    ('[[compare]]\na = "freenerf"\nb = "nerf"', "compare[0].b: 'nerf' is not a label of method"),
+    ('[[compare]]\na = "freenerf"\nb = "freenerf"', 'a and b are both'),
+    ('[[compare]]\naxis = "seed"\na = "0"\nb = "1"', 'an axis other than the seed'),
+])
+def test_bad_seeds_and_comparisons_name_the_key(extra, message):
+  text = SEEDED.replace('seeds = 3\n', '')
+  head, tail = text.split('[methods.freenerf]')
+  with pytest.raises(study_spec.StudyError, match=re.escape(message)):
+    study_spec.parse(head + extra + '\n[methods.freenerf]' + tail, 'bad.toml')
+
+
+def test_t_interval_against_the_table():
+  mean, low, high = study_stats.t_interval([1., 2., 3., 4.])
+  half = T_975[3] * math.sqrt(5. / 3.) / 2.  # sample std of 1..4 is sqrt(5/3); se = std / sqrt(4).
+  assert mean == 2.5 and low == pytest.approx(2.5 - half, rel=1e-9) and high == pytest.approx(2.5 + half)
+  assert study_stats.t_interval([0.7]) == (0.7, None, None)
+
+
+def test_t_interval_covers_the_true_mean_95_percent_of_the_time():
+  rng = np.random.default_rng(0)
+  samples = rng.normal(0.5, 2., (4000, 5))
+  covered = [low <= 0.5 <= high for low, high in (study_stats.t_interval(list(s))[1:] for s in samples)]
+  assert np.mean(covered) == pytest.approx(0.95, abs=0.012)
+
+
+def test_summary_gives_mean_std_and_n_over_seeds(study):
+  summary = study_stats.summarize(study, _rows(((1., 2., 3.), (0., 0., 0.))), 'psnr')
+  s1 = next(s for s in summary if s['method'] == 'freenerf' and s['scene'] == 's1')
+  assert s1['n'] == 3 and s1['mean'] == pytest.approx((11. + 12.3 + 12.8) / 3.)
+  assert s1['std'] == pytest.approx(np.std([11., 12.3, 12.8], ddof=1))
+  assert 'seed' not in s1 and len(summary) == 4
+
+
+def test_paired_difference_over_seeds_and_scenes(study):
+  offsets = ((-1., -2., -3.), (-1.5, -2.5, -2.))
+  comparison, = study_stats.compare(study, _rows(offsets), 'psnr')
+  differences = [1., 2., 3., 1.5, 2.5, 2.]  # mipnerf - freenerf, pair by pair.
+  half = T_975.get(5, 2.5705818366147395) * np.std(differences, ddof=1) / math.sqrt(6)
+  assert comparison.n == 6 and comparison.mean == pytest.approx(2.)
+  assert comparison.low == pytest.approx(2. - half) and comparison.high == pytest.approx(2. + half)
+  assert comparison.verdict == 'mipnerf better'
+  lpips, = study_stats.compare(study, _rows(offsets), 'lpips')  # Lower is better: mipnerf's is higher.
+  assert lpips.verdict == 'freenerf better'
+
+
+def test_an_interval_containing_zero_is_undecided(study):
+  comparison, = study_stats.compare(study, _rows(((1., -1., 2.), (-2., 1., -.5))), 'psnr')
+  assert comparison.low < 0 < comparison.high
+  assert comparison.verdict == 'UNDECIDED: the 95% interval contains 0'
+  one = [r for r in _rows(((1., 1., 1.), (1., 1., 1.))) if r['seed'] == '0' and r['scene'] == 's1']
+  assert study_stats.compare(study, one, 'psnr')[0].verdict == 'UNDECIDED: 1 pair, no interval'
+
+
+def test_unmatched_or_missing_rows_make_no_pair(study):
+  rows = [r for r in _rows(((1., 1., 1.), (1., 1., 1.))) if not (r['method'] == 'freenerf' and r['seed'] == '2')]
+  rows[0]['psnr'] = ''  # Not finished: left out, with its partner.
+  assert study_stats.compare(study, rows, 'psnr')[0].n == 3
+
+
+def test_statistics_files_and_plots(study, tmp_path):
+  rows = _rows(((1., -1., 2.), (-2., 1., -.5)))
+  written = study_lib.write_statistics(study, rows, str(tmp_path))
+  assert sorted(p.rsplit('/', 1)[1] for p in written) == ['comparisons.csv', 'comparisons.md', 'summary.csv']
+  markdown = (tmp_path / 'comparisons.md').read_text()
+  assert '**UNDECIDED: the 95% interval contains 0**' in markdown and '| 6 |' in markdown
+  plots = study_plots.write_plots(study, rows, str(tmp_path))
+  assert {p.rsplit('/', 1)[1] for p in plots} >= {'compare_psnr.png', 'compare_lpips.png'}
+  assert Image.open(tmp_path / 'compare_psnr.png').size == (640, 440)

@@ -1,0 +1,111 @@
+"""Statistics of a study over its replicates (the seed axis): per cell mean, spread and n, and paired
+differences between methods or axis points with a 95% confidence interval (Student's t over the pairs).
+
+At the budgets a CPU affords, a seed moves a method by several dB, so a single run ranks nothing: a comparison
+whose interval contains zero is reported as undecided, in the table and the plot.
+"""
+
+import dataclasses
+import math
+import statistics
+from typing import Dict, List, Optional, Sequence, Tuple
+
+from scipy import stats as scipy_stats
+
+from tools import study_spec
+
+LEVEL = 0.95  # Confidence level of the paired intervals.
+UNDECIDED = 'UNDECIDED'
+
+
+def finite(value) -> Optional[float]:
+  """A finite float, or None."""
+  try:
+    value = float(value)
+  except (TypeError, ValueError):
+    return None
+  return value if math.isfinite(value) else None
+
+
+def label_keys(study: study_spec.Study) -> List[str]:
+  """The labels that tell cells apart: method, scene and every axis."""
+  return ['method', 'scene'] + [a.name for a in study.axes]
+
+
+def spread(values: Sequence[float]) -> dict:
+  """{'mean', 'std' (sample, n - 1; None for one value), 'n'} of values."""
+  return {'mean': statistics.fmean(values), 'std': statistics.stdev(values) if len(values) > 1 else None,
+          'n': len(values)}
+
+
+def summarize(study: study_spec.Study, rows: List[dict], metric: str) -> List[dict]:
+  """Per group of rows equal on every label but the seed: the labels, the metric's mean, std and n."""
+  keys = [k for k in label_keys(study) if k != study_spec.SEED_AXIS]
+  groups: Dict[tuple, List[float]] = {}
+  for row in rows:
+    value = finite(row.get(metric))
+    if value is not None:
+      groups.setdefault(tuple(row.get(k) for k in keys), []).append(value)
+  return [{**dict(zip(keys, labels)), 'metric': metric, **spread(values)} for labels, values in groups.items()]
+
+
+def t_interval(differences: Sequence[float], level: float = LEVEL) -> Tuple[float, Optional[float], Optional[float]]:
+  """(mean, low, high) of the mean of paired differences [n]: Student's t interval; (mean, None, None) for n = 1."""
+  n = len(differences)
+  mean = statistics.fmean(differences)
+  if n < 2:
+    return mean, None, None
+  half = scipy_stats.t.ppf(0.5 + level / 2, n - 1) * statistics.stdev(differences) / math.sqrt(n)
+  return mean, mean - half, mean + half
+
+
+@dataclasses.dataclass(frozen=True)
+class Comparison:
+  """The paired difference a - b of a metric over n matched pairs, with its interval and verdict."""
+  axis: str
+  a: str
+  b: str
+  metric: str
+  n: int
+  mean: float
+  low: Optional[float]
+  high: Optional[float]
+  lower_is_better: bool
+
+  @property
+  def verdict(self) -> str:
+    """'<label> better' when the interval excludes 0, else UNDECIDED with the reason."""
+    if self.low is None:
+      return f'{UNDECIDED}: {self.n} pair, no interval'
+    if self.low <= 0. <= self.high:
+      return f'{UNDECIDED}: the {LEVEL:.0%} interval contains 0'
+    a_better = (self.mean > 0) != self.lower_is_better
+    return f'{self.a if a_better else self.b} better'
+
+  def row(self) -> dict:
+    """The comparison as a CSV row."""
+    return {'axis': self.axis, 'a': self.a, 'b': self.b, 'metric': self.metric, 'n': self.n,
+            'mean_a_minus_b': self.mean, 'ci_low': self.low, 'ci_high': self.high, 'verdict': self.verdict}
+
+
+def pairs(study: study_spec.Study, rows: List[dict], compare: study_spec.Compare, metric: str) -> List[float]:
+  """a - b of metric for every pair of rows labelled a and b on compare.axis and equal on every other label."""
+  others = [k for k in label_keys(study) if k != compare.axis]
+  values = {}
+  for row in rows:
+    value = finite(row.get(metric))
+    if value is not None and row.get(compare.axis) in (compare.a, compare.b):
+      values[(row[compare.axis], tuple(row.get(k) for k in others))] = value
+  return [value - values[(compare.b, match)] for (label, match), value in values.items()
+          if label == compare.a and (compare.b, match) in values]
+
+
+def compare(study: study_spec.Study, rows: List[dict], metric: str) -> List[Comparison]:
+  """The study's comparisons on metric (those with at least one pair)."""
+  found = []
+  for entry in study.compare:
+    differences = pairs(study, rows, entry, metric)
+    if differences:
+      found.append(Comparison(entry.axis, entry.a, entry.b, metric, len(differences), *t_interval(differences),
+                              metric in study_spec.LOWER_IS_BETTER))
+  return found
