@@ -111,7 +111,7 @@ def test_unknown_split_loader_and_option_names(llff_root, blender_root):
   with pytest.raises(DatasetError, match=r"unknown split 'val'.*\['train', 'test'\]"):
     load_dataset('val', llff(llff_root))
   with pytest.raises(DatasetError, match='Config.dataset_loader'):
-    load_dataset('train', Config(dataset_loader='colmap'))
+    load_dataset('train', Config(dataset_loader='nerfstudio'))
   with pytest.raises(DatasetError, match='Config.blender_split'):
     load_dataset('train', blender(blender_root, blender_split='random'))
   with pytest.raises(DatasetError, match='Config.downsample_mode'):
