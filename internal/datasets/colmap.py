@@ -70,7 +70,7 @@ def _is_forward(camtoworlds: np.ndarray, rig: str) -> bool:
   """Whether the capture is forward-facing: Config.capture_rig, or 'auto' by the spread of viewing directions."""
   if rig != 'auto':
     return rig == 'forward'
-  return np.linalg.norm(cameras.normalize(camtoworlds[:, :, 2]).mean(0)) >= FORWARD_SPREAD
+  return bool(np.linalg.norm(cameras.normalize(camtoworlds[:, :, 2]).mean(0)) >= FORWARD_SPREAD)
 
 
 def read_capture(config) -> Capture:
