@@ -22,12 +22,9 @@ from internal.models import sampling
 from internal.training import train_step
 from internal.datasets import base
 from internal.datasets import batching
-from internal.datasets import blender
-from internal.datasets import dtu
 from internal.datasets import image_io
 from internal.datasets import loader
 from internal.datasets import raygen
-from internal.datasets import synthetic
 
 
 # `include 'configs/common/...'` in the repository's configs resolves from any working directory.
@@ -95,11 +92,10 @@ def _apply_warmup_end(config: Config) -> Config:
 
 
 # Settings that name one of a list of options, each list next to the code that implements it.
-CONFIG_CHOICES = (('dataset_loader', loader.LOADERS), ('dtu_layout', dtu.LAYOUTS),
-                  ('blender_split', blender.SPLIT_MODES), ('downsample_mode', image_io.DOWNSAMPLE_MODES),
-                  ('batching', batching.BATCHING_MODES), ('nonfinite_grad_policy', train_step.NONFINITE_POLICIES),
-                  ('lpips_input_range', lpips.INPUT_RANGES), ('generated_rig', synthetic.RIGS),
-                  ('precision', precision.PRECISIONS), ('model', tuple(registry.MODELS)))
+CONFIG_CHOICES = loader.SETTING_CHOICES + (
+    ('downsample_mode', image_io.DOWNSAMPLE_MODES), ('batching', batching.BATCHING_MODES),
+    ('nonfinite_grad_policy', train_step.NONFINITE_POLICIES), ('lpips_input_range', lpips.INPUT_RANGES),
+    ('precision', precision.PRECISIONS), ('model', tuple(registry.MODELS)))
 MODEL_CHOICES = (('ray_shape', gaussians.RAY_SHAPES), ('pdf_padding', sampling.PDF_PADDINGS))
 
 

@@ -51,6 +51,10 @@ class Config:
   render_factor: int = 0                # Downsampling of the camera path's renders (0 = factor).
   downsample_mode: str = 'released'     # 'released' (bilinear quirk) | 'area' (block mean).
   n_input_views: int = 9               # 0 = every view of the training pool.
+  # Explicit view ids in place of the protocol's (None): DTU camera index, LLFF / capture image index in file-name
+  # order, Blender frame of the split's transforms file. A test view may not also be a training view.
+  train_view_ids: Optional[Sequence[int]] = None  # Training views (n_input_views must be 0 or their count).
+  test_view_ids: Optional[Sequence[int]] = None  # Test views.
   # 'single_image': a step's rays from one image (released few-shot); 'all_images'.
   batching: str = 'single_image'
   batch_size: int = 4096                # Rays per training step (the paper: 4096).
@@ -62,6 +66,11 @@ class Config:
   generated_rig: str = 'object'         # Generated scene: 'object' | 'forward'.
   generated_size: Sequence[int] = (64, 80)  # Generated scene image (H, W).
   generated_seed: int = 0               # Generated scene: seed of its layout and textures.
+  # Captures (dataset_loader 'colmap', internal/datasets/colmap.py): a user's photos and their COLMAP model.
+  capture_scene: str = ''               # The capture's folder under Config.data_dir ('' = data_dir is the capture).
+  capture_images: str = 'images'        # Image folder (and <name>_<k>/ copies downsampled by k, as LLFF's).
+  capture_model: str = 'sparse/0'       # COLMAP sparse model folder (binary or text).
+  capture_rig: str = 'auto'             # 'auto' | 'inward' (world rays, orbit) | 'forward' (NDC rays, spiral).
 
   # Model.
   model: str = 'mipnerf'                # 'mipnerf' (MipNerfModel, MLP.*) | 'nerf' (NerfModel, NerfMLP.*: plain NeRF).

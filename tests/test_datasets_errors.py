@@ -33,7 +33,7 @@ def test_toy_llff_loads_and_falls_back_to_full_resolution(llff_root):
     data = load_dataset('train', llff(llff_root, n_input_views=3))
   assert data.ids == [1, 5, 9] and data.images.shape == (3, H, W, 3)
   os.rename(llff_root / 'toy' / 'images_8', llff_root / 'toy' / 'images')
-  with pytest.warns(UserWarning, match=r"^LLFF: '.*toy/images_2' does not exist \(downsampling factor 2\); "
+  with pytest.warns(UserWarning, match=r"^'.*toy/images_2' does not exist \(downsampling factor 2\); "
                                        r"building the images from '.*toy/images', downsampled by 2$"):
     half = load_dataset('test', llff(llff_root, factor=2))   # No images_2/: images/ downsampled by 2.
   assert half.ids == [0, 8] and half.images.shape == (2, H // 2, W // 2, 3)
@@ -116,7 +116,7 @@ def test_unknown_split_loader_and_option_names(llff_root, blender_root):
   with pytest.raises(DatasetError, match=r"unknown split 'val'.*\['train', 'test'\]"):
     load_dataset('val', llff(llff_root))
   with pytest.raises(DatasetError, match='Config.dataset_loader'):
-    load_dataset('train', Config(dataset_loader='colmap'))
+    load_dataset('train', Config(dataset_loader='nerfstudio'))
   with pytest.raises(DatasetError, match='Config.blender_split'):
     load_dataset('train', blender(blender_root, blender_split='random'))
   with pytest.raises(DatasetError, match='Config.downsample_mode'):

@@ -48,9 +48,11 @@ DATA = {
              'Config.render_factor = 32'],
     'blender': [f"Config.data_dir = '{SHARED_DATA / 'blender'}'", "Config.blender_scene = 'lego'",
                 'Config.factor = 16', 'Config.render_factor = 16'],
+    'capture': [f"Config.data_dir = '{SHARED_DATA / 'colmap' / 'cup'}'", 'Config.factor = 8', 'Config.render_factor = 8',
+                'Config.curve_factor = 1'],
 }
 SHARED_SCENES = {'dtu': SHARED_DATA / 'dtu' / 'dtu_scan24', 'llff': SHARED_DATA / 'llff' / 'fern',
-                 'blender': SHARED_DATA / 'blender' / 'lego'}
+                 'blender': SHARED_DATA / 'blender' / 'lego', 'capture': SHARED_DATA / 'colmap' / 'cup'}
 SHIM = '''#!{python}
 """README test shim: runs the real interpreter with tiny bindings appended; logs each call and its status."""
 import json, subprocess, sys

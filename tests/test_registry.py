@@ -50,7 +50,7 @@ def test_derived_metric_lists_equal_the_former_literal_lists():
   assert set(study_spec.LOWER_IS_BETTER) == {'lpips', 'avg_error', 'depth_mae', 'pseudo_depth_mae', 'lpips_masked',
                                              'avg_error_masked'}
   assert tables.METRIC_GROUPS == {'dtu': (('object', MASKED), ('full', IMAGE)), 'llff': (('', IMAGE),),
-                                  'blender': (('', IMAGE),)}
+                                  'blender': (('', IMAGE),), 'colmap': (('', IMAGE),)}
   former_display = {'psnr': 'PSNR', 'ssim': 'SSIM', 'lpips': 'LPIPS', 'avg_error': 'Avg'}
   assert {m: tables.DISPLAY[m] for m in IMAGE} == former_display
   assert {m: tables.DISPLAY[m + '_masked'] for m in IMAGE} == former_display
@@ -70,13 +70,13 @@ def test_unknown_metric_group_and_unregistered_metric_are_refused():
 
 
 def test_derived_dataset_lists_equal_the_former_literal_lists():
-  assert loader.LOADERS == ('dtu', 'llff', 'blender', 'generated', 'packed')
-  assert results.DATASETS == ('dtu', 'llff', 'blender')
+  assert loader.LOADERS == ('dtu', 'llff', 'blender', 'generated', 'colmap', 'packed')
+  assert results.DATASETS == ('dtu', 'llff', 'blender', 'colmap')
   assert results.EXPECTED_SCENES == {
       'dtu': ('scan8', 'scan21', 'scan30', 'scan31', 'scan34', 'scan38', 'scan40', 'scan41', 'scan45', 'scan55',
               'scan63', 'scan82', 'scan103', 'scan110', 'scan114'),
       'llff': ('fern', 'flower', 'fortress', 'horns', 'leaves', 'orchids', 'room', 'trex'),
-      'blender': ('chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship')}
+      'blender': ('chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship'), 'colmap': ()}
 
 
 # (loader, rig) -> (NDC rays, near must be > 0, (dataset, scene) of its runs), as config_loader and evaluate
@@ -108,8 +108,11 @@ def test_every_record_is_consistent():
   for name, record in loader.REGISTRY.items():
     for _, group in record.table_groups:
       assert metric_registry.names(group)
-    if record.filed_as is None:  # A dataset of its own: named by a Config field, with protocol scenes.
-      assert record.scene_setting in {f.name for f in dataclasses.fields(Config)} and record.protocol_scenes, name
+    if record.filed_as is None:  # A dataset of its own: named by a Config field (or a function of Config).
+      assert callable(record.scene_setting) or record.scene_setting in {f.name for f in dataclasses.fields(Config)}
+      assert record.protocol_scenes or name == 'colmap', name  # Captures are users' scenes: no protocol.
+    for setting, options in record.choices:
+      assert setting in {f.name for f in dataclasses.fields(Config)} and options, name
     if record.pack_cameras is not None:
       assert set(record.shaping_settings) <= {f.name for f in dataclasses.fields(Config)}, name
 

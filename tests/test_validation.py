@@ -18,7 +18,7 @@ from internal.evaluation import lpips
 from internal.models import precision
 from internal.models import sampling
 from internal.training import train_step
-from internal.datasets import batching, image_io, loader, packed, synthetic
+from internal.datasets import batching, colmap, image_io, loader, packed, synthetic
 from internal.datasets import blender as blender_lib
 from internal.datasets import DatasetError, dtu, load_dataset
 from test_datasets_dtu_layouts import config as dtu_config, synthetic_projections, write_idr, write_regnerf
@@ -73,6 +73,7 @@ def test_sizes_of_the_nerf_model_are_checked_when_it_is_the_model():
     ('Config.batching', batching.BATCHING_MODES), ('Config.freq_mask_layout', freq_schedule.LAYOUTS),
     ('Config.nonfinite_grad_policy', train_step.NONFINITE_POLICIES), ('Config.lpips_input_range', lpips.INPUT_RANGES),
     ('Config.generated_rig', synthetic.RIGS), ('Config.precision', precision.PRECISIONS),
+    ('Config.capture_rig', colmap.RIGS),
     ('MipNerfModel.ray_shape', gaussians.RAY_SHAPES), ('MipNerfModel.pdf_padding', sampling.PDF_PADDINGS)])
 def test_option_settings_use_the_list_of_the_module_that_implements_them(name, options):
   with pytest.raises(ValueError, match=re.escape(f"{name} = 'nope'; expected one of {list(options)}")):

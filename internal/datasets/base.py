@@ -123,3 +123,48 @@ def load_factor(config, split: str) -> int:
   if split == 'test':
     factor *= max(int(getattr(config, 'eval_factor', 1)), 1)
   return factor
+
+
+VIEW_SETTINGS = {'train': 'train_view_ids', 'test': 'test_view_ids'}
+
+
+def _explicit_ids(config, split: str, n_images: int, what: str) -> Optional[List[int]]:
+  """Config.<split>_view_ids as a list of ids, checked (non-empty, distinct, within 0..n_images - 1), or None."""
+  setting = VIEW_SETTINGS[split]
+  ids = getattr(config, setting)
+  if ids is None:
+    return None
+  ids = [int(i) for i in ids]
+  if not ids:
+    raise DatasetError(f'Config.{setting} = []: the {split} split would be empty; give at least one view id '
+                       '(or None for the protocol\'s views)')
+  bad = [i for i in ids if not 0 <= i < n_images]
+  if bad or len(set(ids)) < len(ids):
+    raise DatasetError(f'Config.{setting} = {ids}: ' + (f'ids {bad} are outside the {n_images} views of {what} '
+                       f'(0..{n_images - 1})' if bad else 'an id repeats'))
+  if split == 'train' and config.n_input_views not in (0, len(ids)):
+    raise DatasetError(f'Config.{setting} names {len(ids)} views but Config.n_input_views = '
+                       f'{config.n_input_views}; set n_input_views to {len(ids)} (it files the run) or 0')
+  return ids
+
+
+def choose_views(config, split: str, defaults, n_images: int, what: str, shared: bool = True) -> List[int]:
+  """The view ids of split: Config.train_view_ids / test_view_ids where set (checked), else defaults(split)
+  (a callable of the split, so that a protocol's default that does not apply is never computed).
+
+  shared: train and test ids index the same images (n_images of them), so that a view in both is refused; else
+  the split's ids index its own n_images.
+  """
+  if not shared:
+    own = _explicit_ids(config, split, n_images, what)
+    return own if own is not None else list(defaults(split))
+  explicit = {s: _explicit_ids(config, s, n_images, what) for s in VIEW_SETTINGS}
+  if all(ids is None for ids in explicit.values()):
+    return explicit[split] if explicit[split] is not None else list(defaults(split))
+  ids = {s: explicit[s] if explicit[s] is not None else list(defaults(s)) for s in VIEW_SETTINGS}
+  both = sorted(set(ids['train']) & set(ids['test']))
+  if both:
+    raise DatasetError(f'views {both} of {what} are both training views (Config.train_view_ids or the '
+                       'protocol\'s) and test views (Config.test_view_ids or the protocol\'s); a test view must '
+                       'be held out')
+  return ids[split]

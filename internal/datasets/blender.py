@@ -62,7 +62,10 @@ def composite(rgba: np.ndarray, white_background: bool) -> np.ndarray:
 def load_blender(split: str, config, scene_dir: str, name: str, mode: str, test_stride: int) -> base.Dataset:
   """Loads one split of a Blender-layout scene (OpenGL cameras, near/far from Config)."""
   meta = read_transforms(scene_dir, split)
-  ids = frame_ids(split, len(meta['frames']), mode, config.n_input_views, test_stride)
+  ids = base.choose_views(config, split, lambda s: frame_ids(s, len(meta['frames']), mode, config.n_input_views,
+                                                             test_stride),
+                          len(meta['frames']), f'{os.path.join(scene_dir, f"transforms_{split}.json")!r}',
+                          shared=False)
   paths = [frame_path(scene_dir, meta['frames'][i]) for i in ids]
   if split == 'test':
     ids = base.present_test_ids(ids, paths, config.allow_missing_test_views)

@@ -184,17 +184,21 @@ def scan_setup(config) -> tuple:
 
 
 def view_ids(config, split: str, scan_dir: str, layout: str, n_cameras: int) -> tuple:
-  """(ids, image paths) of the split: first n train ids, or the test ids present on disk."""
+  """(ids, image paths) of the split: Config.<split>_view_ids, else the first n train ids or the test ids, those
+  present on disk."""
   train_pool, test_ids = split_ids(config.dtu_split_type, n_cameras, config.dtuhold)
+  defaults = lambda s: (base.first_n(train_pool, config.n_input_views, f'DTU {config.dtu_split_type} split')
+                        if s == 'train' else test_ids)
+  chosen = base.choose_views(config, split, defaults, n_cameras, f'DTU scan {scan_dir!r}')
   if split == 'train':
-    ids = base.first_n(train_pool, config.n_input_views, f'DTU {config.dtu_split_type} split')
+    ids = chosen
     paths = image_paths(scan_dir, layout, ids, config.dtu_light_cond)
     for path in paths:
       base.require_file(path, 'DTU training image')
     return ids, paths
-  paths = image_paths(scan_dir, layout, test_ids, config.dtu_light_cond)
-  ids = base.present_test_ids(test_ids, paths, config.allow_missing_test_views)
-  return ids, [p for i, p in zip(test_ids, paths) if i in ids]
+  paths = image_paths(scan_dir, layout, chosen, config.dtu_light_cond)
+  ids = base.present_test_ids(chosen, paths, config.allow_missing_test_views)
+  return ids, [p for i, p in zip(chosen, paths) if i in ids]
 
 
 def load_dtu(split: str, config) -> base.Dataset:

@@ -14,18 +14,18 @@ PROTOCOL_SCENES = ('fern', 'flower', 'fortress', 'horns', 'leaves', 'orchids', '
 SHAPING_SETTINGS = ('llff_scan', 'llffhold')
 
 
-def image_folder(scene_dir: str, factor: int) -> tuple:
-  """(folder, extra factor): images_{factor}/ (images/ for 1), else a finer images_k/ to downsample by factor/k."""
+def image_folder(scene_dir: str, factor: int, name: str = 'images') -> tuple:
+  """(folder, extra factor): <name>_{factor}/ (<name>/ for 1), else a finer <name>_k/ to downsample by factor/k."""
   for k in sorted((k for k in range(1, factor + 1) if factor % k == 0), reverse=True):
-    folder = os.path.join(scene_dir, f'images_{k}' if k > 1 else 'images')
+    folder = os.path.join(scene_dir, f'{name}_{k}' if k > 1 else name)
     if os.path.isdir(folder):
       if k != factor:
-        warnings.warn(f'LLFF: {os.path.join(scene_dir, f"images_{factor}")!r} does not exist (downsampling factor '
+        warnings.warn(f'{os.path.join(scene_dir, f"{name}_{factor}")!r} does not exist (downsampling factor '
                       f'{factor}); building the images from {folder!r}, downsampled by {factor // k}', stacklevel=2)
       return folder, factor // k
-  found = [e for e in base.listing(scene_dir) if e.startswith('images')]
-  raise base.DatasetNotFoundError(f'LLFF: {os.path.join(scene_dir, f"images_{factor}")!r} does not exist '
-                                  f'(Config.factor = {factor}); image folders present: {found}')
+  found = [e for e in base.listing(scene_dir) if e.startswith(name)]
+  raise base.DatasetNotFoundError(f'{os.path.join(scene_dir, f"{name}_{factor}" if factor > 1 else name)!r} does '
+                                  f'not exist (Config.factor = {factor}); image folders present: {found}')
 
 
 def image_files(folder: str) -> list:
@@ -99,7 +99,8 @@ def load_llff(split: str, config, scene_dir: str, name: str) -> base.Dataset:
   factor = base.load_factor(config, split)
   paths, extra, poses_bounds = scene_setup(scene_dir, factor)
   c2w, _, focal = process_poses(poses_bounds)
-  ids = split_ids(split, len(paths), config.llffhold, config.n_input_views)
+  ids = base.choose_views(config, split, lambda s: split_ids(s, len(paths), config.llffhold, config.n_input_views),
+                          len(paths), f'the LLFF scene {scene_dir!r}')
   images = image_io.load_stack([paths[i] for i in ids],
                                lambda p: image_io.load_rgb(p, extra, config.downsample_mode))
   height, width = images.shape[1:3]

@@ -8,7 +8,7 @@ loader file and one record here.
 import dataclasses
 from typing import Callable, Dict, Optional, Tuple
 
-from internal.datasets import base, blender, dtu, generated, llff, packed
+from internal.datasets import base, blender, colmap, dtu, generated, llff, packed
 
 
 @dataclasses.dataclass(frozen=True)
@@ -16,7 +16,8 @@ class Loader:
   """One Config.dataset_loader value: its functions and how the rest of the code treats its scenes."""
   load: Callable                     # (split, config) -> Dataset.
   render_path: Callable              # config -> Rays [F,H,W,...] of the render path.
-  scene_setting: Optional[str]       # The Config field naming the scene (None: filed_as names it).
+  # The Config field naming the scene, or config -> the scene's name (None: filed_as names it).
+  scene_setting: Optional[object]
   ndc: Callable                      # config -> True: NDC rays (near 0, far 1); False: world rays (near > 0);
                                      # None: the data decides (a pack checks its settings on load).
   protocol_scenes: Tuple[str, ...] = ()  # The protocol's test scenes, over which the tables average.
@@ -27,6 +28,7 @@ class Loader:
   ground_truth: Optional[Callable] = None  # (Dataset, config) -> Dataset with exact depths and object masks.
   shaping_settings: Tuple[str, ...] = ()   # The Config fields a pack records and checks on load.
   pack_cameras: Optional[Callable] = None  # (config, {split: Dataset}) -> the pack's camera record; None: unpackable.
+  choices: Tuple[Tuple[str, Tuple[str, ...]], ...] = ()  # (Config field, its allowed values) of its own settings.
 
 
 def _filed_as_packed(config) -> Tuple[str, str]:
@@ -37,21 +39,27 @@ def _filed_as_packed(config) -> Tuple[str, str]:
 REGISTRY: Dict[str, Loader] = {
     'dtu': Loader(dtu.load_dtu, dtu.render_path_rays, 'dtu_scan', lambda config: False, dtu.PROTOCOL_SCENES,
                   (('object', 'masked'), ('full', 'full')), shaping_settings=dtu.SHAPING_SETTINGS,
-                  pack_cameras=packed.dtu_cameras),
+                  pack_cameras=packed.dtu_cameras, choices=(('dtu_layout', dtu.LAYOUTS),)),
     'llff': Loader(llff.load_scene, llff.scene_render_path, 'llff_scan', lambda config: True, llff.PROTOCOL_SCENES,
                    shaping_settings=llff.SHAPING_SETTINGS,
                    pack_cameras=lambda config, data: packed.llff_cameras(config, data, llff.scene_path(config))),
     'blender': Loader(blender.load_scene, blender.scene_render_path, 'blender_scene', lambda config: False,
                       blender.PROTOCOL_SCENES, shaping_settings=blender.SHAPING_SETTINGS,
                       pack_cameras=lambda config, data: packed.blender_cameras(config, data,
-                                                                               blender.scene_path(config))),
+                                                                               blender.scene_path(config)),
+                      choices=(('blender_split', blender.SPLIT_MODES),)),
     'generated': Loader(generated.load, generated.render_path_rays, None, generated.is_ndc,
                         filed_as=generated.filed_as, ground_truth=generated.with_ground_truth,
-                        shaping_settings=generated.SHAPING_SETTINGS, pack_cameras=generated.pack_cameras),
+                        shaping_settings=generated.SHAPING_SETTINGS, pack_cameras=generated.pack_cameras,
+                        choices=(('generated_rig', generated.synthetic.RIGS),)),
+    'colmap': Loader(colmap.load_scene, colmap.scene_render_path, colmap.scene_name, colmap.is_ndc,
+                     shaping_settings=colmap.SHAPING_SETTINGS, choices=(('capture_rig', colmap.RIGS),)),
     'packed': Loader(packed.load_packed, packed.render_path_rays, None, lambda config: None,
                      filed_as=_filed_as_packed),
 }
 LOADERS = tuple(REGISTRY)
+# The allowed values of Config.dataset_loader and of each loader's own settings, checked before any work.
+SETTING_CHOICES = (('dataset_loader', LOADERS),) + tuple(c for record in REGISTRY.values() for c in record.choices)
 # The dataset names of metrics.json and the tables: the loaders whose runs are filed under their own name.
 RESULT_DATASETS = tuple(name for name, record in REGISTRY.items() if record.filed_as is None)
 
@@ -89,7 +97,8 @@ def filed_as(config) -> Tuple[str, str]:
   record = loader_of(config)
   if record.filed_as is not None:
     return record.filed_as(config)
-  return config.dataset_loader, getattr(config, record.scene_setting)
+  scene = record.scene_setting
+  return config.dataset_loader, scene(config) if callable(scene) else getattr(config, scene)
 
 
 def pack_arrays(config, datasets: dict) -> dict:

@@ -75,8 +75,14 @@ def pack_rays(origins, directions, viewdirs, radii, near: float, far: float) -> 
 
 
 def pinhole_rays(camtoworld, pixtocam, height, width, near, far, opengl) -> Rays:
-  """Rays [H,W,...] of one camera: origins at its centre, unit viewdirs, row-neighbour radii."""
-  dirs = world_directions(camtoworld, camera_directions(pixtocam, height, width, opengl))
+  """Rays [H,W,...] of one pinhole camera: origins at its centre, unit viewdirs, row-neighbour radii."""
+  return camera_rays(camtoworld, camera_directions(pixtocam, height, width, opengl), near, far)
+
+
+def camera_rays(camtoworld, cam_dirs: np.ndarray, near: float, far: float) -> Rays:
+  """Rays [H,W,...] through camera-frame directions cam_dirs [H,W,3] of the camera c2w [3,4]: origins at its
+  centre, unit viewdirs, row-neighbour radii."""
+  dirs = world_directions(camtoworld, cam_dirs)
   origins = np.broadcast_to(np.asarray(camtoworld, np.float64)[:3, 3], dirs.shape)
   viewdirs = dirs / norm(dirs)[..., None]
   return pack_rays(origins, dirs, viewdirs, row_radii(dirs), near, far)
@@ -94,7 +100,12 @@ NDC_NEAR_FAR = (0., 1.)  # LLFF's NDC rays span t in [0, 1] whatever Config.near
 
 def llff_rays(camtoworld, pixtocam, height, width, focal) -> Rays:
   """LLFF NDC rays [H,W,...]: NDC origins/directions, NDC radii, world (unnormalised) viewdirs, near 0, far 1."""
-  dirs = world_directions(camtoworld, camera_directions(pixtocam, height, width, opengl=True))
+  return ndc_camera_rays(camtoworld, camera_directions(pixtocam, height, width, opengl=True), focal, height, width)
+
+
+def ndc_camera_rays(camtoworld, cam_dirs: np.ndarray, focal: float, height: int, width: int) -> Rays:
+  """NDC rays [H,W,...] (as llff_rays) through OpenGL camera-frame directions cam_dirs [H,W,3] of c2w [3,4]."""
+  dirs = world_directions(camtoworld, cam_dirs)
   origins = np.broadcast_to(np.asarray(camtoworld, np.float64)[:3, 3], dirs.shape)
   ndc_o, ndc_d = convert_to_ndc(origins, dirs, focal, height, width)
   return pack_rays(ndc_o, ndc_d, dirs, ndc_radii(ndc_o), *NDC_NEAR_FAR)

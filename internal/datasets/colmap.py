@@ -1,0 +1,264 @@
+"""Captures: a user's photos with their COLMAP sparse model -> few-view training and held-out test views.
+
+A capture folder holds the images as COLMAP saw them (`Config.capture_images`, optionally with downsampled copies
+`<capture_images>_<k>/` of the same names, as LLFF's images_4/) and the model (`Config.capture_model`, binary or
+text). Every image may have its own camera; radial and tangential distortion is inverted per pixel
+(distortion.py). An image's id is its position in the file-name order of the registered images.
+
+Two rigs (`Config.capture_rig`; 'auto' looks at the spread of the viewing directions):
+- inward (an object seen over an arc): world-space rays in a frame centred on the point nearest to every optical
+  axis, scaled so that the median camera is 1 unit from it, z up (the cameras' mean up); near and far from the
+  depths of the sparse points each image sees (LLFF's 0.1 / 99.9 percentiles, the extremes over the images); the
+  render path orbits the centre over the captured arc and back.
+- forward (every camera looks the same way): LLFF's pipeline, NDC rays and its spiral path.
+
+Views (the documented rule): the images ordered along the arc (by azimuth about the up axis through the centre,
+starting after the widest gap; forward captures in name order), every `Config.llffhold`-th of that order from the
+first is a test view, and the `Config.n_input_views` training views are spread evenly over the rest, both ends
+included. `Config.train_view_ids` / `Config.test_view_ids` choose them by id instead.
+"""
+
+import dataclasses
+import os
+from typing import Dict, List
+
+import numpy as np
+
+from internal.datasets import base, cameras, colmap_model, distortion, image_io, llff, raygen
+
+RIGS = ('auto', 'inward', 'forward')
+FORWARD_SPREAD = 0.9   # 'auto': forward when the mean of the unit viewing directions is at least this long.
+CAMERA_DISTANCE = 1.   # Inward captures are scaled so that the median camera is this far from the centre.
+OPENCV_TO_OPENGL = np.diag([1., -1., -1.])
+SHAPING_SETTINGS = ('capture_scene', 'capture_images', 'capture_model', 'capture_rig', 'llffhold',
+                    'train_view_ids', 'test_view_ids')
+
+
+@dataclasses.dataclass
+class Capture:
+  """A capture in the loader's world frame: per image (name order) its file name, COLMAP camera parameters
+  (distortion.opencv_params [8], at full size), camera-to-world [3,4] (OpenCV axes) and depth bounds [2]."""
+  folder: str
+  names: List[str]
+  params: np.ndarray     # [N, 8]
+  camtoworlds: np.ndarray  # [N, 3, 4]
+  bounds: np.ndarray     # [N, 2]
+  sizes: np.ndarray      # [N, 2] (height, width) at full size.
+  forward: bool
+
+
+def scene_path(config) -> str:
+  """The capture folder: Config.data_dir, or its sub-folder Config.capture_scene (both checked)."""
+  if not config.capture_scene:
+    if not os.path.isdir(config.data_dir):
+      raise base.DatasetNotFoundError(f'Config.data_dir = {config.data_dir!r} does not exist (expected a capture '
+                                      'folder holding the images and the COLMAP model)')
+    return config.data_dir
+  return base.scene_dir(config.data_dir, config.capture_scene, 'capture_scene')
+
+
+def _camera_params(model: colmap_model.Model, image: colmap_model.Image, path: str) -> np.ndarray:
+  """distortion.opencv_params of an image's camera; the error names the model file and the camera."""
+  camera = model.cameras[image.camera_id]
+  try:
+    return distortion.opencv_params(camera.model, camera.params)
+  except distortion.UnsupportedCameraError as err:
+    raise base.DatasetError(f'{path!r}: camera {camera.camera_id} of image {image.name!r}: {err}') from err
+
+
+def _is_forward(camtoworlds: np.ndarray, rig: str) -> bool:
+  """Whether the capture is forward-facing: Config.capture_rig, or 'auto' by the spread of viewing directions."""
+  if rig != 'auto':
+    return rig == 'forward'
+  return bool(np.linalg.norm(cameras.normalize(camtoworlds[:, :, 2]).mean(0)) >= FORWARD_SPREAD)
+
+
+def read_capture(config) -> Capture:
+  """The capture's images, cameras and bounds, in the world frame of its rig (see the module docstring)."""
+  folder = scene_path(config)
+  model_dir = os.path.join(folder, config.capture_model)
+  model = colmap_model.read_model(model_dir)
+  images = sorted(model.images.values(), key=lambda i: i.name)
+  if not images:
+    raise base.DatasetError(f'the COLMAP model in {model_dir!r} has no registered images')
+  rotations = np.stack([colmap_model.qvec_to_rotmat(i.qvec) for i in images])
+  centres = np.stack([colmap_model.camera_center(i) for i in images])
+  c2w = np.concatenate([np.transpose(rotations, (0, 2, 1)), centres[..., None]], -1)
+  cameras.check_cameras(c2w, os.path.join(model_dir, 'images' + colmap_model.model_format(model_dir)),
+                        [f'image {i.name!r}' for i in images], 'pose')
+  bounds = colmap_model.depth_bounds(model)
+  cams = [model.cameras[i.camera_id] for i in images]
+  capture = Capture(folder, [i.name for i in images], np.stack([_camera_params(model, i, model_dir) for i in images]),
+                    c2w, np.stack([bounds[i.image_id] for i in images]),
+                    np.array([(c.height, c.width) for c in cams]), _is_forward(c2w, config.capture_rig))
+  return _to_forward_frame(capture) if capture.forward else _to_object_frame(capture)
+
+
+def _up_rotation(up: np.ndarray) -> np.ndarray:
+  """[3,3] rotation taking the unit vector up [3] to +z (Rodrigues about up x z)."""
+  axis, cos = np.cross(up, [0., 0., 1.]), up[2]
+  if np.linalg.norm(axis) < 1e-12:
+    return np.eye(3) if cos > 0 else np.diag([1., -1., -1.])
+  k = np.array([[0., -axis[2], axis[1]], [axis[2], 0., -axis[0]], [-axis[1], axis[0], 0.]])
+  return np.eye(3) + k + k @ k / (1. + cos)
+
+
+def _to_object_frame(capture: Capture) -> Capture:
+  """The inward capture centred on the focus point of its optical axes, scaled, its mean up along +z."""
+  centre = cameras.focus_point(capture.camtoworlds)
+  scale = CAMERA_DISTANCE / np.median(np.linalg.norm(capture.camtoworlds[:, :, 3] - centre, axis=-1))
+  rotation = _up_rotation(cameras.normalize(-capture.camtoworlds[:, :, 1].mean(0)))
+  c2w = np.concatenate([rotation @ capture.camtoworlds[:, :, :3],
+                        (scale * (capture.camtoworlds[:, :, 3] - centre) @ rotation.T)[..., None]], -1)
+  return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale)
+
+
+def _to_forward_frame(capture: Capture) -> Capture:
+  """The forward capture in LLFF's frame: scaled so that the nearest bound is 1 / 0.75, recentred on the mean
+  pose (computed in OpenGL axes, as LLFF's), the cameras looking down -z."""
+  scale = 1. / (capture.bounds.min() * .75)
+  c2w_gl = capture.camtoworlds @ np.diag([1., -1., -1., 1.])
+  c2w_gl[:, :, 3] *= scale
+  c2w = cameras.recenter_poses(c2w_gl) @ np.diag([1., -1., -1., 1.])
+  return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale)
+
+
+def arc_order(capture: Capture) -> List[int]:
+  """Image indices along the capture: by azimuth about +z starting after the widest gap (inward), else names."""
+  if capture.forward:
+    return list(range(len(capture.names)))
+  centres = capture.camtoworlds[:, :, 3]
+  azimuth = np.arctan2(centres[:, 1], centres[:, 0])
+  order = np.argsort(azimuth)
+  gaps = np.diff(np.concatenate([azimuth[order], azimuth[order[:1]] + 2. * np.pi]))
+  start = (int(np.argmax(gaps)) + 1) % len(order)
+  return [int(i) for i in np.roll(order, -start)]
+
+
+def default_views(capture: Capture, llffhold: int, n_views: int) -> Dict[str, List[int]]:
+  """{'train', 'test'} ids by the documented rule: every llffhold-th along the arc for test, n_views spread
+  evenly over the rest for training (all of them for n_views 0)."""
+  if llffhold < 1:
+    raise base.DatasetError(f'Config.llffhold = {llffhold}; expected a positive integer')
+  order = arc_order(capture)
+  test = [i for k, i in enumerate(order) if k % llffhold == 0]
+  pool = [i for k, i in enumerate(order) if k % llffhold]
+  if n_views > len(pool):
+    raise base.DatasetError(f'Config.n_input_views = {n_views} exceeds the {len(pool)} training views of the '
+                            f'capture {capture.folder!r} ({len(capture.names)} registered images, every '
+                            f'{llffhold}-th held out for testing); ask for fewer views or lower Config.llffhold')
+  train = pool if base.all_views(n_views, len(pool), 'the capture') else [
+      pool[int(round(v))] for v in np.linspace(0, len(pool) - 1, n_views)]
+  return {'train': train, 'test': test}
+
+
+def _image_paths(capture: Capture, config, factor: int) -> tuple:
+  """(paths of every image at factor or a finer copy, extra downsampling); a model naming an absent image is named."""
+  folder, extra = llff.image_folder(capture.folder, factor, config.capture_images)
+  paths = [os.path.join(folder, name) for name in capture.names]
+  missing = [p for p in paths if not os.path.isfile(p)]
+  if missing:
+    raise base.DatasetNotFoundError(f'{len(missing)} of the {len(paths)} images the COLMAP model in '
+                                    f'{os.path.join(capture.folder, config.capture_model)!r} registers are not in '
+                                    f'{folder!r}: {missing[:5]}')
+  return paths, extra
+
+
+def _rays(capture: Capture, index: int, height: int, width: int, near: float, far: float):
+  """Rays [H,W,...] of image index at the loaded size (distortion inverted per pixel)."""
+  params = distortion.scaled(capture.params[index], capture.sizes[index, 1] / width)
+  directions = distortion.camera_directions(params, height, width)
+  c2w = capture.camtoworlds[index]
+  if not capture.forward:
+    return raygen.camera_rays(c2w, directions, near, far)
+  return raygen.ndc_camera_rays(c2w @ np.diag([1., -1., -1., 1.]), directions @ OPENCV_TO_OPENGL,
+                                _ndc_focal(capture, width), height, width)
+
+
+def _ndc_focal(capture: Capture, width: int) -> float:
+  """The focal length (pixels at the loaded width) that defines NDC space: the first image's, as LLFF's."""
+  return capture.params[0, 0] * width / capture.sizes[0, 1]
+
+
+def near_far(capture: Capture) -> tuple:
+  """(near, far) of every ray: raygen's NDC range for forward captures, else the extremes of the image bounds."""
+  if capture.forward:
+    return raygen.NDC_NEAR_FAR
+  return float(capture.bounds[:, 0].min()), float(capture.bounds[:, 1].max())
+
+
+def check_size(capture: Capture, index: int, image: np.ndarray, factor: int, path: str) -> None:
+  """Raises DatasetError naming the file when an image's size is not its camera's divided by factor."""
+  expected = tuple(int(s) // factor for s in capture.sizes[index])
+  if image.shape[:2] != expected:
+    raise base.DatasetError(f'{path!r} is {image.shape[1]} x {image.shape[0]} pixels; its COLMAP camera is '
+                            f'{capture.sizes[index, 1]} x {capture.sizes[index, 0]}, so {expected[1]} x '
+                            f'{expected[0]} at Config.factor {factor} (images are read as stored, as COLMAP read '
+                            'them)')
+
+
+def load_scene(split: str, config) -> base.Dataset:
+  """One split of the capture (see the module docstring for its frame, rays and views)."""
+  capture = read_capture(config)
+  factor = base.load_factor(config, split)
+  paths, extra = _image_paths(capture, config, factor)
+  ids = base.choose_views(config, split, lambda s: default_views(capture, config.llffhold, config.n_input_views)[s],
+                          len(paths), f'the capture {capture.folder!r}')
+  images = image_io.load_stack([paths[i] for i in ids], lambda p: image_io.load_rgb(p, extra, config.downsample_mode))
+  for i, image, in zip(ids, images):
+    check_size(capture, i, image, factor, paths[i])
+  height, width = images.shape[1:3]
+  near, far = near_far(capture)
+  rays = raygen.stack_rays((_rays(capture, i, height, width, near, far) for i in ids), len(ids))
+  pixtocams = [np.linalg.inv(_intrinsics(capture.params[i], capture.sizes[i, 1] / width)) for i in ids]
+  return base.Dataset(images=images, camtoworlds=capture.camtoworlds[ids].astype(np.float32),
+                      pixtocams=np.stack(pixtocams).astype(np.float32), ids=list(ids), height=height, width=width,
+                      near=near, far=far, masks=None, rays=rays, split=split, name=f'colmap/{scene_name(config)}')
+
+
+def _intrinsics(params: np.ndarray, factor: float) -> np.ndarray:
+  """K [3,3] of the undistorted pinhole part of a camera for images downsampled by factor."""
+  fx, fy, cx, cy = distortion.scaled(params, factor)[:4]
+  return np.array([[fx, 0., cx], [0., fy, cy], [0., 0., 1.]])
+
+
+def scene_name(config) -> str:
+  """The capture's name in metrics.json and the tables: its folder's name."""
+  return os.path.basename(os.path.normpath(scene_path(config)))
+
+
+def is_ndc(config) -> bool:
+  """Forward captures train on NDC rays, inward ones on world rays."""
+  return read_capture(config).forward
+
+
+def orbit_path(capture: Capture, n_frames: int) -> np.ndarray:
+  """[F,3,4] OpenCV cameras on the cameras' mean distance and height about +z, looking at the centre, over the
+  captured arc of azimuths and back."""
+  centres = capture.camtoworlds[:, :, 3]
+  order = arc_order(capture)
+  azimuth = np.unwrap(np.arctan2(centres[order, 1], centres[order, 0]))
+  radius, height = np.linalg.norm(centres[:, :2], axis=-1).mean(), centres[:, 2].mean()
+  sweep = np.concatenate([np.linspace(azimuth[0], azimuth[-1], (n_frames + 1) // 2),
+                          np.linspace(azimuth[-1], azimuth[0], n_frames // 2)])
+  positions = np.stack([radius * np.cos(sweep), radius * np.sin(sweep), np.full_like(sweep, height)], -1)
+  return np.stack([cameras.viewmatrix(-p, np.array([0., 0., -1.]), p) for p in positions])
+
+
+def scene_render_path(config):
+  """Rays [F,H,W,...] of the render path: the arc orbit (inward) or LLFF's spiral (forward), first camera's
+  intrinsics without distortion, at Config.render_factor."""
+  capture = read_capture(config)
+  factor = base.render_factor(config)
+  height, width = (int(s) // factor for s in capture.sizes[0])
+  params = np.concatenate([capture.params[0, :4], np.zeros(4)])
+  capture = dataclasses.replace(capture, params=params[None].repeat(len(capture.names), 0))
+  if capture.forward:
+    poses = cameras.spiral_path_llff(capture.camtoworlds @ np.diag([1., -1., -1., 1.]), capture.bounds,
+                                     config.render_path_frames) @ np.diag([1., -1., -1., 1.])
+  else:
+    poses = orbit_path(capture, config.render_path_frames)
+  near, far = near_far(capture)
+  path = dataclasses.replace(capture, camtoworlds=poses, sizes=capture.sizes[:1].repeat(len(poses), 0),
+                             params=capture.params[:1].repeat(len(poses), 0))
+  return raygen.stack_rays((_rays(path, i, height, width, near, far) for i in range(len(poses))), len(poses))
