@@ -227,9 +227,15 @@ def scene_name(config) -> str:
   return os.path.basename(os.path.normpath(scene_path(config)))
 
 
-def is_ndc(config) -> bool:
-  """Forward captures train on NDC rays, inward ones on world rays."""
-  return read_capture(config).forward
+def is_ndc(config):
+  """True for forward captures (NDC rays), False for inward ones; under capture_rig 'auto' the capture decides,
+  None while it cannot be read (its loading then names what is missing)."""
+  if config.capture_rig != 'auto':
+    return config.capture_rig == 'forward'
+  try:
+    return read_capture(config).forward
+  except (base.DatasetError, OSError):
+    return None
 
 
 def orbit_path(capture: Capture, n_frames: int) -> np.ndarray:
