@@ -41,6 +41,7 @@ class NerfMLP(nn.Module):
   deg_view: int = 4
   use_viewdirs: bool = True
   density_noise: float = 0.  # Std of N(0, 1) noise per sample on the raw density, in training (0 = none).
+  point_identity: bool = True  # The raw points first in their encoding, as released; False drops them (xyz ablation).
   precision: str = 'float32'  # One of precision.PRECISIONS, set from Config.precision (not a gin binding).
 
   def setup(self):
@@ -56,7 +57,8 @@ class NerfMLP(nn.Module):
 
   def layer_shapes(self):
     """(name, inputs, outputs) of every dense layer: trunk Dense_0.., then density, feature, view, rgb heads."""
-    point_dim, view_dim = encoding.width(self.deg_point), encoding.width(self.deg_view)
+    point_dim = encoding.width(self.deg_point, append_identity=self.point_identity)
+    view_dim = encoding.width(self.deg_view)
     shapes, width = [], point_dim
     for i in range(self.net_depth):
       shapes.append((f'Dense_{i}', width, self.net_width))
@@ -74,7 +76,7 @@ class NerfMLP(nn.Module):
 
   def _trunk(self, points, mask_point):
     """Trunk features [N, W] of points [N, 3] (mask_point [63] or None multiplies their encoding)."""
-    enc = encoding.interleaved_pos_enc(points, self.deg_point)
+    enc = encoding.interleaved_pos_enc(points, self.deg_point, self.point_identity)
     if mask_point is not None:
       enc = enc * mask_point
     enc = enc.astype(self.dtype)
@@ -151,6 +153,11 @@ class NerfModel(nn.Module):
   def encoding_degrees(self):
     """(point, view) encoding degrees of both MLPs."""
     return self.coarse_mlp.encoding_degrees()
+
+  @nn.nowrap
+  def point_identity(self) -> bool:
+    """Whether both MLPs' point encodings start with the raw points (NerfMLP.point_identity)."""
+    return self.coarse_mlp.point_identity
 
   @nn.nowrap
   def fine_samples_per_ray(self) -> int:
