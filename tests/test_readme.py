@@ -5,7 +5,8 @@ and a `python` on PATH that appends tiny model and data bindings to train.py / e
 tools that take them (tools.study, tools.pack_scene): the shared scenes instead of data/, 2 steps, a small
 model, low resolution. It turns `python -m pytest` into a collection
 run (the suite is not run inside itself). `python3 -m venv`, `. .venv/bin/activate` and `pip install` steps are
-dropped: the test runs in the installed environment.
+dropped: the test runs in the installed environment (the GPU install, `pip install -r requirements-gpu.txt`, cannot
+run on a CPU machine; tests/test_gpu_install.py checks that it resolves).
 """
 
 import json
