@@ -233,6 +233,17 @@ class MipNerfModel(nn.Module):
     return renderings, history
 
 
+  def density_at(self, points, variance, mask_point):
+    """Density [N] at points [N, 3], each a Gaussian of isotropic variance (a grid cell's footprint), no noise."""
+    return self.mlp.predict_density(None, points, jnp.full_like(points, variance), mask_point)
+
+  def colour_at(self, points, viewdirs, variance, mask_point, mask_view):
+    """rgb [N, 3] at points [N, 3] (Gaussians as in density_at) seen along viewdirs [N, 3]."""
+    rgb, _ = self.mlp(None, points[:, None], jnp.full_like(points, variance)[:, None], viewdirs, mask_point,
+                      mask_view)
+    return rgb[:, 0]
+
+
 def construct_model(key, example_rays, white_background: bool, precision: str = 'float32'):
   """Builds MipNerfModel (gin-bound) and initializes its variables on example rays [B, ...]."""
   model = MipNerfModel(white_background=white_background, precision=precision)

@@ -193,6 +193,18 @@ class NerfModel(nn.Module):
     return [coarse, fine], [coarse_history, fine_history]
 
 
+  def density_at(self, points, variance, mask_point):
+    """Density [N] of the fine MLP (the one rendered last) at points [N, 3]; variance is unused (points)."""
+    del variance  # NeRF encodes points, without a footprint.
+    return self.fine_mlp.predict_density(points, mask_point)
+
+  def colour_at(self, points, viewdirs, variance, mask_point, mask_view):
+    """rgb [N, 3] of the fine MLP at points [N, 3] seen along viewdirs [N, 3]."""
+    del variance
+    rgb, _ = self.fine_mlp(None, points[:, None], viewdirs, mask_point, mask_view)
+    return rgb[:, 0]
+
+
 def construct_model(key, example_rays, white_background: bool, precision: str = 'float32'):
   """Builds NerfModel (gin-bound) and initializes its variables on example rays [B, ...]."""
   model = NerfModel(white_background=white_background, precision=precision)
