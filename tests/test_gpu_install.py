@@ -4,7 +4,7 @@ package index, as a CPU machine can check it.
 pip 25.3 or newer reads each wheel's metadata by HTTP range requests (`--use-feature=fast-deps`; 13 s here), so
 the check runs everywhere, CI included: it is the only one that the GPU pins still resolve. Older pip reads every
 wheel whole where the index serves no separate metadata files (PEP 658), as this project's machine's does: about
-1.6 GB of CUDA libraries (pip 23.2: 72 s here), so then it runs outside CI only (CI=true skips it, saying so).
+1.6 GB of CUDA libraries (pip 23.2: 48-72 s here), so then it runs outside CI only (CI=true skips it, saying so).
 It also skips, saying why, where the index cannot be reached or jax publishes no CUDA wheels for the platform.
 """
 

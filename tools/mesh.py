@@ -61,10 +61,10 @@ def camera_axes(elevation: float, azimuth: float):
   return right, np.cross(right, forward), forward
 
 
-def save_picture(path: str, verts, faces, colours, normals, views=((30, -60), (30, 60))) -> None:
+def save_picture(path: str, verts, faces, colours, normals, views=((20, -100), (20, 20))) -> None:
   """A PNG of the mesh from each (elevation, azimuth): triangles facing the camera, far to near (painter's
   algorithm), in their vertices' mean colour shaded by how squarely they face it (0.5 + 0.5 cos)."""
-  fig = matplotlib.figure.Figure(figsize=(5 * len(views), 4))
+  fig = matplotlib.figure.Figure(figsize=(6 * len(views), 4))
   face_normals = normals[faces].mean(1)
   face_normals /= np.maximum(np.linalg.norm(face_normals, axis=-1, keepdims=True), 1e-12)
   for i, angles in enumerate(views):
