@@ -61,9 +61,9 @@ def test_the_gpu_requirements_resolve_to_the_constrained_jax_with_its_cuda_plugi
   _skip_unless_resolvable()
   options = metadata_options()
   report = tmp_path / 'report.json'
-  proc = subprocess.run(PIP + ['install', '--dry-run', '--ignore-installed', '--quiet', '--report', str(report),
-                               '-r', 'requirements-gpu.txt'] + options + NETWORK, cwd=ROOT, capture_output=True, text=True,
-                        timeout=600, check=False)
+  command = PIP + ['install', '--dry-run', '--ignore-installed', '--quiet', '--report', str(report), '-r',
+                   'requirements-gpu.txt'] + options + NETWORK
+  proc = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
   assert proc.returncode == 0, proc.stderr[-3000:]
   resolved = {normalized(item['metadata']['name']): item['metadata']['version']
               for item in json.loads(report.read_text())['install']}

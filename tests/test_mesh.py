@@ -9,6 +9,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from internal import cli
+from internal.configs import Config
+from internal.datasets import synthetic
 from internal.evaluation import mesh
 from internal.evaluation import ply
 from internal.training import loop
@@ -59,6 +61,24 @@ def test_ply_header_and_records_by_hand(tmp_path):
   np.testing.assert_array_equal(read_verts, verts)
   np.testing.assert_array_equal(read_faces, faces)
   assert read_colours[2].tolist() == [51, 0, 0]
+
+
+def test_bounds_per_scene_kind_and_a_clear_error_where_there_are_none():
+  scene, _ = synthetic.build_scene(synthetic.scene_params('object', 0, 32, 40, 2))
+  tops = []
+  for solid in scene['solids'][1:]:
+    if solid['shape'] == 'sphere':
+      tops.append(solid['centre'][2] + solid['radius'])
+    else:  # The highest of the box's 8 corners.
+      corners = np.array(np.meshgrid(*[[-h, h] for h in solid['half']])).reshape(3, -1).T
+      tops.append((np.array(solid['centre']) + corners @ np.array(solid['rotation']).T)[:, 2].max())
+  np.testing.assert_allclose(synthetic.scene_bounds(scene), [[-1.5, -1.5, 0.], [1.5, 1.5, max(tops)]], atol=1e-9)
+  assert mesh_tool.scene_bounds(Config(dataset_loader='blender'), None).tolist() == [[-1.5] * 3, [1.5] * 3]
+  assert mesh_tool.scene_bounds(Config(dataset_loader='llff'), None)[0].tolist() == [-1.] * 3
+  with pytest.raises(ValueError, match="Config.dataset_loader = 'dtu' .* --bounds"):
+    mesh_tool.scene_bounds(Config(dataset_loader='dtu'), None)
+  with pytest.raises(ValueError, match='X1 > X0'):
+    mesh_tool.scene_bounds(Config(dataset_loader='dtu'), [0, 0, 0, 1, -1, 1])
 
 
 # ------------------------------------------------------------------ a trained generated scene

@@ -7,11 +7,12 @@ scene's bounds (the generated object scene: the box around its solids, 5% margin
 that holds its objects; NDC scenes (LLFF, the generated forward scene): the NDC box, and the mesh is in NDC
 coordinates; DTU and the rest: --bounds, in the run's world coordinates), z-slab by z-slab so that memory stays
 bounded (512^3 included), then marching cubes at --level (default: the density that makes one interval of the
-run's own samples half opaque, ln 2 x samples / (far - near), which follows the scene's scale); vertex colours are the radiance at each vertex seen head-on from
-outside (view direction = -normal). Writes <run>/mesh_step_<step>_<resolution>.ply (or --out) and never replaces
-a file unless Config.overwrite = True. A field that never reaches the level is an error, and no file is written.
+run's own samples half opaque, ln 2 x samples / (far - near), so it follows the scene's scale). Vertex colours
+are the radiance at each vertex seen head-on from outside (view direction = -normal; in NDC scenes the normal is
+an NDC one while the model was trained on world directions, an approximation). Writes
+<run>/mesh_step_<step>_<resolution>.ply (or --out) and never replaces a file unless Config.overwrite = True. A
+field that never reaches the level is an error, and no file is written.
 """
-
 import os
 import sys
 

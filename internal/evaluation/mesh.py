@@ -7,6 +7,8 @@ kept; the vertices that two slabs share are merged. Each grid point is queried a
 Vertex colours: the radiance at the vertex seen from outside along its normal (view direction = -normal).
 """
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -25,10 +27,11 @@ def field_functions(config, model, params, step: int, cell: float):
   """(density(points [N,3]) -> [N], colour(points [N,3], viewdirs [N,3]) -> [N,3]) with the step's masks."""
   masks = freq_schedule.model_masks(config, model, jnp.asarray(step))
   variance = cell**2 / 12.
-  density = jax.jit(lambda p: model.apply({'params': params}, p, variance, masks[0], method=type(model).density_at))
-  colour = jax.jit(lambda p, d: model.apply({'params': params}, p, d, variance, *masks,
-                                            method=type(model).colour_at))
-  return density, colour
+  # Parameters and masks are arguments, not constants folded into the compiled programs.
+  density = jax.jit(lambda v, m, p: model.apply(v, p, variance, m[0], method=type(model).density_at))
+  colour = jax.jit(lambda v, m, p, d: model.apply(v, p, d, variance, *m, method=type(model).colour_at))
+  variables = {'params': params}
+  return functools.partial(density, variables, masks), functools.partial(colour, variables, masks)
 
 
 def grid_axes(bounds, resolution: int) -> list:
