@@ -3,12 +3,15 @@ empty field, and the mesh of a trained generated scene against its exact surface
 
 import json
 import os
+import types
 
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from conftest import SHARED_DATA
 from internal import cli
+from internal import datasets
 from internal.configs import Config
 from internal.datasets import synthetic
 from internal.evaluation import mesh
@@ -75,10 +78,41 @@ def test_bounds_per_scene_kind_and_a_clear_error_where_there_are_none():
   np.testing.assert_allclose(synthetic.scene_bounds(scene), [[-1.5, -1.5, 0.], [1.5, 1.5, max(tops)]], atol=1e-9)
   assert mesh_tool.scene_bounds(Config(dataset_loader='blender'), None).tolist() == [[-1.5] * 3, [1.5] * 3]
   assert mesh_tool.scene_bounds(Config(dataset_loader='llff'), None)[0].tolist() == [-1.] * 3
-  with pytest.raises(ValueError, match="Config.dataset_loader = 'dtu' .* --bounds"):
-    mesh_tool.scene_bounds(Config(dataset_loader='dtu'), None)
+  with pytest.raises(ValueError, match="Config.dataset_loader = 'packed' .* --bounds"):
+    mesh_tool.scene_bounds(Config(dataset_loader='packed'), None)
   with pytest.raises(ValueError, match='X1 > X0'):
     mesh_tool.scene_bounds(Config(dataset_loader='dtu'), [0, 0, 0, 1, -1, 1])
+
+
+def _view(origin, direction, masked):
+  """One view of 2 x 1 pixels, both rays from origin along direction; mask [2] which pixels hold the object."""
+  shape = (1, 2, 1)
+  return (np.broadcast_to(origin, shape[:2] + (3,)), np.broadcast_to(direction, shape[:2] + (3,)),
+          np.broadcast_to(np.array(masked, float).reshape(shape), shape[:2] + (3,)))
+
+
+def test_the_dtu_region_intersects_the_boxes_of_the_views_mask_rays():
+  # View 0 looks down +z from the origin (mask rays reach z 1..3); view 1 down +x from (-2, 0, 2): x -1..1.
+  views = [_view([0., 0., 0.], [0., 0., 1.], [1, 0]), _view([-2., 0., 2.], [1., 0., 0.], [1, 1])]
+  rays = types.SimpleNamespace(origins=np.stack([v[0] for v in views]), directions=np.stack([v[1] for v in views]),
+                               near=np.ones((2, 1, 2, 1)), far=np.full((2, 1, 2, 1), 3.))
+  test_set = types.SimpleNamespace(ids=[0, 1], rays=rays, masks=np.stack([v[2] for v in views]))
+  np.testing.assert_allclose(mesh_tool.mask_region(test_set), [[0., 0., 2.], [0., 0., 2.]])
+  test_set.masks = np.zeros_like(test_set.masks)
+  with pytest.raises(ValueError, match='empty object masks'):
+    mesh_tool.mask_region(test_set)
+
+
+@pytest.mark.skipif(not (SHARED_DATA / 'dtu' / 'dtu_scan24').is_dir(), reason='the shared DTU scan is absent')
+def test_the_dtu_region_of_the_shared_scan_is_a_small_part_of_the_views_reach():
+  config = Config(dataset_loader='dtu', data_dir=str(SHARED_DATA / 'dtu'), dtu_scan='dtu_scan24', factor=8, near=.5,
+                  far=3.5, dtu_mask_path='', allow_missing_test_views=True, white_background=False)
+  region = mesh_tool.scene_bounds(config, None)
+  rays = datasets.load_dataset('test', config).rays
+  ends = np.concatenate([rays.origins + rays.directions * .5, rays.origins + rays.directions * 3.5]).reshape(-1, 3)
+  reach = np.stack([ends.min(0), ends.max(0)])
+  assert np.all(region[1] > region[0]) and np.all(region[0] >= reach[0]) and np.all(region[1] <= reach[1])
+  assert np.prod(region[1] - region[0]) < .05 * np.prod(reach[1] - reach[0])  # Measured: 2.2%.
 
 
 # ------------------------------------------------------------------ a trained generated scene

@@ -5,7 +5,8 @@
 Pass the gin configs and bindings used for training. The density is evaluated on a resolution^3 grid inside the
 scene's bounds (the generated object scene: the box around its solids, 5% margin; Blender: the cube [-1.5, 1.5]^3
 that holds its objects; NDC scenes (LLFF, the generated forward scene): the NDC box, and the mesh is in NDC
-coordinates; DTU and the rest: --bounds, in the run's world coordinates), z-slab by z-slab so that memory stays
+coordinates; DTU: the region its test views' object masks bound, see mask_region; packed scenes: --bounds,
+in the run's world coordinates), z-slab by z-slab so that memory stays
 bounded (512^3 included), then marching cubes at --level (default: the density that makes one interval of the
 run's own samples half opaque, ln 2 x samples / (far - near), so it follows the scene's scale). Vertex colours
 are the radiance at each vertex seen head-on from outside (view direction = -normal; in NDC scenes the normal is
@@ -49,8 +50,26 @@ def scene_bounds(config, flag_bounds) -> np.ndarray:
     return box + np.array([-1., 1.])[:, None] * MARGIN * (box[1] - box[0])
   if config.dataset_loader == 'blender':
     return np.array(BLENDER_BOX)
+  if config.dataset_loader == 'dtu':
+    return mask_region(datasets.load_dataset('test', config))
   raise ValueError(f'Config.dataset_loader = {config.dataset_loader!r} has no default region to mesh; give it with '
                    '--bounds X0 Y0 Z0 X1 Y1 Z1 (world coordinates of the run)')
+
+
+def mask_region(test_set) -> np.ndarray:
+  """[2, 3] the object-mask region of DTU's test views: the intersection over the views of the box around each
+  view's mask rays from near to far (a loose box around the visual hull; it holds the object)."""
+  boxes = []
+  for view in range(len(test_set.ids)):
+    inside = test_set.masks[view, ..., 0] > .5
+    if inside.any():
+      rays = [getattr(test_set.rays, name)[view][inside] for name in ('origins', 'directions', 'near', 'far')]
+      ends = np.concatenate([rays[0] + rays[1] * rays[2], rays[0] + rays[1] * rays[3]])
+      boxes.append([ends.min(0), ends.max(0)])
+  if not boxes:
+    raise ValueError(f'the DTU test views {test_set.ids} have empty object masks: give the region with --bounds')
+  boxes = np.array(boxes)
+  return np.stack([boxes[:, 0].max(0), boxes[:, 1].min(0)])
 
 
 def camera_axes(elevation: float, azimuth: float):
