@@ -133,7 +133,7 @@ def main(argv=None) -> int:
     raise FileExistsError(f'{out!r} exists; set Config.overwrite = True to replace it, or choose --out')
   cell = float(np.max((bounds[1] - bounds[0]) / (args.resolution - 1)))
   density_fn, colour_fn = mesh.field_functions(config, model, state.params, step, cell)
-  level = args.level or mesh.surface_level(config, model)
+  level = mesh.surface_level(config, model) if args.level is None else args.level
   verts, faces, normals = mesh.march(density_fn, bounds, args.resolution, level, args.chunk)
   colours = mesh.vertex_colours(colour_fn, verts, normals, args.chunk)
   ply.write(out, verts, faces, colours)
