@@ -15,12 +15,14 @@ import json
 import sys
 
 from internal import cli
+from internal import environment
 from internal.evaluation import evaluate
 
 
 def main(argv=None) -> int:
   """CLI entry point; returns the exit status."""
   args = cli.flag_parser(__doc__.split('\n')[0]).parse_args(argv)
+  environment.report_startup()
   record = evaluate.evaluate(cli.config_from_flags(args))
   means = {k: v for k, v in record['means'].items() if v is not None}
   print(f'step {record["step"]}, {len(record["per_image"])} views: {json.dumps(means)}')

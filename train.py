@@ -14,6 +14,7 @@ import jax
 
 from internal import cli
 from internal import demo
+from internal import environment
 from internal.training import distributed
 from internal.training import loop
 from internal.training import run_dir
@@ -46,6 +47,7 @@ def main(argv=None) -> int:
   distributed.add_flags(parser)
   args = parser.parse_args(argv)
   distributed.initialize(args)
+  environment.report_startup()
   if not args.gin_configs:
     return run_demo(args.gin_bindings, args.stop_at_step)
   return train_and_report(cli.config_from_flags(args), args.stop_at_step)

@@ -20,6 +20,7 @@ import sys
 import warnings
 
 from internal import config_loader
+from internal import environment
 from internal import progress
 from internal.training import checkpoints
 from internal.training import distributed
@@ -116,9 +117,24 @@ class FlagParser(argparse.ArgumentParser):
     return super().parse_known_args(split_flag_values(args), namespace)
 
 
+class PrintEnvironment(argparse.Action):
+  """--env: prints environment.describe() and exits with status 0, like --help."""
+
+  def __init__(self, option_strings, dest, **kwargs):
+    super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+  def __call__(self, parser, namespace, values, option_string=None):
+    print(environment.describe())
+    parser.exit()
+
+
 def flag_parser(description: str) -> argparse.ArgumentParser:
-  """An argument parser with --gin_configs / --gin_bindings, each repeatable and taking one or more values."""
+  """An argument parser with --gin_configs / --gin_bindings, each repeatable and taking one or more values, and
+  --env."""
   parser = FlagParser(description=description)
+  parser.add_argument('--env', action=PrintEnvironment,
+                      help='print the environment for a bug report (jax backend and devices, package versions, '
+                           'numerics) and exit')
   parser.add_argument('--gin_configs', action='extend', nargs='+', default=[], metavar='FILE',
                       help='gin config files, applied in order')
   parser.add_argument('--gin_bindings', action='extend', nargs='+', default=[], metavar='BINDING',

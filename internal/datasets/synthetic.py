@@ -185,6 +185,26 @@ def shade(solid: dict, p: np.ndarray, light: np.ndarray) -> np.ndarray:
 HIT_FNS = {'sphere': hit_sphere, 'box': hit_box, 'plane': hit_plane}
 
 
+def solid_bounds(solid: dict) -> np.ndarray:
+  """[2, 3] axis-aligned box around a sphere, box or disc (ValueError for an infinite plane)."""
+  centre = np.array(solid['centre']) if 'centre' in solid else np.array(solid['normal']) * solid['offset']
+  if solid['shape'] == 'sphere':
+    extent = np.full(3, solid['radius'])
+  elif solid['shape'] == 'box':
+    extent = np.abs(np.array(solid['rotation'])) @ np.array(solid['half'])
+  elif solid['radius'] is not None:
+    extent = np.abs(np.array(solid['axes'])).T @ np.full(2, solid['radius'])
+  else:
+    raise ValueError(f'the {solid["kind"]} plane of the generated scene is unbounded')
+  return np.stack([centre - extent, centre + extent])
+
+
+def scene_bounds(scene: dict) -> np.ndarray:
+  """[2, 3] axis-aligned box around every solid of a scene with finite solids (the object rig)."""
+  boxes = np.stack([solid_bounds(solid) for solid in scene['solids']])
+  return np.stack([boxes[:, 0].min(0), boxes[:, 1].max(0)])
+
+
 def trace(scene: dict, o: np.ndarray, d: np.ndarray) -> tuple:
   """Rays [R,3] -> (colour [R,3], t [R] of the nearest hit (inf: none), hit-an-object [R] bool)."""
   solids, light = scene['solids'], np.array(scene['light'])

@@ -33,11 +33,11 @@ def integrated_pos_enc(mean, cov_diag, min_deg, max_deg, append_identity=True):
   return jnp.concatenate([mean, enc], axis=-1) if append_identity else enc
 
 
-def interleaved_pos_enc(x, num_degrees):
-  """NeRF's encoding of x [...,C] -> [..., C*(1 + 2D)]: [x, sin(2^0 x), cos(2^0 x), sin(2^1 x), ...]."""
+def interleaved_pos_enc(x, num_degrees, append_identity=True):
+  """NeRF's encoding of x [...,C] -> [..., C*(append_identity + 2D)]: [x, sin(2^0 x), cos(2^0 x), sin(2^1 x), ...]."""
   xb = x[..., None, :] * (2.**jnp.arange(num_degrees, dtype=jnp.float32))[:, None]  # [..., D, C]
-  bands = jnp.stack([jnp.sin(xb), jnp.cos(xb)], axis=-2)  # [..., D, 2, C]
-  return jnp.concatenate([x, bands.reshape(x.shape[:-1] + (-1,))], axis=-1)
+  bands = jnp.stack([jnp.sin(xb), jnp.cos(xb)], axis=-2).reshape(x.shape[:-1] + (-1,))  # [..., D, 2, C] flat
+  return jnp.concatenate([x, bands], axis=-1) if append_identity else bands
 
 
 def width(num_degrees, num_coords=3, append_identity=True):

@@ -24,6 +24,7 @@ from internal.models import encoding
 from internal.models import freq_ramp
 
 LAYOUTS = ('released', 'paper')  # Config.freq_mask_layout: released_mask or paper_mask.
+IDENTITY_WIDTH = 3  # The raw coordinates that lead both feature orders (encoding.feature_layout).
 
 
 def released_mask(length, step, end):
@@ -75,8 +76,15 @@ def masks_at(config: Config, degrees, step, interleaved=False):
 
 
 def model_masks(config: Config, model, step):
-  """masks_at for a model (MipNerfModel or NerfModel): its encoding degrees and feature order."""
-  return masks_at(config, model.encoding_degrees(), step, model.interleaved_encoding)
+  """masks_at for a model (MipNerfModel or NerfModel): its encoding degrees, feature order and point identity.
+
+  Without the raw coordinates (`point_identity()` False) the point mask is the full encoding's mask less its
+  identity entries (the first 3 in either order), so every frequency opens at the same step as with them.
+  """
+  mask_point, mask_view = masks_at(config, model.encoding_degrees(), step, model.interleaved_encoding)
+  if mask_point is not None and not model.point_identity():
+    mask_point = mask_point[IDENTITY_WIDTH:]
+  return mask_point, mask_view
 
 
 def check_settings(config: Config, degrees) -> None:

@@ -60,6 +60,9 @@ class MLP(nn.Module):
   rgb_activation: Callable[..., Any] = nn.sigmoid
   rgb_padding: float = 0.001
   use_viewdirs: bool = True
+  # The raw coordinates (the Gaussians' means) concatenated before the IPE: FreeNeRF's one change to mip-NeRF
+  # (99 features). False drops them (96, as mip-NeRF and RegNeRF released), the xyz ablation.
+  point_identity: bool = True
   precision: str = 'float32'  # One of precision.PRECISIONS, set from Config.precision (not a gin binding).
 
   def setup(self):
@@ -80,7 +83,7 @@ class MLP(nn.Module):
   def layer_shapes(self):
     """(name, inputs, outputs) of every dense layer, named Dense_0.. in the released order."""
     deg_point, deg_view = self.encoding_degrees()
-    point_dim = encoding.width(deg_point)
+    point_dim = encoding.width(deg_point, append_identity=self.point_identity)
     shapes, width = [], point_dim
     for i in range(self.net_depth):
       shapes.append((f'Dense_{i}', width, self.net_width))
@@ -97,7 +100,7 @@ class MLP(nn.Module):
 
   def _density(self, means, covs, mask_point, noise):
     """Density [N] and trunk features (parts [N, ...]) of Gaussians [N, 3]; noise [N] or a scalar."""
-    enc = encoding.integrated_pos_enc(means, covs, self.min_deg_point, self.max_deg_point)
+    enc = encoding.integrated_pos_enc(means, covs, self.min_deg_point, self.max_deg_point, self.point_identity)
     if mask_point is not None:
       enc = enc * mask_point
     enc = enc.astype(self.dtype)  # The IPE (sines of large arguments) and its mask stay float32.
@@ -190,6 +193,11 @@ class MipNerfModel(nn.Module):
     return self.mlp.encoding_degrees()
 
   @nn.nowrap
+  def point_identity(self) -> bool:
+    """Whether the shared MLP's point encoding starts with the raw coordinates (MLP.point_identity)."""
+    return self.mlp.point_identity
+
+  @nn.nowrap
   def fine_samples_per_ray(self) -> int:
     """Samples per ray of the last level (the occlusion loss's sample axis)."""
     return self.num_samples
@@ -223,6 +231,17 @@ class MipNerfModel(nn.Module):
       history.append({'weights': rendering['weights'], 'rgb': rgb, 'density': density,
                       't_vals': t_vals})
     return renderings, history
+
+
+  def density_at(self, points, variance, mask_point):
+    """Density [N] at points [N, 3], each a Gaussian of isotropic variance (a grid cell's footprint), no noise."""
+    return self.mlp.predict_density(None, points, jnp.full_like(points, variance), mask_point)
+
+  def colour_at(self, points, viewdirs, variance, mask_point, mask_view):
+    """rgb [N, 3] at points [N, 3] (Gaussians as in density_at) seen along viewdirs [N, 3]."""
+    rgb, _ = self.mlp(None, points[:, None], jnp.full_like(points, variance)[:, None], viewdirs, mask_point,
+                      mask_view)
+    return rgb[:, 0]
 
 
 def construct_model(key, example_rays, white_background: bool, precision: str = 'float32'):

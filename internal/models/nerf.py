@@ -41,6 +41,7 @@ class NerfMLP(nn.Module):
   deg_view: int = 4
   use_viewdirs: bool = True
   density_noise: float = 0.  # Std of N(0, 1) noise per sample on the raw density, in training (0 = none).
+  point_identity: bool = True  # The raw points first in their encoding, as released; False drops them (xyz ablation).
   precision: str = 'float32'  # One of precision.PRECISIONS, set from Config.precision (not a gin binding).
 
   def setup(self):
@@ -56,7 +57,8 @@ class NerfMLP(nn.Module):
 
   def layer_shapes(self):
     """(name, inputs, outputs) of every dense layer: trunk Dense_0.., then density, feature, view, rgb heads."""
-    point_dim, view_dim = encoding.width(self.deg_point), encoding.width(self.deg_view)
+    point_dim = encoding.width(self.deg_point, append_identity=self.point_identity)
+    view_dim = encoding.width(self.deg_view)
     shapes, width = [], point_dim
     for i in range(self.net_depth):
       shapes.append((f'Dense_{i}', width, self.net_width))
@@ -74,7 +76,7 @@ class NerfMLP(nn.Module):
 
   def _trunk(self, points, mask_point):
     """Trunk features [N, W] of points [N, 3] (mask_point [63] or None multiplies their encoding)."""
-    enc = encoding.interleaved_pos_enc(points, self.deg_point)
+    enc = encoding.interleaved_pos_enc(points, self.deg_point, self.point_identity)
     if mask_point is not None:
       enc = enc * mask_point
     enc = enc.astype(self.dtype)
@@ -153,6 +155,11 @@ class NerfModel(nn.Module):
     return self.coarse_mlp.encoding_degrees()
 
   @nn.nowrap
+  def point_identity(self) -> bool:
+    """Whether both MLPs' point encodings start with the raw points (NerfMLP.point_identity)."""
+    return self.coarse_mlp.point_identity
+
+  @nn.nowrap
   def fine_samples_per_ray(self) -> int:
     """Samples per ray of the fine pass (the occlusion loss's sample axis)."""
     return self.num_coarse_samples + self.num_fine_samples
@@ -184,6 +191,18 @@ class NerfModel(nn.Module):
     fine, fine_history = self._render(self.fine_mlp, keys[3], fine_t, rays, masks, compute_extras,
                                       compute_normals)
     return [coarse, fine], [coarse_history, fine_history]
+
+
+  def density_at(self, points, variance, mask_point):
+    """Density [N] of the fine MLP (the one rendered last) at points [N, 3]; variance is unused (points)."""
+    del variance  # NeRF encodes points, without a footprint.
+    return self.fine_mlp.predict_density(points, mask_point)
+
+  def colour_at(self, points, viewdirs, variance, mask_point, mask_view):
+    """rgb [N, 3] of the fine MLP at points [N, 3] seen along viewdirs [N, 3]."""
+    del variance
+    rgb, _ = self.fine_mlp(None, points[:, None], viewdirs, mask_point, mask_view)
+    return rgb[:, 0]
 
 
 def construct_model(key, example_rays, white_background: bool, precision: str = 'float32'):

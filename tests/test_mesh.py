@@ -1,0 +1,196 @@
+"""Meshes (tools.mesh, evaluation/mesh.py, evaluation/ply.py): marching cubes slab by slab, the PLY file, the
+empty field, and the mesh of a trained generated scene against its exact surfaces (Chamfer distance)."""
+
+import json
+import os
+import types
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from conftest import SHARED_DATA
+from internal import cli
+from internal import datasets
+from internal.configs import Config
+from internal.datasets import synthetic
+from internal.evaluation import mesh
+from internal.evaluation import ply
+from internal.training import loop
+from test_checkpoints import DEMO, TINY, tiny_config
+from tools import mesh as mesh_tool
+
+RADIUS = .6
+
+
+def _ball(points):
+  """A density of 10 inside a ball of radius RADIUS at the origin and 0 outside, smooth over 0.1."""
+  return 10. / (1. + np.exp((np.linalg.norm(points, axis=-1) - RADIUS) / .02))
+
+
+@pytest.mark.parametrize('slab', [4, 64])
+def test_the_ball_is_found_at_its_radius_with_outward_normals_whatever_the_slabs(slab, monkeypatch):
+  monkeypatch.setattr(mesh, 'SLAB', slab)
+  bounds = np.array([[-1., -1., -1.], [1., 1., 1.]])
+  verts, faces, normals = mesh.march(_ball, bounds, 41, 5., chunk=1000)
+  cell = 2. / 40
+  assert np.abs(np.linalg.norm(verts, axis=-1) - RADIUS).max() < cell / 4  # The level 5 lies at the radius.
+  assert np.min(np.sum(normals * verts, -1) / np.linalg.norm(verts, axis=-1)) > .9
+  # Merged across slabs: one closed surface, every edge shared by exactly two triangles.
+  edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+  _, counts = np.unique(edges, axis=0, return_counts=True)
+  assert np.all(counts == 2)
+
+
+def test_a_field_that_never_crosses_the_level_is_empty():
+  bounds = np.array([[-1., -1., -1.], [1., 1., 1.]])
+  with pytest.raises(mesh.EmptyFieldError, match='never reaches the level 5'):
+    mesh.march(lambda p: np.full(len(p), .3), bounds, 9, 5., chunk=100)
+
+
+def test_ply_header_and_records_by_hand(tmp_path):
+  verts = np.array([[0., 0., 0.], [1., 0., 0.], [0., 1., .5]], np.float32)
+  faces = np.array([[0, 1, 2]])
+  colours = np.array([[0., .5, 1.], [1., 1., 1.], [.2, 0., 0.]])
+  path = tmp_path / 'm.ply'
+  ply.write(str(path), verts, faces, colours)
+  data = path.read_bytes()
+  assert data.startswith(b'ply\nformat binary_little_endian 1.0\n')
+  assert b'element vertex 3\n' in data and b'element face 1\n' in data
+  body = data[data.index(b'end_header\n') + 11:]
+  assert len(body) == 3 * (3 * 4 + 3) + (1 + 3 * 4)
+  assert body[12:15] == bytes([0, 128, 255]) and body[-13:] == bytes([3, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0])
+  read_verts, read_faces, read_colours = ply.read(str(path))
+  np.testing.assert_array_equal(read_verts, verts)
+  np.testing.assert_array_equal(read_faces, faces)
+  assert read_colours[2].tolist() == [51, 0, 0]
+
+
+def test_bounds_per_scene_kind_and_a_clear_error_where_there_are_none():
+  scene, _ = synthetic.build_scene(synthetic.scene_params('object', 0, 32, 40, 2))
+  tops = []
+  for solid in scene['solids'][1:]:
+    if solid['shape'] == 'sphere':
+      tops.append(solid['centre'][2] + solid['radius'])
+    else:  # The highest of the box's 8 corners.
+      corners = np.array(np.meshgrid(*[[-h, h] for h in solid['half']])).reshape(3, -1).T
+      tops.append((np.array(solid['centre']) + corners @ np.array(solid['rotation']).T)[:, 2].max())
+  np.testing.assert_allclose(synthetic.scene_bounds(scene), [[-1.5, -1.5, 0.], [1.5, 1.5, max(tops)]], atol=1e-9)
+  assert mesh_tool.scene_bounds(Config(dataset_loader='blender'), None).tolist() == [[-1.5] * 3, [1.5] * 3]
+  assert mesh_tool.scene_bounds(Config(dataset_loader='llff'), None)[0].tolist() == [-1.] * 3
+  with pytest.raises(ValueError, match="Config.dataset_loader = 'packed' .* --bounds"):
+    mesh_tool.scene_bounds(Config(dataset_loader='packed'), None)
+  with pytest.raises(ValueError, match='X1 > X0'):
+    mesh_tool.scene_bounds(Config(dataset_loader='dtu'), [0, 0, 0, 1, -1, 1])
+
+
+def _view(origin, direction, masked):
+  """One view of 2 x 1 pixels, both rays from origin along direction; mask [2] which pixels hold the object."""
+  shape = (1, 2, 1)
+  return (np.broadcast_to(origin, shape[:2] + (3,)), np.broadcast_to(direction, shape[:2] + (3,)),
+          np.broadcast_to(np.array(masked, float).reshape(shape), shape[:2] + (3,)))
+
+
+def test_the_dtu_region_intersects_the_boxes_of_the_views_mask_rays():
+  # View 0 looks down +z from the origin (mask rays reach z 1..3); view 1 down +x from (-2, 0, 2): x -1..1.
+  views = [_view([0., 0., 0.], [0., 0., 1.], [1, 0]), _view([-2., 0., 2.], [1., 0., 0.], [1, 1])]
+  rays = types.SimpleNamespace(origins=np.stack([v[0] for v in views]), directions=np.stack([v[1] for v in views]),
+                               near=np.ones((2, 1, 2, 1)), far=np.full((2, 1, 2, 1), 3.))
+  test_set = types.SimpleNamespace(ids=[0, 1], rays=rays, masks=np.stack([v[2] for v in views]))
+  np.testing.assert_allclose(mesh_tool.mask_region(test_set), [[0., 0., 2.], [0., 0., 2.]])
+  test_set.masks = np.zeros_like(test_set.masks)
+  with pytest.raises(ValueError, match='empty object masks'):
+    mesh_tool.mask_region(test_set)
+
+
+@pytest.mark.skipif(not (SHARED_DATA / 'dtu' / 'dtu_scan24').is_dir(), reason='the shared DTU scan is absent')
+def test_the_dtu_region_of_the_shared_scan_is_a_small_part_of_the_views_reach():
+  config = Config(dataset_loader='dtu', data_dir=str(SHARED_DATA / 'dtu'), dtu_scan='dtu_scan24', factor=8, near=.5,
+                  far=3.5, dtu_mask_path='', allow_missing_test_views=True, white_background=False)
+  region = mesh_tool.scene_bounds(config, None)
+  rays = datasets.load_dataset('test', config).rays
+  ends = np.concatenate([rays.origins + rays.directions * .5, rays.origins + rays.directions * 3.5]).reshape(-1, 3)
+  reach = np.stack([ends.min(0), ends.max(0)])
+  assert np.all(region[1] > region[0]) and np.all(region[0] >= reach[0]) and np.all(region[1] <= reach[1])
+  assert np.prod(region[1] - region[0]) < .05 * np.prod(reach[1] - reach[0])  # Measured: 2.2%.
+
+
+# ------------------------------------------------------------------ a trained generated scene
+
+STEPS = 400
+TRAINED = [f'Config.max_steps = {STEPS}', 'Config.n_input_views = 24', 'MLP.net_depth = 4', 'MLP.net_width = 64',
+           'Config.batch_size = 256', f'Config.freq_reg_end = {STEPS // 2}', f'Config.checkpoint_every = {STEPS}']
+
+
+def _bindings(scene_dir, run):
+  return TINY + [f"Config.data_dir = '{scene_dir}'", f"Config.checkpoint_dir = '{run}'"] + TRAINED
+
+
+@pytest.fixture(scope='module')
+def trained(tmp_path_factory, scene_dir):
+  """(scene dir, run dir) of a small mip-NeRF FreeNeRF trained on the 24 views of the generated object scene."""
+  run = tmp_path_factory.mktemp('mesh') / 'run'
+  loop.train(tiny_config(scene_dir, run, *TRAINED))
+  return scene_dir, run
+
+
+def _distance(solid, p):
+  """Distance [N] of points p [N, 3] to the surface of one solid of scene.json (exact)."""
+  if solid['shape'] == 'sphere':
+    return np.abs(np.linalg.norm(p - solid['centre'], axis=-1) - solid['radius'])
+  if solid['shape'] == 'box':
+    q = np.abs((p - solid['centre']) @ np.array(solid['rotation'])) - np.array(solid['half'])
+    return np.abs(np.linalg.norm(np.maximum(q, 0.), axis=-1) + np.minimum(q.max(-1), 0.))
+  height = p @ np.array(solid['normal']) - solid['offset']  # The ground disc.
+  radial = np.linalg.norm(p - np.outer(height, solid['normal']) - solid['offset'] * np.array(solid['normal']), -1)
+  return np.hypot(height, np.maximum(radial - solid['radius'], 0.))
+
+
+def _surface_samples(solids, rng, count=4000):
+  """Points [N, 3] on the visible surfaces: uniform on each solid, less those hidden in or under another."""
+  points = []
+  for solid in solids:
+    if solid['shape'] == 'sphere':
+      d = rng.normal(size=(count, 3))
+      points.append(np.array(solid['centre']) + solid['radius'] * d / np.linalg.norm(d, axis=-1, keepdims=True))
+    elif solid['shape'] == 'box':
+      u = rng.uniform(-1., 1., (count, 3))
+      axis = rng.integers(0, 3, count)
+      u[np.arange(count), axis] = np.sign(u[np.arange(count), axis])  # Onto a face (faces of unequal area: fine).
+      points.append(np.array(solid['centre']) + (u * solid['half']) @ np.array(solid['rotation']).T)
+    else:
+      r, a = solid['radius'] * np.sqrt(rng.uniform(size=count)), rng.uniform(0., 2. * np.pi, count)
+      points.append(np.stack([r * np.cos(a), r * np.sin(a), np.zeros(count)], -1))
+  points = np.concatenate(points)
+  # Hidden: on the ground (solids[0]) and on a solid, i.e. the ground under the box and the box's bottom face.
+  on_a_solid = np.any([_distance(solid, points) < 1e-2 for solid in solids[1:]], 0)
+  return points[~(on_a_solid & (points[:, 2] < 1e-2))]
+
+
+def test_the_mesh_of_a_trained_scene_lies_on_its_exact_surfaces(trained, tmp_path, capsys):
+  scene_dir, run = trained
+  out = tmp_path / 'scene.ply'
+  assert mesh_tool.main(['--gin_configs', DEMO, '--gin_bindings', *_bindings(scene_dir, run), '--resolution', '64',
+                         '--out', str(out)]) == 0
+  assert 'at density 2.77 ' in capsys.readouterr().out  # ln 2 x 16 samples / (6 - 2), the default level.
+  verts, faces, colours = ply.read(str(out))
+  assert len(faces) > 1000 and colours.std() > 10  # Coloured, not flat grey.
+  solids = json.loads((scene_dir / 'scene.json').read_text())['solids']
+  accuracy = np.min([_distance(solid, verts) for solid in solids], 0).mean()  # Mesh -> truth, exact.
+  truth = _surface_samples(solids, np.random.default_rng(0))
+  completeness = cKDTree(verts).query(truth)[0].mean()  # Truth -> mesh.
+  chamfer = (accuracy + completeness) / 2.
+  # Measured here: accuracy 0.064, completeness 0.095, Chamfer 0.079 (the scene is 3 units across, a grid cell
+  # 0.05); the bound leaves half again as margin. At level 4.35 instead the objects' tops went missing: 0.109.
+  assert chamfer < 0.12, (accuracy, completeness)
+
+
+def test_a_level_the_field_never_reaches_is_one_error_and_writes_nothing(trained, tmp_path, capsys):
+  scene_dir, run = trained
+  out = tmp_path / 'none.ply'
+  status = cli.run(lambda: mesh_tool.main(['--gin_configs', DEMO, '--gin_bindings',
+                                                    *_bindings(scene_dir, run), '--resolution', '16', '--level',
+                                                    '1e6', '--out', str(out)]))
+  err = capsys.readouterr().err
+  assert status == 2 and err.count('\n') == 1 and err.startswith('error: the density never reaches the level 1e+06')
+  assert not os.path.exists(out)
