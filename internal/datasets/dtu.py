@@ -201,7 +201,7 @@ def view_ids(config, split: str, scan_dir: str, layout: str, n_cameras: int) -> 
   return ids, [p for i, p in zip(chosen, paths) if i in ids]
 
 
-def load_dtu(split: str, config) -> base.Dataset:
+def load_scene(split: str, config) -> base.Dataset:
   """Loads one split of a DTU scan as a Dataset (OpenCV cameras, origins on z = Config.near_origin)."""
   scan_dir, layout, projections = scan_setup(config)
   factor = base.load_factor(config, split)
@@ -220,7 +220,7 @@ def load_dtu(split: str, config) -> base.Dataset:
                       name=f'dtu/{config.dtu_scan}')
 
 
-def render_path_rays(config):
+def scene_render_path(config):
   """Rays [F,H,W,...] of the DTU spiral over all cameras, with the mean test intrinsics."""
   scan_dir, layout, projections = scan_setup(config)
   factor = base.render_factor(config)

@@ -18,7 +18,7 @@ def scene(config) -> str:
   return config.data_dir
 
 
-def load(split: str, config) -> base.Dataset:
+def load_scene(split: str, config) -> base.Dataset:
   """One split of the generated scene, without its ground truth (see with_ground_truth)."""
   if config.generated_rig == 'object':
     return blender.load_blender(split, config, scene(config), 'generated/object', 'first_n', 1)
@@ -34,7 +34,7 @@ def with_ground_truth(data: base.Dataset, config) -> base.Dataset:
   return dataclasses.replace(data, depths=(depths * scale).astype(np.float32), object_masks=masks)
 
 
-def render_path_rays(config):
+def scene_render_path(config):
   """Rays [F,H,W,...] of the render path: an orbit for the object rig, the LLFF spiral for the forward rig."""
   fn = blender.render_path_rays if config.generated_rig == 'object' else llff.render_path_rays
   return fn(config, scene(config))

@@ -37,7 +37,7 @@ def _filed_as_packed(config) -> Tuple[str, str]:
 
 
 REGISTRY: Dict[str, Loader] = {
-    'dtu': Loader(dtu.load_dtu, dtu.render_path_rays, 'dtu_scan', lambda config: False, dtu.PROTOCOL_SCENES,
+    'dtu': Loader(dtu.load_scene, dtu.scene_render_path, 'dtu_scan', lambda config: False, dtu.PROTOCOL_SCENES,
                   (('object', 'masked'), ('full', 'full')), shaping_settings=dtu.SHAPING_SETTINGS,
                   pack_cameras=packed.dtu_cameras, choices=(('dtu_layout', dtu.LAYOUTS),)),
     'llff': Loader(llff.load_scene, llff.scene_render_path, 'llff_scan', lambda config: True, llff.PROTOCOL_SCENES,
@@ -48,13 +48,13 @@ REGISTRY: Dict[str, Loader] = {
                       pack_cameras=lambda config, data: packed.blender_cameras(config, data,
                                                                                blender.scene_path(config)),
                       choices=(('blender_split', blender.SPLIT_MODES),)),
-    'generated': Loader(generated.load, generated.render_path_rays, None, generated.is_ndc,
+    'generated': Loader(generated.load_scene, generated.scene_render_path, None, generated.is_ndc,
                         filed_as=generated.filed_as, ground_truth=generated.with_ground_truth,
                         shaping_settings=generated.SHAPING_SETTINGS, pack_cameras=generated.pack_cameras,
                         choices=(('generated_rig', generated.synthetic.RIGS),)),
     'colmap': Loader(colmap.load_scene, colmap.scene_render_path, colmap.scene_name, colmap.is_ndc,
                      shaping_settings=colmap.SHAPING_SETTINGS, choices=(('capture_rig', colmap.RIGS),)),
-    'packed': Loader(packed.load_packed, packed.render_path_rays, None, lambda config: None,
+    'packed': Loader(packed.load_scene, packed.scene_render_path, None, lambda config: None,
                      filed_as=_filed_as_packed),
 }
 LOADERS = tuple(REGISTRY)

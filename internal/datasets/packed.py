@@ -200,7 +200,7 @@ def source_loader(path: str) -> str:
   return read_pack(path)[0]['source_loader']
 
 
-def load_packed(split: str, config) -> base.Dataset:
+def load_scene(split: str, config) -> base.Dataset:
   """One split of the packed scene at Config.data_dir, equal to what the source loader returned."""
   base.check_split(split)
   meta, arrays = read_pack(config.data_dir)
@@ -219,7 +219,7 @@ def load_packed(split: str, config) -> base.Dataset:
                       split=split, name=info['name'], **fields)
 
 
-def render_path_rays(config):
+def scene_render_path(config):
   """Rays [F,H,W,...] of the packed scene's render path (Config.render_path_frames frames)."""
   meta, arrays = read_pack(config.data_dir)
   check_settings(config, meta, config.data_dir)
