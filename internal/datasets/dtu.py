@@ -234,3 +234,24 @@ def scene_render_path(config):
   path = cameras.spiral_path_dtu(poses, config.render_path_frames)
   return raygen.stack_rays((raygen.dtu_rays(p, pixtocam, full_h // factor, full_w // factor, config.near,
                                             config.far, config.near_origin) for p in path), len(path))
+
+
+def pack_cameras(config, datasets: dict) -> dict:
+  """Float64 cameras of a DTU scan for packed.py: all normalized poses, per-split views, the spiral's intrinsics."""
+  scan_dir, layout, projections = scan_setup(config)
+  record = {'ray_kind': 'dtu', 'path_kind': 'spiral_dtu', 'arrays': {'cameras/projections': projections}}
+  for split, data in datasets.items():
+    pixtocams, poses = normalized_cameras(projections, base.load_factor(config, split))
+    record['arrays'].update({f'{split}/camtoworlds': poses[data.ids], f'{split}/pixtocams': pixtocams[data.ids]})
+  factor = base.render_factor(config)
+  pixtocams, poses = normalized_cameras(projections, factor)
+  train_pool, test_ids = split_ids(config.dtu_split_type, len(projections), config.dtuhold)
+  paths = [p for p in image_paths(scan_dir, layout, train_pool, config.dtu_light_cond) if os.path.isfile(p)]
+  if not paths:
+    raise base.DatasetNotFoundError(f'DTU render path: no training image found in {scan_dir!r} to size the frames')
+  full_h, full_w = image_io.image_size(paths[0])
+  train_pixtocams = normalized_cameras(projections, base.load_factor(config, 'train'))[0]
+  record['arrays'].update({'cameras/camtoworlds': poses, 'cameras/pixtocams': train_pixtocams,
+                           'render/source': poses, 'render/pixtocam': pixtocams[test_ids].mean(0)})
+  record['render'] = {'height': full_h // factor, 'width': full_w // factor}
+  return record

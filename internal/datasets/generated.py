@@ -5,7 +5,7 @@ import dataclasses
 
 import numpy as np
 
-from internal.datasets import base, blender, llff, packed, synthetic
+from internal.datasets import base, blender, llff, synthetic
 
 # Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
 SHAPING_SETTINGS = ('generated_rig', 'generated_seed', 'generated_size', 'near', 'far', 'white_background',
@@ -53,5 +53,5 @@ def filed_as(config) -> tuple:
 def pack_cameras(config, datasets: dict) -> dict:
   """The pack's camera record, as for a scene of its layout."""
   if config.generated_rig == 'object':
-    return packed.blender_cameras(config, datasets, scene(config))
-  return packed.llff_cameras(config, datasets, scene(config))
+    return blender.camera_record(config, datasets, scene(config))
+  return llff.camera_record(config, datasets, scene(config))

@@ -139,3 +139,33 @@ def render_path_rays(config, scene_dir: str):
   path = cameras.spiral_path_llff(c2w, bounds, config.render_path_frames)
   return raygen.stack_rays((raygen.llff_rays(p, pixtocam, height, width, focal / factor) for p in path),
                            len(path))
+
+
+def camera_record(config, datasets: dict, scene_dir: str) -> dict:
+  """Float64 cameras of an LLFF scene for packed.py: all recentered poses and scaled bounds, per-split views, the
+  spiral."""
+  record = {'ray_kind': 'llff', 'path_kind': 'spiral_llff', 'arrays': {}}
+  c2w, bounds, focal = process_poses(read_poses_bounds(scene_dir))
+  for split, data in datasets.items():
+    split_focal = focal / base.load_factor(config, split)
+    pixtocam = cameras.focal_pixtocam(split_focal, data.height, data.width)
+    record['arrays'].update({f'{split}/camtoworlds': c2w[data.ids],
+                             f'{split}/pixtocams': np.repeat(pixtocam[None], len(data.ids), 0),
+                             f'{split}/focal': np.float64(split_focal)})
+  factor = base.render_factor(config)
+  paths, extra, _ = scene_setup(scene_dir, factor)
+  full_h, full_w = image_io.image_size(paths[0])
+  height, width = full_h // extra, full_w // extra
+  pixtocam = cameras.focal_pixtocam(focal / factor, height, width)
+  train_pixtocam = record['arrays']['train/pixtocams'][0]
+  record['arrays'].update({'cameras/camtoworlds': c2w, 'cameras/bounds': bounds,
+                           'cameras/pixtocams': np.repeat(train_pixtocam[None], len(c2w), 0),
+                           'render/source': c2w, 'render/bounds': bounds, 'render/pixtocam': pixtocam,
+                           'render/focal': np.float64(focal / factor), 'cameras/focal_full': np.float64(focal)})
+  record['render'] = {'height': height, 'width': width}
+  return record
+
+
+def pack_cameras(config, datasets: dict) -> dict:
+  """The pack's camera record of the LLFF scene Config.llff_scan (see camera_record)."""
+  return camera_record(config, datasets, scene_path(config))
