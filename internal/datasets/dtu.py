@@ -220,8 +220,8 @@ def load_scene(split: str, config) -> base.Dataset:
                       name=f'dtu/{config.dtu_scan}')
 
 
-def scene_render_path(config):
-  """Rays [F,H,W,...] of the DTU spiral over all cameras, with the mean test intrinsics."""
+def render_cameras(config) -> tuple:
+  """(all normalized poses [N,3,4], mean test pixtocam [3,3], height, width) of the spiral's frames."""
   scan_dir, layout, projections = scan_setup(config)
   factor = base.render_factor(config)
   train_pool, test_ids = split_ids(config.dtu_split_type, len(projections), config.dtuhold)
@@ -230,28 +230,27 @@ def scene_render_path(config):
     raise base.DatasetNotFoundError(f'DTU render path: no training image found in {scan_dir!r} to size the frames')
   full_h, full_w = image_io.image_size(paths[0])
   pixtocams, poses = normalized_cameras(projections, factor)
-  pixtocam = pixtocams[test_ids].mean(0)
+  return poses, pixtocams[test_ids].mean(0), full_h // factor, full_w // factor
+
+
+def scene_render_path(config):
+  """Rays [F,H,W,...] of the DTU spiral over all cameras, with the mean test intrinsics."""
+  poses, pixtocam, height, width = render_cameras(config)
   path = cameras.spiral_path_dtu(poses, config.render_path_frames)
-  return raygen.stack_rays((raygen.dtu_rays(p, pixtocam, full_h // factor, full_w // factor, config.near,
-                                            config.far, config.near_origin) for p in path), len(path))
+  return raygen.stack_rays((raygen.dtu_rays(p, pixtocam, height, width, config.near, config.far,
+                                            config.near_origin) for p in path), len(path))
 
 
 def pack_cameras(config, datasets: dict) -> dict:
   """Float64 cameras of a DTU scan for packed.py: all normalized poses, per-split views, the spiral's intrinsics."""
-  scan_dir, layout, projections = scan_setup(config)
+  _, _, projections = scan_setup(config)
   record = {'ray_kind': 'dtu', 'path_kind': 'spiral_dtu', 'arrays': {'cameras/projections': projections}}
   for split, data in datasets.items():
     pixtocams, poses = normalized_cameras(projections, base.load_factor(config, split))
     record['arrays'].update({f'{split}/camtoworlds': poses[data.ids], f'{split}/pixtocams': pixtocams[data.ids]})
-  factor = base.render_factor(config)
-  pixtocams, poses = normalized_cameras(projections, factor)
-  train_pool, test_ids = split_ids(config.dtu_split_type, len(projections), config.dtuhold)
-  paths = [p for p in image_paths(scan_dir, layout, train_pool, config.dtu_light_cond) if os.path.isfile(p)]
-  if not paths:
-    raise base.DatasetNotFoundError(f'DTU render path: no training image found in {scan_dir!r} to size the frames')
-  full_h, full_w = image_io.image_size(paths[0])
+  poses, pixtocam, height, width = render_cameras(config)
   train_pixtocams = normalized_cameras(projections, base.load_factor(config, 'train'))[0]
   record['arrays'].update({'cameras/camtoworlds': poses, 'cameras/pixtocams': train_pixtocams,
-                           'render/source': poses, 'render/pixtocam': pixtocams[test_ids].mean(0)})
-  record['render'] = {'height': full_h // factor, 'width': full_w // factor}
+                           'render/source': poses, 'render/pixtocam': pixtocam})
+  record['render'] = {'height': height, 'width': width}
   return record

@@ -128,17 +128,20 @@ def scene_render_path(config):
   return render_path_rays(config, scene_path(config))
 
 
-def render_path_rays(config, scene_dir: str):
-  """Rays [F,H,W,...] (NDC) of the LLFF spiral path (Config.render_path_frames frames)."""
-  factor = base.render_factor(config)
+def render_cameras(scene_dir: str, factor: int) -> tuple:
+  """(c2w [N,3,4], bounds [N,2], focal, pixtocam [3,3], height, width) of the spiral's frames at 1/factor size."""
   paths, extra, poses_bounds = scene_setup(scene_dir, factor)
   c2w, bounds, focal = process_poses(poses_bounds)
   full_h, full_w = image_io.image_size(paths[0])
   height, width = full_h // extra, full_w // extra
-  pixtocam = cameras.focal_pixtocam(focal / factor, height, width)
+  return c2w, bounds, focal / factor, cameras.focal_pixtocam(focal / factor, height, width), height, width
+
+
+def render_path_rays(config, scene_dir: str):
+  """Rays [F,H,W,...] (NDC) of the LLFF spiral path (Config.render_path_frames frames)."""
+  c2w, bounds, focal, pixtocam, height, width = render_cameras(scene_dir, base.render_factor(config))
   path = cameras.spiral_path_llff(c2w, bounds, config.render_path_frames)
-  return raygen.stack_rays((raygen.llff_rays(p, pixtocam, height, width, focal / factor) for p in path),
-                           len(path))
+  return raygen.stack_rays((raygen.llff_rays(p, pixtocam, height, width, focal) for p in path), len(path))
 
 
 def camera_record(config, datasets: dict, scene_dir: str) -> dict:
@@ -152,16 +155,12 @@ def camera_record(config, datasets: dict, scene_dir: str) -> dict:
     record['arrays'].update({f'{split}/camtoworlds': c2w[data.ids],
                              f'{split}/pixtocams': np.repeat(pixtocam[None], len(data.ids), 0),
                              f'{split}/focal': np.float64(split_focal)})
-  factor = base.render_factor(config)
-  paths, extra, _ = scene_setup(scene_dir, factor)
-  full_h, full_w = image_io.image_size(paths[0])
-  height, width = full_h // extra, full_w // extra
-  pixtocam = cameras.focal_pixtocam(focal / factor, height, width)
+  _, _, render_focal, pixtocam, height, width = render_cameras(scene_dir, base.render_factor(config))
   train_pixtocam = record['arrays']['train/pixtocams'][0]
   record['arrays'].update({'cameras/camtoworlds': c2w, 'cameras/bounds': bounds,
                            'cameras/pixtocams': np.repeat(train_pixtocam[None], len(c2w), 0),
                            'render/source': c2w, 'render/bounds': bounds, 'render/pixtocam': pixtocam,
-                           'render/focal': np.float64(focal / factor), 'cameras/focal_full': np.float64(focal)})
+                           'render/focal': np.float64(render_focal), 'cameras/focal_full': np.float64(focal)})
   record['render'] = {'height': height, 'width': width}
   return record
 
