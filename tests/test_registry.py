@@ -123,3 +123,13 @@ def test_unknown_loader_and_unpackable_loader_name_the_setting():
   packable = r"\['dtu', 'llff', 'blender', 'generated'\]"
   with pytest.raises(DatasetError, match=r"'packed' scenes cannot be packed; .*one of " + packable):
     loader.pack_arrays(Config(dataset_loader='packed'), {})
+
+
+def test_random_poses_come_from_the_loaders_that_have_them():
+  having = [name for name, record in loader.REGISTRY.items() if record.random_pose_cameras]
+  assert having == ['dtu', 'llff', 'generated']
+  for name in ('blender', 'colmap', 'packed'):
+    with pytest.raises(ValueError, match=r"^Config.depth_tvnorm_loss_mult / depth_tvnorm_decay: random poses exist "
+                                         r"for scenes of Config.dataset_loader in \['dtu', 'llff', 'generated'\] "
+                                         rf"only; this Config.dataset_loader = '{name}' scene has none$"):
+      loader.random_pose_cameras(None, Config(dataset_loader=name), np.random.default_rng(0))

@@ -6,7 +6,7 @@ import zipfile
 
 import numpy as np
 
-from internal.datasets import base, cameras, image_io, raygen
+from internal.datasets import base, cameras, image_io, random_poses, raygen
 
 TRAIN_IDS = (25, 22, 28, 40, 44, 48, 0, 8, 13)
 EXCLUDED_IDS = (3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 36, 37, 38, 39)
@@ -254,3 +254,12 @@ def pack_cameras(config, datasets: dict) -> dict:
                            'render/source': poses, 'render/pixtocam': pixtocam})
   record['render'] = {'height': height, 'width': width}
   return record
+
+
+def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> tuple:
+  """(RegNeRF's random poses [n,3,4] in the box of all cameras, their mean pixtocam [3,3], 0: world rays)."""
+  del dataset  # Every camera of the scan, at the training factor.
+  _, _, projections = scan_setup(config)
+  pixtocams, poses = normalized_cameras(projections, base.load_factor(config, 'train'))
+  return (random_poses.dtu_random_poses(poses, config.n_random_poses, rng, config.random_pose_radius,
+                                        config.random_pose_focusptjitter), pixtocams.mean(0), 0.)

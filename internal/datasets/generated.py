@@ -55,3 +55,10 @@ def pack_cameras(config, datasets: dict) -> dict:
   if config.generated_rig == 'object':
     return blender.camera_record(config, datasets, scene(config))
   return llff.camera_record(config, datasets, scene(config))
+
+
+def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator):
+  """The forward rig's random poses, as an LLFF scene's (llff.random_cameras); None: the object rig has none."""
+  if config.generated_rig == 'object':
+    return None
+  return llff.random_cameras(dataset, config, rng, config.data_dir)

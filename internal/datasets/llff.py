@@ -5,7 +5,7 @@ import warnings
 
 import numpy as np
 
-from internal.datasets import base, cameras, image_io, raygen
+from internal.datasets import base, cameras, image_io, random_poses, raygen
 
 IMAGE_EXTENSIONS = ('JPG', 'jpg', 'png')
 AXIS_FIX = np.array([[0., -1., 0., 0.], [1., 0., 0., 0.], [0., 0., 1., 0.], [0., 0., 0., 1.]])
@@ -168,3 +168,17 @@ def camera_record(config, datasets: dict, scene_dir: str) -> dict:
 def pack_cameras(config, datasets: dict) -> dict:
   """The pack's camera record of the LLFF scene Config.llff_scan (see camera_record)."""
   return camera_record(config, datasets, scene_path(config))
+
+
+def random_cameras(dataset: base.Dataset, config, rng: np.random.Generator, scene_dir: str) -> tuple:
+  """(RegNeRF's random poses [n,3,4] of an LLFF-layout scene, pixtocam [3,3] of the dataset's size, NDC focal)."""
+  c2w, bounds, focal = process_poses(read_poses_bounds(scene_dir))
+  focal /= base.load_factor(config, 'train')
+  poses = random_poses.llff_random_poses(c2w, bounds, config.n_random_poses, rng,
+                                         not config.regnerf_fix_released_bugs)
+  return poses, cameras.focal_pixtocam(focal, dataset.height, dataset.width), focal
+
+
+def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> tuple:
+  """The random poses of the LLFF scene Config.llff_scan (see random_cameras)."""
+  return random_cameras(dataset, config, rng, scene_path(config))

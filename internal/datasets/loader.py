@@ -29,6 +29,9 @@ class Loader:
   shaping_settings: Tuple[str, ...] = ()   # The Config fields a pack records and checks on load.
   pack_cameras: Optional[Callable] = None  # (config, {split: Dataset}) -> the pack's camera record; None: unpackable.
   choices: Tuple[Tuple[str, Tuple[str, ...]], ...] = ()  # (Config field, its allowed values) of its own settings.
+  # (Dataset, config, rng) -> (RegNeRF's random poses [n,3,4], pixtocam [3,3], NDC focal or 0: world rays), or
+  # None for a scene without them; None: no random poses (depth smoothness is refused).
+  random_pose_cameras: Optional[Callable] = None
 
 
 def _filed_as_packed(config) -> Tuple[str, str]:
@@ -39,10 +42,11 @@ def _filed_as_packed(config) -> Tuple[str, str]:
 REGISTRY: Dict[str, Loader] = {
     'dtu': Loader(dtu.load_scene, dtu.scene_render_path, 'dtu_scan', lambda config: False, dtu.PROTOCOL_SCENES,
                   (('object', 'masked'), ('full', 'full')), shaping_settings=dtu.SHAPING_SETTINGS,
-                  pack_cameras=dtu.pack_cameras, choices=(('dtu_layout', dtu.LAYOUTS),)),
+                  pack_cameras=dtu.pack_cameras, choices=(('dtu_layout', dtu.LAYOUTS),),
+                  random_pose_cameras=dtu.random_pose_cameras),
     'llff': Loader(llff.load_scene, llff.scene_render_path, 'llff_scan', lambda config: True, llff.PROTOCOL_SCENES,
                    shaping_settings=llff.SHAPING_SETTINGS,
-                   pack_cameras=llff.pack_cameras),
+                   pack_cameras=llff.pack_cameras, random_pose_cameras=llff.random_pose_cameras),
     'blender': Loader(blender.load_scene, blender.scene_render_path, 'blender_scene', lambda config: False,
                       blender.PROTOCOL_SCENES, shaping_settings=blender.SHAPING_SETTINGS,
                       pack_cameras=blender.pack_cameras,
@@ -50,7 +54,8 @@ REGISTRY: Dict[str, Loader] = {
     'generated': Loader(generated.load_scene, generated.scene_render_path, None, generated.is_ndc,
                         filed_as=generated.filed_as, ground_truth=generated.with_ground_truth,
                         shaping_settings=generated.SHAPING_SETTINGS, pack_cameras=generated.pack_cameras,
-                        choices=(('generated_rig', generated.synthetic.RIGS),)),
+                        choices=(('generated_rig', generated.synthetic.RIGS),),
+                        random_pose_cameras=generated.random_pose_cameras),
     'colmap': Loader(colmap.load_scene, colmap.scene_render_path, colmap.scene_name, colmap.is_ndc,
                      shaping_settings=colmap.SHAPING_SETTINGS, choices=(('capture_rig', colmap.RIGS),)),
     'packed': Loader(packed.load_scene, packed.scene_render_path, None, lambda config: None,
@@ -108,3 +113,18 @@ def pack_arrays(config, datasets: dict) -> dict:
     raise base.DatasetError(f'Config.dataset_loader = {config.dataset_loader!r} scenes cannot be packed; pack a '
                             f'scene from its source loader, one of {packable}')
   return packed.pack_arrays(config, datasets, record.shaping_settings, record.pack_cameras(config, datasets))
+
+
+def random_pose_cameras(dataset: base.Dataset, config, rng) -> tuple:
+  """(random poses [n,3,4], pixtocam [3,3], NDC focal or 0) of the training scene, drawn with rng by its loader.
+
+  ValueError naming the settings when the scene has none (the loaders with random poses listed).
+  """
+  hook = loader_of(config).random_pose_cameras
+  found = hook(dataset, config, rng) if hook else None
+  if found is None:
+    having = [name for name, record in REGISTRY.items() if record.random_pose_cameras]
+    raise ValueError(f'Config.depth_tvnorm_loss_mult / depth_tvnorm_decay: random poses exist for scenes of '
+                     f'Config.dataset_loader in {having} only; this Config.dataset_loader = '
+                     f'{config.dataset_loader!r} scene has none')
+  return found
