@@ -9,6 +9,8 @@ from internal.datasets import base, cameras, image_io, raygen
 
 DIETNERF_IDS = (26, 86, 2, 55, 75, 93, 16, 73)
 SPLIT_MODES = ('dietnerf', 'first_n')
+# (Config field, its allowed values) of this loader's own settings, checked before any work.
+SETTING_CHOICES = (('blender_split', SPLIT_MODES),)
 TEST_STRIDE = 8  # DietNeRF/FreeNeRF evaluate on test frames [::8] (25 views).
 PROTOCOL_SCENES = ('chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship')  # NeRF-synthetic's 8.
 # Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.

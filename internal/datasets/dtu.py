@@ -13,6 +13,8 @@ EXCLUDED_IDS = (3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 36, 37, 38, 39)
 TEST_IDS = (1, 2, 9, 10, 11, 12, 14, 15, 23, 24, 26, 27, 29, 30, 31, 32, 33, 34, 35, 41, 42, 43, 45, 46, 47)
 IDR_MASK_SCANS = (40, 55, 63, 110, 114)  # idrmasks keeps these scans' masks in scanN/mask/.
 LAYOUTS = ('auto', 'regnerf', 'idr')
+# (Config field, its allowed values) of this loader's own settings, checked before any work.
+SETTING_CHOICES = (('dtu_layout', LAYOUTS),)
 SPLIT_TYPES = ('pixelnerf', 'all', 'dtuhold', 'depth_eval')  # 'depth_eval' (dtu_mipnerf_all.gin) = 'dtuhold'.
 # The 15 test scans of pixelNeRF's protocol, which the paper's DTU means cover.
 PROTOCOL_SCENES = tuple(f'scan{i}' for i in (8, 21, 30, 31, 34, 38, 40, 41, 45, 55, 63, 82, 103, 110, 114))
