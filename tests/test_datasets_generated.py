@@ -1,5 +1,6 @@
 """The generated scene: determinism, exact depth/masks through the real loaders, scene-folder safety."""
 
+import dataclasses
 import filecmp
 import json
 import os
@@ -9,7 +10,8 @@ import pytest
 from scipy import ndimage
 
 from internal.configs import Config
-from internal.datasets import DatasetError, image_io, load_dataset, make_batcher, render_path_rays, synthetic
+from internal.datasets import (DatasetError, image_io, llff, load_dataset, loader, make_batcher, random_poses,
+                               render_path_rays, synthetic)
 
 
 def gen_config(path, rig, **kw):
@@ -198,3 +200,25 @@ def test_depths_and_object_masks_are_read_only_when_asked(scenes, rig, monkeypat
   data = load_dataset('test', gen_config(path, rig, n_input_views=9), ground_truth=True)
   assert len(ground_truth()) == 2 * len(data.ids)  # One depth .npy and one mask .png per test view.
   np.testing.assert_array_equal(data.depths, scenes[rig][2].depths)
+
+
+def test_forward_rig_random_poses_are_llffs_of_its_poses_file(scenes):
+  path, train, _ = scenes['forward']
+  config = gen_config(path, 'forward', n_input_views=9, n_random_poses=20, regnerf_fix_released_bugs=True)
+  poses, pixtocam, focal = loader.random_pose_cameras(train, config, np.random.default_rng(3))
+  raw = np.load(path / 'poses_bounds.npy')
+  assert focal == raw[0, 14]  # Generated at factor 1: the file's focal.
+  np.testing.assert_allclose(pixtocam, train.pixtocams[0], rtol=1e-6)  # The loaded training views' intrinsics.
+  c2w, bounds, _ = llff.process_poses(raw)
+  np.testing.assert_array_equal(poses, random_poses.llff_random_poses(c2w, bounds, 20, np.random.default_rng(3),
+                                                                      False))
+  tv = dataclasses.replace(config, depth_tvnorm_loss_mult=.1, batch_size=64, batch_size_random=128)
+  patches = make_batcher(train, tv)(2)['patch_rays']
+  assert patches.origins.shape == (2, 8, 8, 3) and (patches.near == 0.).all() and (patches.far == 1.).all()
+
+
+def test_object_rig_has_no_random_poses(scenes):
+  path, train, _ = scenes['object']
+  config = gen_config(path, 'object', n_input_views=9, depth_tvnorm_loss_mult=.1)
+  with pytest.raises(ValueError, match=r"Config.dataset_loader = 'generated' scene has none"):
+    make_batcher(train, config)

@@ -89,3 +89,24 @@ def test_every_module_is_checked():
   checked = {p.relative_to(ROOT).as_posix() for p in _modules('internal') + _modules('tools')}
   assert {'internal/training/loop.py', 'internal/evaluation/evaluate.py', 'internal/evaluation/render_path.py',
           'internal/demo.py', 'internal/models/mip_nerf.py', 'tools/study.py', 'tools/tables.py'} <= checked
+
+
+# The loader files and their registry: the modules every loader shares import none of them, so that a dataset is
+# added without touching those (docs/design.md, 'Adding a dataset') and the loaders may import them freely.
+LOADER_MODULES = {'dtu', 'llff', 'blender', 'colmap', 'generated', 'loader'}
+
+
+def dataset_imports(path: pathlib.Path) -> set:
+  """Names of the internal/datasets modules a file imports (`from internal.datasets import dtu` gives 'dtu')."""
+  names = set()
+  for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module == 'internal.datasets':
+      names.update(alias.name for alias in node.names)
+    elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module.startswith('internal.datasets.'):
+      names.add(node.module.split('.')[2])
+  return names
+
+
+@pytest.mark.parametrize('name', ['packed', 'random_poses', 'base', 'cameras', 'raygen', 'image_io'])
+def test_shared_dataset_modules_import_no_loader(name):
+  assert not dataset_imports(ROOT / 'internal' / 'datasets' / f'{name}.py') & LOADER_MODULES

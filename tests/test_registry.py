@@ -123,3 +123,36 @@ def test_unknown_loader_and_unpackable_loader_name_the_setting():
   packable = r"\['dtu', 'llff', 'blender', 'generated'\]"
   with pytest.raises(DatasetError, match=r"'packed' scenes cannot be packed; .*one of " + packable):
     loader.pack_arrays(Config(dataset_loader='packed'), {})
+
+
+def test_random_poses_come_from_the_loaders_that_have_them():
+  having = [name for name, record in loader.REGISTRY.items() if record.random_pose_cameras]
+  assert having == ['dtu', 'llff', 'generated']
+  for name in ('blender', 'colmap', 'packed'):
+    with pytest.raises(ValueError, match=r"^Config.depth_tvnorm_loss_mult / depth_tvnorm_decay: random poses exist "
+                                         r"for scenes of Config.dataset_loader in \['dtu', 'llff', 'generated'\] "
+                                         rf"only; this Config.dataset_loader = '{name}' scene has none$"):
+      loader.random_pose_cameras(None, Config(dataset_loader=name), np.random.default_rng(0))
+
+
+def test_records_take_the_loader_files_functions_and_settings():
+  """Loader.of fills a record from its file; the values equal the former hand-written records'."""
+  for name, record in loader.REGISTRY.items():
+    module = getattr(loader, name)
+    assert (record.load, record.render_path) == (module.load_scene, module.scene_render_path), name
+  assert [name for name, record in loader.REGISTRY.items() if record.pack_cameras] == [
+      'dtu', 'llff', 'blender', 'generated']
+  assert {name: record.shaping_settings for name, record in loader.REGISTRY.items()} == {
+      'dtu': ('dtu_scan', 'dtu_light_cond', 'dtu_max_images', 'dtu_split_type', 'dtuhold', 'near', 'far',
+              'near_origin'),
+      'llff': ('llff_scan', 'llffhold'),
+      'blender': ('blender_scene', 'blender_split', 'near', 'far', 'white_background'),
+      'generated': ('generated_rig', 'generated_seed', 'generated_size', 'near', 'far', 'white_background', 'llffhold'),
+      'colmap': ('capture_scene', 'capture_images', 'capture_model', 'capture_rig', 'llffhold', 'train_view_ids',
+                 'test_view_ids'),
+      'packed': ()}
+  assert loader.SETTING_CHOICES == (
+      ('dataset_loader', loader.LOADERS), ('dtu_layout', ('auto', 'regnerf', 'idr')),
+      ('blender_split', ('dietnerf', 'first_n')), ('generated_rig', ('object', 'forward')),
+      ('capture_rig', ('auto', 'inward', 'forward')))
+  assert [loader.REGISTRY[name].ndc(Config()) for name in ('dtu', 'llff', 'blender')] == [False, True, False]

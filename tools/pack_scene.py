@@ -23,7 +23,7 @@ def pack(config, out: str) -> dict:
   packed.write_pack(out, loader.pack_arrays(config, datasets))
   reloaded = dataclasses.replace(config, dataset_loader='packed', data_dir=out)
   for split, data in datasets.items():
-    diff = packed.datasets_equal(packed.load_packed(split, reloaded), data)
+    diff = packed.datasets_equal(packed.load_scene(split, reloaded), data)
     if diff:
       os.remove(out)
       raise RuntimeError(f'packed {split} split differs from the loaded one in {diff}; nothing written')

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from internal.datasets import base, random_poses
+from internal.datasets import base, loader, random_poses
 from internal.rays import Rays
 
 BATCHING_MODES = ('single_image', 'all_images')
@@ -45,7 +45,7 @@ def make_batcher(dataset: base.Dataset, config):
   rays = Rays(*[np.reshape(x, (n, n_pixels, x.shape[-1])) for x in dataset.rays])
   rgb = dataset.images.reshape(n, n_pixels, 3)
   mode, batch_size, seed = config.batching, config.batch_size, config.np_rng_seed
-  patches = random_poses.make_patch_sampler(dataset, config)
+  patches = random_poses.make_patch_sampler(dataset, config, loader.random_pose_cameras)
   crop = central_crop(dataset.height, dataset.width, config.precrop_frac) if config.precrop_steps > 0 else None
 
   def batch(step: int) -> dict:

@@ -9,6 +9,8 @@ from internal.datasets import base, cameras, image_io, raygen
 
 DIETNERF_IDS = (26, 86, 2, 55, 75, 93, 16, 73)
 SPLIT_MODES = ('dietnerf', 'first_n')
+# (Config field, its allowed values) of this loader's own settings, checked before any work.
+SETTING_CHOICES = (('blender_split', SPLIT_MODES),)
 TEST_STRIDE = 8  # DietNeRF/FreeNeRF evaluate on test frames [::8] (25 views).
 PROTOCOL_SCENES = ('chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship')  # NeRF-synthetic's 8.
 # Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
@@ -120,3 +122,28 @@ def render_path_rays(config, scene_dir: str):
   path = cameras.orbit_path(poses, config.render_path_frames)
   return raygen.stack_rays((raygen.pinhole_rays(p, pixtocam, height, width, config.near, config.far, True)
                             for p in path), len(path))
+
+
+def camera_record(config, datasets: dict, scene_dir: str) -> dict:
+  """Float64 cameras of a Blender-layout scene for packed.py: per-split frames, the test frames the orbit is built
+  from."""
+  record = {'ray_kind': 'pinhole', 'path_kind': 'orbit', 'arrays': {}}
+  for split, data in datasets.items():
+    meta = read_transforms(scene_dir, split)
+    focal = .5 * data.width / np.tan(.5 * float(meta['camera_angle_x']))
+    pixtocam = cameras.focal_pixtocam(focal, data.height, data.width)
+    c2w = np.array([meta['frames'][i]['transform_matrix'] for i in data.ids], np.float64)[:, :3, :4]
+    record['arrays'].update({f'{split}/camtoworlds': c2w,
+                             f'{split}/pixtocams': np.repeat(pixtocam[None], len(data.ids), 0)})
+  poses, pixtocam, height, width = render_cameras(scene_dir, base.render_factor(config))
+  train_pixtocam = record['arrays']['train/pixtocams'][0]
+  record['arrays'].update({'cameras/camtoworlds': poses,
+                           'cameras/pixtocams': np.repeat(train_pixtocam[None], len(poses), 0),
+                           'render/source': poses, 'render/pixtocam': pixtocam})
+  record['render'] = {'height': height, 'width': width}
+  return record
+
+
+def pack_cameras(config, datasets: dict) -> dict:
+  """The pack's camera record of the Blender scene Config.blender_scene (see camera_record)."""
+  return camera_record(config, datasets, scene_path(config))

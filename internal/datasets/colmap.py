@@ -27,6 +27,8 @@ import numpy as np
 from internal.datasets import base, cameras, colmap_model, distortion, image_io, llff, raygen
 
 RIGS = ('auto', 'inward', 'forward')
+# (Config field, its allowed values) of this loader's own settings, checked before any work.
+SETTING_CHOICES = (('capture_rig', RIGS),)
 FORWARD_SPREAD = 0.9   # 'auto': forward when the mean of the unit viewing directions is at least this long.
 CAMERA_DISTANCE = 1.   # Inward captures are scaled so that the median camera is this far from the centre.
 OPENCV_TO_OPENGL = np.diag([1., -1., -1.])

@@ -6,13 +6,15 @@ import zipfile
 
 import numpy as np
 
-from internal.datasets import base, cameras, image_io, raygen
+from internal.datasets import base, cameras, image_io, random_poses, raygen
 
 TRAIN_IDS = (25, 22, 28, 40, 44, 48, 0, 8, 13)
 EXCLUDED_IDS = (3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 36, 37, 38, 39)
 TEST_IDS = (1, 2, 9, 10, 11, 12, 14, 15, 23, 24, 26, 27, 29, 30, 31, 32, 33, 34, 35, 41, 42, 43, 45, 46, 47)
 IDR_MASK_SCANS = (40, 55, 63, 110, 114)  # idrmasks keeps these scans' masks in scanN/mask/.
 LAYOUTS = ('auto', 'regnerf', 'idr')
+# (Config field, its allowed values) of this loader's own settings, checked before any work.
+SETTING_CHOICES = (('dtu_layout', LAYOUTS),)
 SPLIT_TYPES = ('pixelnerf', 'all', 'dtuhold', 'depth_eval')  # 'depth_eval' (dtu_mipnerf_all.gin) = 'dtuhold'.
 # The 15 test scans of pixelNeRF's protocol, which the paper's DTU means cover.
 PROTOCOL_SCENES = tuple(f'scan{i}' for i in (8, 21, 30, 31, 34, 38, 40, 41, 45, 55, 63, 82, 103, 110, 114))
@@ -201,7 +203,7 @@ def view_ids(config, split: str, scan_dir: str, layout: str, n_cameras: int) -> 
   return ids, [p for i, p in zip(chosen, paths) if i in ids]
 
 
-def load_dtu(split: str, config) -> base.Dataset:
+def load_scene(split: str, config) -> base.Dataset:
   """Loads one split of a DTU scan as a Dataset (OpenCV cameras, origins on z = Config.near_origin)."""
   scan_dir, layout, projections = scan_setup(config)
   factor = base.load_factor(config, split)
@@ -220,8 +222,8 @@ def load_dtu(split: str, config) -> base.Dataset:
                       name=f'dtu/{config.dtu_scan}')
 
 
-def render_path_rays(config):
-  """Rays [F,H,W,...] of the DTU spiral over all cameras, with the mean test intrinsics."""
+def render_cameras(config) -> tuple:
+  """(all normalized poses [N,3,4], mean test pixtocam [3,3], height, width) of the spiral's frames."""
   scan_dir, layout, projections = scan_setup(config)
   factor = base.render_factor(config)
   train_pool, test_ids = split_ids(config.dtu_split_type, len(projections), config.dtuhold)
@@ -230,7 +232,36 @@ def render_path_rays(config):
     raise base.DatasetNotFoundError(f'DTU render path: no training image found in {scan_dir!r} to size the frames')
   full_h, full_w = image_io.image_size(paths[0])
   pixtocams, poses = normalized_cameras(projections, factor)
-  pixtocam = pixtocams[test_ids].mean(0)
+  return poses, pixtocams[test_ids].mean(0), full_h // factor, full_w // factor
+
+
+def scene_render_path(config):
+  """Rays [F,H,W,...] of the DTU spiral over all cameras, with the mean test intrinsics."""
+  poses, pixtocam, height, width = render_cameras(config)
   path = cameras.spiral_path_dtu(poses, config.render_path_frames)
-  return raygen.stack_rays((raygen.dtu_rays(p, pixtocam, full_h // factor, full_w // factor, config.near,
-                                            config.far, config.near_origin) for p in path), len(path))
+  return raygen.stack_rays((raygen.dtu_rays(p, pixtocam, height, width, config.near, config.far,
+                                            config.near_origin) for p in path), len(path))
+
+
+def pack_cameras(config, datasets: dict) -> dict:
+  """Float64 cameras of a DTU scan for packed.py: all normalized poses, per-split views, the spiral's intrinsics."""
+  _, _, projections = scan_setup(config)
+  record = {'ray_kind': 'dtu', 'path_kind': 'spiral_dtu', 'arrays': {'cameras/projections': projections}}
+  for split, data in datasets.items():
+    pixtocams, poses = normalized_cameras(projections, base.load_factor(config, split))
+    record['arrays'].update({f'{split}/camtoworlds': poses[data.ids], f'{split}/pixtocams': pixtocams[data.ids]})
+  poses, pixtocam, height, width = render_cameras(config)
+  train_pixtocams = normalized_cameras(projections, base.load_factor(config, 'train'))[0]
+  record['arrays'].update({'cameras/camtoworlds': poses, 'cameras/pixtocams': train_pixtocams,
+                           'render/source': poses, 'render/pixtocam': pixtocam})
+  record['render'] = {'height': height, 'width': width}
+  return record
+
+
+def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> tuple:
+  """(RegNeRF's random poses [n,3,4] in the box of all cameras, their mean pixtocam [3,3], 0: world rays)."""
+  del dataset  # Every camera of the scan, at the training factor.
+  _, _, projections = scan_setup(config)
+  pixtocams, poses = normalized_cameras(projections, base.load_factor(config, 'train'))
+  return (random_poses.dtu_random_poses(poses, config.n_random_poses, rng, config.random_pose_radius,
+                                        config.random_pose_focusptjitter), pixtocams.mean(0), 0.)

@@ -5,11 +5,13 @@ import dataclasses
 
 import numpy as np
 
-from internal.datasets import base, blender, llff, packed, synthetic
+from internal.datasets import base, blender, llff, synthetic
 
 # Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
 SHAPING_SETTINGS = ('generated_rig', 'generated_seed', 'generated_size', 'near', 'far', 'white_background',
                     'llffhold')
+# (Config field, its allowed values) of this loader's own settings, checked before any work.
+SETTING_CHOICES = (('generated_rig', synthetic.RIGS),)
 
 
 def scene(config) -> str:
@@ -18,7 +20,7 @@ def scene(config) -> str:
   return config.data_dir
 
 
-def load(split: str, config) -> base.Dataset:
+def load_scene(split: str, config) -> base.Dataset:
   """One split of the generated scene, without its ground truth (see with_ground_truth)."""
   if config.generated_rig == 'object':
     return blender.load_blender(split, config, scene(config), 'generated/object', 'first_n', 1)
@@ -34,7 +36,7 @@ def with_ground_truth(data: base.Dataset, config) -> base.Dataset:
   return dataclasses.replace(data, depths=(depths * scale).astype(np.float32), object_masks=masks)
 
 
-def render_path_rays(config):
+def scene_render_path(config):
   """Rays [F,H,W,...] of the render path: an orbit for the object rig, the LLFF spiral for the forward rig."""
   fn = blender.render_path_rays if config.generated_rig == 'object' else llff.render_path_rays
   return fn(config, scene(config))
@@ -53,5 +55,12 @@ def filed_as(config) -> tuple:
 def pack_cameras(config, datasets: dict) -> dict:
   """The pack's camera record, as for a scene of its layout."""
   if config.generated_rig == 'object':
-    return packed.blender_cameras(config, datasets, scene(config))
-  return packed.llff_cameras(config, datasets, scene(config))
+    return blender.camera_record(config, datasets, scene(config))
+  return llff.camera_record(config, datasets, scene(config))
+
+
+def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator):
+  """The forward rig's random poses, as an LLFF scene's (llff.random_cameras); None: the object rig has none."""
+  if config.generated_rig == 'object':
+    return None
+  return llff.random_cameras(dataset, config, rng, config.data_dir)

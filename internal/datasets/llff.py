@@ -5,7 +5,7 @@ import warnings
 
 import numpy as np
 
-from internal.datasets import base, cameras, image_io, raygen
+from internal.datasets import base, cameras, image_io, random_poses, raygen
 
 IMAGE_EXTENSIONS = ('JPG', 'jpg', 'png')
 AXIS_FIX = np.array([[0., -1., 0., 0.], [1., 0., 0., 0.], [0., 0., 1., 0.], [0., 0., 0., 1.]])
@@ -128,14 +128,57 @@ def scene_render_path(config):
   return render_path_rays(config, scene_path(config))
 
 
-def render_path_rays(config, scene_dir: str):
-  """Rays [F,H,W,...] (NDC) of the LLFF spiral path (Config.render_path_frames frames)."""
-  factor = base.render_factor(config)
+def render_cameras(scene_dir: str, factor: int) -> tuple:
+  """(c2w [N,3,4], bounds [N,2], focal, pixtocam [3,3], height, width) of the spiral's frames at 1/factor size."""
   paths, extra, poses_bounds = scene_setup(scene_dir, factor)
   c2w, bounds, focal = process_poses(poses_bounds)
   full_h, full_w = image_io.image_size(paths[0])
   height, width = full_h // extra, full_w // extra
-  pixtocam = cameras.focal_pixtocam(focal / factor, height, width)
+  return c2w, bounds, focal / factor, cameras.focal_pixtocam(focal / factor, height, width), height, width
+
+
+def render_path_rays(config, scene_dir: str):
+  """Rays [F,H,W,...] (NDC) of the LLFF spiral path (Config.render_path_frames frames)."""
+  c2w, bounds, focal, pixtocam, height, width = render_cameras(scene_dir, base.render_factor(config))
   path = cameras.spiral_path_llff(c2w, bounds, config.render_path_frames)
-  return raygen.stack_rays((raygen.llff_rays(p, pixtocam, height, width, focal / factor) for p in path),
-                           len(path))
+  return raygen.stack_rays((raygen.llff_rays(p, pixtocam, height, width, focal) for p in path), len(path))
+
+
+def camera_record(config, datasets: dict, scene_dir: str) -> dict:
+  """Float64 cameras of an LLFF scene for packed.py: all recentered poses and scaled bounds, per-split views, the
+  spiral."""
+  record = {'ray_kind': 'llff', 'path_kind': 'spiral_llff', 'arrays': {}}
+  c2w, bounds, focal = process_poses(read_poses_bounds(scene_dir))
+  for split, data in datasets.items():
+    split_focal = focal / base.load_factor(config, split)
+    pixtocam = cameras.focal_pixtocam(split_focal, data.height, data.width)
+    record['arrays'].update({f'{split}/camtoworlds': c2w[data.ids],
+                             f'{split}/pixtocams': np.repeat(pixtocam[None], len(data.ids), 0),
+                             f'{split}/focal': np.float64(split_focal)})
+  _, _, render_focal, pixtocam, height, width = render_cameras(scene_dir, base.render_factor(config))
+  train_pixtocam = record['arrays']['train/pixtocams'][0]
+  record['arrays'].update({'cameras/camtoworlds': c2w, 'cameras/bounds': bounds,
+                           'cameras/pixtocams': np.repeat(train_pixtocam[None], len(c2w), 0),
+                           'render/source': c2w, 'render/bounds': bounds, 'render/pixtocam': pixtocam,
+                           'render/focal': np.float64(render_focal), 'cameras/focal_full': np.float64(focal)})
+  record['render'] = {'height': height, 'width': width}
+  return record
+
+
+def pack_cameras(config, datasets: dict) -> dict:
+  """The pack's camera record of the LLFF scene Config.llff_scan (see camera_record)."""
+  return camera_record(config, datasets, scene_path(config))
+
+
+def random_cameras(dataset: base.Dataset, config, rng: np.random.Generator, scene_dir: str) -> tuple:
+  """(RegNeRF's random poses [n,3,4] of an LLFF-layout scene, pixtocam [3,3] of the dataset's size, NDC focal)."""
+  c2w, bounds, focal = process_poses(read_poses_bounds(scene_dir))
+  focal /= base.load_factor(config, 'train')
+  poses = random_poses.llff_random_poses(c2w, bounds, config.n_random_poses, rng,
+                                         not config.regnerf_fix_released_bugs)
+  return poses, cameras.focal_pixtocam(focal, dataset.height, dataset.width), focal
+
+
+def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> tuple:
+  """The random poses of the LLFF scene Config.llff_scan (see random_cameras)."""
+  return random_cameras(dataset, config, rng, scene_path(config))

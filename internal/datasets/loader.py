@@ -1,14 +1,21 @@
 """The table of scene loaders, one record per Config.dataset_loader value, and the dispatch on it.
 
 Validation (near/far rules), evaluation (how a run is filed, NDC depths), results (the dataset names), the
-tables (protocol scenes, metric groups) and packing derive what they need from REGISTRY. Adding a dataset: a
-loader file and one record here.
+tables (protocol scenes, metric groups), packing and random poses derive what they need from REGISTRY. Adding a
+dataset: a loader file and one Loader.of line here (see docs/design.md, 'Adding a dataset').
 """
 
 import dataclasses
 from typing import Callable, Dict, Optional, Tuple
 
 from internal.datasets import base, blender, colmap, dtu, generated, llff, packed
+
+
+# Loader fields filled from the loader file's attribute of that name where it has one (see Loader.of).
+MODULE_ATTRIBUTES = (('load', 'load_scene'), ('render_path', 'scene_render_path'),
+                     ('protocol_scenes', 'PROTOCOL_SCENES'), ('shaping_settings', 'SHAPING_SETTINGS'),
+                     ('choices', 'SETTING_CHOICES'), ('pack_cameras', 'pack_cameras'),
+                     ('random_pose_cameras', 'random_pose_cameras'))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -29,6 +36,17 @@ class Loader:
   shaping_settings: Tuple[str, ...] = ()   # The Config fields a pack records and checks on load.
   pack_cameras: Optional[Callable] = None  # (config, {split: Dataset}) -> the pack's camera record; None: unpackable.
   choices: Tuple[Tuple[str, Tuple[str, ...]], ...] = ()  # (Config field, its allowed values) of its own settings.
+  # (Dataset, config, rng) -> (RegNeRF's random poses [n,3,4], pixtocam [3,3], NDC focal or 0: world rays), or
+  # None for a scene without them; None: no random poses (depth smoothness is refused).
+  random_pose_cameras: Optional[Callable] = None
+
+  @classmethod
+  def of(cls, module, scene_setting, ndc, **fields) -> 'Loader':
+    """The record of a loader file: MODULE_ATTRIBUTES from the module, ndc a constant or config -> bool, fields
+    the rest (or overrides)."""
+    found = {field: getattr(module, name) for field, name in MODULE_ATTRIBUTES if hasattr(module, name)}
+    ray_space = ndc if callable(ndc) else lambda config: ndc
+    return cls(scene_setting=scene_setting, ndc=ray_space, **{**found, **fields})
 
 
 def _filed_as_packed(config) -> Tuple[str, str]:
@@ -37,25 +55,13 @@ def _filed_as_packed(config) -> Tuple[str, str]:
 
 
 REGISTRY: Dict[str, Loader] = {
-    'dtu': Loader(dtu.load_dtu, dtu.render_path_rays, 'dtu_scan', lambda config: False, dtu.PROTOCOL_SCENES,
-                  (('object', 'masked'), ('full', 'full')), shaping_settings=dtu.SHAPING_SETTINGS,
-                  pack_cameras=packed.dtu_cameras, choices=(('dtu_layout', dtu.LAYOUTS),)),
-    'llff': Loader(llff.load_scene, llff.scene_render_path, 'llff_scan', lambda config: True, llff.PROTOCOL_SCENES,
-                   shaping_settings=llff.SHAPING_SETTINGS,
-                   pack_cameras=lambda config, data: packed.llff_cameras(config, data, llff.scene_path(config))),
-    'blender': Loader(blender.load_scene, blender.scene_render_path, 'blender_scene', lambda config: False,
-                      blender.PROTOCOL_SCENES, shaping_settings=blender.SHAPING_SETTINGS,
-                      pack_cameras=lambda config, data: packed.blender_cameras(config, data,
-                                                                               blender.scene_path(config)),
-                      choices=(('blender_split', blender.SPLIT_MODES),)),
-    'generated': Loader(generated.load, generated.render_path_rays, None, generated.is_ndc,
-                        filed_as=generated.filed_as, ground_truth=generated.with_ground_truth,
-                        shaping_settings=generated.SHAPING_SETTINGS, pack_cameras=generated.pack_cameras,
-                        choices=(('generated_rig', generated.synthetic.RIGS),)),
-    'colmap': Loader(colmap.load_scene, colmap.scene_render_path, colmap.scene_name, colmap.is_ndc,
-                     shaping_settings=colmap.SHAPING_SETTINGS, choices=(('capture_rig', colmap.RIGS),)),
-    'packed': Loader(packed.load_packed, packed.render_path_rays, None, lambda config: None,
-                     filed_as=_filed_as_packed),
+    'dtu': Loader.of(dtu, 'dtu_scan', False, table_groups=(('object', 'masked'), ('full', 'full'))),
+    'llff': Loader.of(llff, 'llff_scan', True),
+    'blender': Loader.of(blender, 'blender_scene', False),
+    'generated': Loader.of(generated, None, generated.is_ndc, filed_as=generated.filed_as,
+                           ground_truth=generated.with_ground_truth),
+    'colmap': Loader.of(colmap, colmap.scene_name, colmap.is_ndc),
+    'packed': Loader.of(packed, None, None, filed_as=_filed_as_packed),
 }
 LOADERS = tuple(REGISTRY)
 # The allowed values of Config.dataset_loader and of each loader's own settings, checked before any work.
@@ -109,3 +115,18 @@ def pack_arrays(config, datasets: dict) -> dict:
     raise base.DatasetError(f'Config.dataset_loader = {config.dataset_loader!r} scenes cannot be packed; pack a '
                             f'scene from its source loader, one of {packable}')
   return packed.pack_arrays(config, datasets, record.shaping_settings, record.pack_cameras(config, datasets))
+
+
+def random_pose_cameras(dataset: base.Dataset, config, rng) -> tuple:
+  """(random poses [n,3,4], pixtocam [3,3], NDC focal or 0) of the training scene, drawn with rng by its loader.
+
+  ValueError naming the settings when the scene has none (the loaders with random poses listed).
+  """
+  hook = loader_of(config).random_pose_cameras
+  found = hook(dataset, config, rng) if hook else None
+  if found is None:
+    having = [name for name, record in REGISTRY.items() if record.random_pose_cameras]
+    raise ValueError(f'Config.depth_tvnorm_loss_mult / depth_tvnorm_decay: random poses exist for scenes of '
+                     f'Config.dataset_loader in {having} only; this Config.dataset_loader = '
+                     f'{config.dataset_loader!r} scene has none')
+  return found

@@ -14,7 +14,7 @@ import zipfile
 
 import numpy as np
 
-from internal.datasets import base, blender, cameras, dtu, image_io, llff, raygen
+from internal.datasets import base, cameras, raygen
 
 VERSION = 1
 COMMON_SETTINGS = ('factor', 'eval_factor', 'n_input_views', 'downsample_mode')
@@ -69,79 +69,13 @@ def path_poses(kind: str, source, bounds, n_frames: int) -> np.ndarray:
   return cameras.orbit_path(source, n_frames)
 
 
-# ---------------------------------------------------------------- cameras of each source loader
-
-def dtu_cameras(config, datasets: dict) -> dict:
-  """Float64 cameras of a DTU scan: all normalized poses, per-split views, the spiral's intrinsics."""
-  scan_dir, layout, projections = dtu.scan_setup(config)
-  record = {'ray_kind': 'dtu', 'path_kind': 'spiral_dtu', 'arrays': {'cameras/projections': projections}}
-  for split, data in datasets.items():
-    pixtocams, poses = dtu.normalized_cameras(projections, base.load_factor(config, split))
-    record['arrays'].update({f'{split}/camtoworlds': poses[data.ids], f'{split}/pixtocams': pixtocams[data.ids]})
-  factor = base.render_factor(config)
-  pixtocams, poses = dtu.normalized_cameras(projections, factor)
-  train_pool, test_ids = dtu.split_ids(config.dtu_split_type, len(projections), config.dtuhold)
-  paths = [p for p in dtu.image_paths(scan_dir, layout, train_pool, config.dtu_light_cond) if os.path.isfile(p)]
-  if not paths:
-    raise base.DatasetNotFoundError(f'DTU render path: no training image found in {scan_dir!r} to size the frames')
-  full_h, full_w = image_io.image_size(paths[0])
-  train_pixtocams = dtu.normalized_cameras(projections, base.load_factor(config, 'train'))[0]
-  record['arrays'].update({'cameras/camtoworlds': poses, 'cameras/pixtocams': train_pixtocams,
-                           'render/source': poses, 'render/pixtocam': pixtocams[test_ids].mean(0)})
-  record['render'] = {'height': full_h // factor, 'width': full_w // factor}
-  return record
-
-
-def llff_cameras(config, datasets: dict, scene_dir: str) -> dict:
-  """Float64 cameras of an LLFF scene: all recentered poses and scaled bounds, per-split views, the spiral."""
-  record = {'ray_kind': 'llff', 'path_kind': 'spiral_llff', 'arrays': {}}
-  c2w, bounds, focal = llff.process_poses(llff.read_poses_bounds(scene_dir))
-  for split, data in datasets.items():
-    split_focal = focal / base.load_factor(config, split)
-    pixtocam = cameras.focal_pixtocam(split_focal, data.height, data.width)
-    record['arrays'].update({f'{split}/camtoworlds': c2w[data.ids],
-                             f'{split}/pixtocams': np.repeat(pixtocam[None], len(data.ids), 0),
-                             f'{split}/focal': np.float64(split_focal)})
-  factor = base.render_factor(config)
-  paths, extra, _ = llff.scene_setup(scene_dir, factor)
-  full_h, full_w = image_io.image_size(paths[0])
-  height, width = full_h // extra, full_w // extra
-  pixtocam = cameras.focal_pixtocam(focal / factor, height, width)
-  train_pixtocam = record['arrays']['train/pixtocams'][0]
-  record['arrays'].update({'cameras/camtoworlds': c2w, 'cameras/bounds': bounds,
-                           'cameras/pixtocams': np.repeat(train_pixtocam[None], len(c2w), 0),
-                           'render/source': c2w, 'render/bounds': bounds, 'render/pixtocam': pixtocam,
-                           'render/focal': np.float64(focal / factor), 'cameras/focal_full': np.float64(focal)})
-  record['render'] = {'height': height, 'width': width}
-  return record
-
-
-def blender_cameras(config, datasets: dict, scene_dir: str) -> dict:
-  """Float64 cameras of a Blender-layout scene: per-split frames, the test frames the orbit is built from."""
-  record = {'ray_kind': 'pinhole', 'path_kind': 'orbit', 'arrays': {}}
-  for split, data in datasets.items():
-    meta = blender.read_transforms(scene_dir, split)
-    focal = .5 * data.width / np.tan(.5 * float(meta['camera_angle_x']))
-    pixtocam = cameras.focal_pixtocam(focal, data.height, data.width)
-    c2w = np.array([meta['frames'][i]['transform_matrix'] for i in data.ids], np.float64)[:, :3, :4]
-    record['arrays'].update({f'{split}/camtoworlds': c2w,
-                             f'{split}/pixtocams': np.repeat(pixtocam[None], len(data.ids), 0)})
-  poses, pixtocam, height, width = blender.render_cameras(scene_dir, base.render_factor(config))
-  train_pixtocam = record['arrays']['train/pixtocams'][0]
-  record['arrays'].update({'cameras/camtoworlds': poses,
-                           'cameras/pixtocams': np.repeat(train_pixtocam[None], len(poses), 0),
-                           'render/source': poses, 'render/pixtocam': pixtocam})
-  record['render'] = {'height': height, 'width': width}
-  return record
-
-
 # ---------------------------------------------------------------- pack and load
 
 def pack_arrays(config, datasets: dict, source_settings, record: dict) -> dict:
   """Every array of the pack ('meta' JSON included) from the loaded splits {split: Dataset}.
 
   source_settings: the Config fields besides COMMON_SETTINGS that shaped the data (checked on load); record:
-  the cameras of the scene ({'ray_kind', 'path_kind', 'render', 'arrays'}, see dtu_cameras).
+  the cameras of the scene ({'ray_kind', 'path_kind', 'render', 'arrays'}, see dtu.pack_cameras).
   """
   arrays = dict(record['arrays'])
   splits = {}
@@ -200,7 +134,7 @@ def source_loader(path: str) -> str:
   return read_pack(path)[0]['source_loader']
 
 
-def load_packed(split: str, config) -> base.Dataset:
+def load_scene(split: str, config) -> base.Dataset:
   """One split of the packed scene at Config.data_dir, equal to what the source loader returned."""
   base.check_split(split)
   meta, arrays = read_pack(config.data_dir)
@@ -219,7 +153,7 @@ def load_packed(split: str, config) -> base.Dataset:
                       split=split, name=info['name'], **fields)
 
 
-def render_path_rays(config):
+def scene_render_path(config):
   """Rays [F,H,W,...] of the packed scene's render path (Config.render_path_frames frames)."""
   meta, arrays = read_pack(config.data_dir)
   check_settings(config, meta, config.data_dir)

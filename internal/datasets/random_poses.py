@@ -6,7 +6,7 @@ np.random.default_rng([Config.np_rng_seed, s, PATCHES_STREAM]), so a resumed run
 
 import numpy as np
 
-from internal.datasets import base, cameras, dtu, llff, raygen
+from internal.datasets import base, cameras, raygen
 from internal.rays import Rays
 
 POSES_STREAM = 1
@@ -73,40 +73,24 @@ def patch_rays(camtoworld, pixtocam, height: int, width: int, x0: int, y0: int, 
   return raygen.pack_rays(crop(origins), crop(dirs), crop(viewdirs), crop(radii), near, far)
 
 
-def _scene_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> tuple:
-  """(random poses [n,3,4], pixtocam [3,3], ndc focal or 0) of the training scene."""
-  factor = base.load_factor(config, 'train')
-  if config.dataset_loader == 'dtu':
-    _, _, projections = dtu.scan_setup(config)
-    pixtocams, poses = dtu.normalized_cameras(projections, factor)
-    return (dtu_random_poses(poses, config.n_random_poses, rng, config.random_pose_radius,
-                             config.random_pose_focusptjitter), pixtocams.mean(0), 0.)
-  scene = (config.data_dir if config.dataset_loader == 'generated' else
-           base.scene_dir(config.data_dir, config.llff_scan, 'llff_scan'))
-  c2w, bounds, focal = llff.process_poses(llff.read_poses_bounds(scene))
-  poses = llff_random_poses(c2w, bounds, config.n_random_poses, rng, not config.regnerf_fix_released_bugs)
-  return poses, cameras.focal_pixtocam(focal / factor, dataset.height, dataset.width), focal / factor
-
-
-def check_supported(config) -> None:
-  """Raises ValueError naming the settings when Config asks for random-pose patches it cannot have."""
+def check_random_rays(config) -> None:
+  """Raises ValueError naming the settings when Config asks for random-pose patches but forbids random rays."""
   if not config.load_random_rays:
     raise ValueError('Config.depth_tvnorm_loss_mult / depth_tvnorm_decay need random-pose patches; '
                      'set Config.load_random_rays = True (or turn the depth-smoothness loss off)')
-  forward = config.dataset_loader == 'llff' or (config.dataset_loader == 'generated' and
-                                                config.generated_rig == 'forward')
-  if config.dataset_loader != 'dtu' and not forward:
-    raise ValueError(f'Config.depth_tvnorm_loss_mult / depth_tvnorm_decay: random poses exist for DTU and '
-                     f'LLFF (forward-facing) scenes only; Config.dataset_loader = {config.dataset_loader!r}')
 
 
-def make_patch_sampler(dataset: base.Dataset, config):
-  """callable(step) -> Rays [P, ps, ps, ...] f32 of P random-pose patches, or None when no loss needs them."""
+def make_patch_sampler(dataset: base.Dataset, config, scene_cameras):
+  """callable(step) -> Rays [P, ps, ps, ...] f32 of P random-pose patches, or None when no loss needs them.
+
+  scene_cameras: (dataset, config, rng) -> (random poses [n,3,4], pixtocam [3,3], NDC focal or 0) of the scene
+  (the loader's, see loader.random_pose_cameras).
+  """
   if not needs_patches(config):
     return None
-  check_supported(config)
-  poses, pixtocam, ndc_focal = _scene_cameras(dataset, config, np.random.default_rng([config.np_rng_seed,
-                                                                                      POSES_STREAM]))
+  check_random_rays(config)
+  poses, pixtocam, ndc_focal = scene_cameras(dataset, config, np.random.default_rng([config.np_rng_seed,
+                                                                                     POSES_STREAM]))
   size, height, width = config.patch_size, dataset.height, dataset.width
   count = config.batch_size_random // size**2
 
