@@ -3,6 +3,7 @@
 import filecmp
 import json
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -198,3 +199,12 @@ def test_depths_and_object_masks_are_read_only_when_asked(scenes, rig, monkeypat
   data = load_dataset('test', gen_config(path, rig, n_input_views=9), ground_truth=True)
   assert len(ground_truth()) == 2 * len(data.ids)  # One depth .npy and one mask .png per test view.
   np.testing.assert_array_equal(data.depths, scenes[rig][2].depths)
+
+
+def test_the_forward_rig_resizes_its_full_size_images_without_a_word(scenes):
+  path, _, _ = scenes['forward']
+  with warnings.catch_warnings():
+    warnings.simplefilter('error')  # Unlike an LLFF scene's missing images_4/, this is the layout's design.
+    data = load_dataset('train', gen_config(path, 'forward', n_input_views=9, factor=4))
+    render_path_rays(gen_config(path, 'forward', factor=4, render_path_frames=2))
+  assert data.images.shape[1:3] == (64 // 4, 80 // 4) and not os.path.isdir(path / 'images_4')

@@ -22,7 +22,7 @@ def load(split: str, config) -> base.Dataset:
   """One split of the generated scene, without its ground truth (see with_ground_truth)."""
   if config.generated_rig == 'object':
     return blender.load_blender(split, config, scene(config), 'generated/object', 'first_n', 1)
-  return llff.load_llff(split, config, scene(config), 'generated/forward')
+  return llff.load_llff(split, config, scene(config), 'generated/forward', prepared=False)
 
 
 def with_ground_truth(data: base.Dataset, config) -> base.Dataset:
@@ -36,8 +36,9 @@ def with_ground_truth(data: base.Dataset, config) -> base.Dataset:
 
 def render_path_rays(config):
   """Rays [F,H,W,...] of the render path: an orbit for the object rig, the LLFF spiral for the forward rig."""
-  fn = blender.render_path_rays if config.generated_rig == 'object' else llff.render_path_rays
-  return fn(config, scene(config))
+  if config.generated_rig == 'object':
+    return blender.render_path_rays(config, scene(config))
+  return llff.render_path_rays(config, scene(config), prepared=False)
 
 
 def is_ndc(config) -> bool:
@@ -54,4 +55,4 @@ def pack_cameras(config, datasets: dict) -> dict:
   """The pack's camera record, as for a scene of its layout."""
   if config.generated_rig == 'object':
     return packed.blender_cameras(config, datasets, scene(config))
-  return packed.llff_cameras(config, datasets, scene(config))
+  return packed.llff_cameras(config, datasets, scene(config), prepared=False)

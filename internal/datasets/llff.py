@@ -14,12 +14,16 @@ PROTOCOL_SCENES = ('fern', 'flower', 'fortress', 'horns', 'leaves', 'orchids', '
 SHAPING_SETTINGS = ('llff_scan', 'llffhold')
 
 
-def image_folder(scene_dir: str, factor: int) -> tuple:
-  """(folder, extra factor): images_{factor}/ (images/ for 1), else a finer images_k/ to downsample by factor/k."""
+def image_folder(scene_dir: str, factor: int, prepared: bool = True) -> tuple:
+  """(folder, extra factor): images_{factor}/ (images/ for 1), else a finer images_k/ to downsample by factor/k.
+
+  prepared: the scene is LLFF's own, its images_N/ made ahead, so that resizing a finer folder is said in a warning;
+  False for the generated scene, which keeps its full-size images only.
+  """
   for k in sorted((k for k in range(1, factor + 1) if factor % k == 0), reverse=True):
     folder = os.path.join(scene_dir, f'images_{k}' if k > 1 else 'images')
     if os.path.isdir(folder):
-      if k != factor:
+      if k != factor and prepared:
         warnings.warn(f'LLFF: {os.path.join(scene_dir, f"images_{factor}")!r} does not exist (downsampling factor '
                       f'{factor}); building the images from {folder!r}, downsampled by {factor // k}', stacklevel=2)
       return folder, factor // k
@@ -83,9 +87,9 @@ def split_ids(split: str, n_images: int, llffhold: int, n_views: int) -> list:
   return [pool[int(round(v))] for v in np.linspace(0, len(pool) - 1, n_views)]
 
 
-def scene_setup(scene_dir: str, factor: int) -> tuple:
+def scene_setup(scene_dir: str, factor: int, prepared: bool = True) -> tuple:
   """(image paths, extra downsampling factor, poses_bounds [N,17]); the counts must agree."""
-  folder, extra = image_folder(scene_dir, factor)
+  folder, extra = image_folder(scene_dir, factor, prepared)
   paths = image_files(folder)
   poses_bounds = read_poses_bounds(scene_dir, paths)
   if len(paths) != len(poses_bounds):
@@ -94,10 +98,10 @@ def scene_setup(scene_dir: str, factor: int) -> tuple:
   return paths, extra, poses_bounds
 
 
-def load_llff(split: str, config, scene_dir: str, name: str) -> base.Dataset:
-  """Loads one split of an LLFF scene (NDC rays, near 0, far 1)."""
+def load_llff(split: str, config, scene_dir: str, name: str, prepared: bool = True) -> base.Dataset:
+  """Loads one split of an LLFF-layout scene (NDC rays, near 0, far 1); prepared as for image_folder."""
   factor = base.load_factor(config, split)
-  paths, extra, poses_bounds = scene_setup(scene_dir, factor)
+  paths, extra, poses_bounds = scene_setup(scene_dir, factor, prepared)
   c2w, _, focal = process_poses(poses_bounds)
   ids = split_ids(split, len(paths), config.llffhold, config.n_input_views)
   images = image_io.load_stack([paths[i] for i in ids],
@@ -127,10 +131,10 @@ def scene_render_path(config):
   return render_path_rays(config, scene_path(config))
 
 
-def render_path_rays(config, scene_dir: str):
+def render_path_rays(config, scene_dir: str, prepared: bool = True):
   """Rays [F,H,W,...] (NDC) of the LLFF spiral path (Config.render_path_frames frames)."""
   factor = base.render_factor(config)
-  paths, extra, poses_bounds = scene_setup(scene_dir, factor)
+  paths, extra, poses_bounds = scene_setup(scene_dir, factor, prepared)
   c2w, bounds, focal = process_poses(poses_bounds)
   full_h, full_w = image_io.image_size(paths[0])
   height, width = full_h // extra, full_w // extra

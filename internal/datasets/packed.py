@@ -92,8 +92,9 @@ def dtu_cameras(config, datasets: dict) -> dict:
   return record
 
 
-def llff_cameras(config, datasets: dict, scene_dir: str) -> dict:
-  """Float64 cameras of an LLFF scene: all recentered poses and scaled bounds, per-split views, the spiral."""
+def llff_cameras(config, datasets: dict, scene_dir: str, prepared: bool = True) -> dict:
+  """Float64 cameras of an LLFF scene: all recentered poses and scaled bounds, per-split views, the spiral
+  (prepared as for llff.image_folder)."""
   record = {'ray_kind': 'llff', 'path_kind': 'spiral_llff', 'arrays': {}}
   c2w, bounds, focal = llff.process_poses(llff.read_poses_bounds(scene_dir))
   for split, data in datasets.items():
@@ -103,7 +104,7 @@ def llff_cameras(config, datasets: dict, scene_dir: str) -> dict:
                              f'{split}/pixtocams': np.repeat(pixtocam[None], len(data.ids), 0),
                              f'{split}/focal': np.float64(split_focal)})
   factor = base.render_factor(config)
-  paths, extra, _ = llff.scene_setup(scene_dir, factor)
+  paths, extra, _ = llff.scene_setup(scene_dir, factor, prepared)
   full_h, full_w = image_io.image_size(paths[0])
   height, width = full_h // extra, full_w // extra
   pixtocam = cameras.focal_pixtocam(focal / factor, height, width)
