@@ -33,13 +33,18 @@ def test_toy_llff_loads_and_falls_back_to_full_resolution(llff_root):
     data = load_dataset('train', llff(llff_root, n_input_views=3))
   assert data.ids == [1, 5, 9] and data.images.shape == (3, H, W, 3)
   os.rename(llff_root / 'toy' / 'images_8', llff_root / 'toy' / 'images')
-  with pytest.warns(UserWarning, match=r"^'.*toy/images_2' does not exist \(downsampling factor 2\); "
-                                       r"building the images from '.*toy/images', downsampled by 2$"):
+  with warnings.catch_warnings():
+    warnings.simplefilter('error')  # Only full-size images/: downsampling them is the layout's design.
     half = load_dataset('test', llff(llff_root, factor=2))   # No images_2/: images/ downsampled by 2.
   assert half.ids == [0, 8] and half.images.shape == (2, H // 2, W // 2, 3)
   full = image_io.read_image(str(llff_root / 'toy' / 'images' / 'img08.png'))
   np.testing.assert_allclose(half.images[1], full.reshape(3, 2, 4, 2, 3).mean((1, 3)), atol=1e-6)
   np.testing.assert_allclose(np.linalg.inv(half.pixtocams[0])[0, 0], 50. / 2., rtol=1e-6)
+  os.rename(llff_root / 'toy' / 'images', llff_root / 'toy' / 'images_2')
+  with pytest.warns(UserWarning, match=r"^'.*toy/images_4' does not exist \(downsampling factor 4\); "
+                                       r"building the images from '.*toy/images_2', downsampled by 2$"):
+    quarter = load_dataset('test', llff(llff_root, factor=4))   # A made-ahead images_2/ resized: said.
+  assert quarter.images.shape == (2, H // 2, W // 2, 3)
 
 
 def test_eval_factor_downsamples_test_views_only(blender_root):

@@ -4,6 +4,7 @@ import dataclasses
 import filecmp
 import json
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -222,3 +223,12 @@ def test_object_rig_has_no_random_poses(scenes):
   config = gen_config(path, 'object', n_input_views=9, depth_tvnorm_loss_mult=.1)
   with pytest.raises(ValueError, match=r"Config.dataset_loader = 'generated' scene has none"):
     make_batcher(train, config)
+
+
+def test_the_forward_rig_resizes_its_full_size_images_without_a_word(scenes):
+  path, _, _ = scenes['forward']
+  with warnings.catch_warnings():
+    warnings.simplefilter('error')  # Unlike an LLFF scene's missing images_4/, this is the layout's design.
+    data = load_dataset('train', gen_config(path, 'forward', n_input_views=9, factor=4))
+    render_path_rays(gen_config(path, 'forward', factor=4, render_path_frames=2))
+  assert data.images.shape[1:3] == (64 // 4, 80 // 4) and not os.path.isdir(path / 'images_4')

@@ -15,11 +15,15 @@ SHAPING_SETTINGS = ('llff_scan', 'llffhold')
 
 
 def image_folder(scene_dir: str, factor: int, name: str = 'images') -> tuple:
-  """(folder, extra factor): <name>_{factor}/ (<name>/ for 1), else a finer <name>_k/ to downsample by factor/k."""
+  """(folder, extra factor): <name>_{factor}/ (<name>/ for 1), else a finer <name>_k/ to downsample by factor/k.
+
+  Building the images from a made-ahead copy of another size (an LLFF scene's images_4/ for factor 8) is said in
+  a warning; from the full-size <name>/ (the generated scene's, a capture's own photos) it is the layout's design.
+  """
   for k in sorted((k for k in range(1, factor + 1) if factor % k == 0), reverse=True):
     folder = os.path.join(scene_dir, f'{name}_{k}' if k > 1 else name)
     if os.path.isdir(folder):
-      if k != factor:
+      if k not in (1, factor):
         warnings.warn(f'{os.path.join(scene_dir, f"{name}_{factor}")!r} does not exist (downsampling factor '
                       f'{factor}); building the images from {folder!r}, downsampled by {factor // k}', stacklevel=2)
       return folder, factor // k
