@@ -74,9 +74,11 @@ def pack_rays(origins, directions, viewdirs, radii, near: float, far: float) -> 
               radii.astype(np.float32), ones, ones * np.float32(near), ones * np.float32(far))
 
 
-def pinhole_rays(camtoworld, pixtocam, height, width, near, far, opengl) -> Rays:
-  """Rays [H,W,...] of one camera: origins at its centre, unit viewdirs, row-neighbour radii."""
-  dirs = world_directions(camtoworld, camera_directions(pixtocam, height, width, opengl))
+def pinhole_rays(camtoworld, pixtocam, height, width, near, far, opengl, pixel_offset: float = .5) -> Rays:
+  """Rays [H,W,...] of one camera through pixels (i, j) + pixel_offset: origins at its centre, unit viewdirs,
+  row-neighbour radii."""
+  offset = (pixel_offset, pixel_offset)
+  dirs = world_directions(camtoworld, camera_directions(pixtocam, height, width, opengl, offset))
   origins = np.broadcast_to(np.asarray(camtoworld, np.float64)[:3, 3], dirs.shape)
   viewdirs = dirs / norm(dirs)[..., None]
   return pack_rays(origins, dirs, viewdirs, row_radii(dirs), near, far)
