@@ -1,4 +1,4 @@
-"""Pinhole ray generation (pixel centres), DTU origin shift and LLFF NDC conversion, as numpy Rays."""
+"""Pinhole ray generation (through pixel centres or integer pixels), DTU origin shift, LLFF NDC, as numpy Rays."""
 
 import numpy as np
 
