@@ -37,7 +37,7 @@ PAPER_DTU3 = dict(near=0.5, far=3.5, white_background=False, max_steps=43945, lr
                   lr_final=2e-5, lr_delay_steps=512, lr_delay_mult=0.01, grad_max_norm=0.1,
                   grad_max_val=0.1)
 FREENERF = dict(freq_reg=True, freq_reg_end=39550, occ_reg_loss_mult=0.01, occ_wb_prior=True)
-FREENERF_ON_NERF = dict(model='nerf', freq_reg=True, freq_reg_end=25000, freq_mask_layout='paper',
+FREENERF_ON_NERF = dict(model='nerf', freq_reg=True, freq_reg_end=25000, freq_mask_layout='released',
                         occ_reg_loss_mult=0.03, occ_reg_range=20)
 REGNERF = dict(anneal_nearfar=True, anneal_nearfar_steps=256, anneal_nearfar_perc=0.5, depth_tvnorm_loss_mult=0.1,
                depth_tvnorm_decay=True, depth_tvnorm_maxstep=512, depth_tvnorm_loss_mult_start=400.,

@@ -16,6 +16,7 @@ from internal.models import freq_schedule
 from internal.models import gaussians
 from internal.evaluation import lpips
 from internal.models import mip_nerf
+from internal.models import nerf
 from internal.models import registry
 from internal.models import precision
 from internal.models import sampling
@@ -139,6 +140,16 @@ def validate(config: Config) -> None:
   _warn_on_unused_regularizer(config)
   _validate_regnerf(config)
   _validate_curve(config)
+  _validate_blender_code_settings(config)
+
+
+def _validate_blender_code_settings(config: Config) -> None:
+  """Raises a ValueError naming the pixel offset or NeRF initializer (the released Blender code's settings)."""
+  if not 0. <= config.pixel_offset < 1.:
+    raise ValueError(f'Config.pixel_offset = {config.pixel_offset}; expected in [0, 1) (0.5 = pixel centres, '
+                     '0 = integer pixel coordinates)')
+  if config.model == 'nerf':
+    base.check_choice('NerfMLP.weight_init', nerf.NerfMLP().weight_init, nerf.WEIGHT_INITS, ValueError)
 
 
 def _check_generated_size(size) -> None:
@@ -233,6 +244,9 @@ def _validate_curve(config: Config) -> None:
                      'points, 0 = no curve)')
   if config.curve_factor < 1:
     raise ValueError(f'Config.curve_factor = {config.curve_factor}; expected a positive integer')
+  if config.curve_spread_views < 0:
+    raise ValueError(f'Config.curve_spread_views = {config.curve_spread_views}; expected >= 0 (0 = the views of '
+                     'Config.curve_test_ids)')
   ids = config.curve_test_ids
   if (not isinstance(ids, (list, tuple)) or not ids or len(set(ids)) != len(ids)
       or any(isinstance(i, bool) or not isinstance(i, int) or i < 0 for i in ids)):

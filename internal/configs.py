@@ -62,6 +62,9 @@ class Config:
   near: float = 2.                      # Ray start distance (world units); NDC scenes (LLFF) fix it at 0.
   far: float = 6.                       # Ray end distance (world units); NDC scenes (LLFF) fix it at 1.
   near_origin: float = 0.0              # DTU: ray origins moved onto the plane z = near_origin.
+  # Blender-layout scenes (Blender, the generated object rig): rays through pixel (i, j) + pixel_offset; 0.5 =
+  # pixel centres (mip-NeRF), 0 = the integer pixel coordinates of the released Blender (NeRF) code.
+  pixel_offset: float = 0.5
   render_path_frames: int = 240         # Frames of the camera path render.py renders (>= 1).
   generated_rig: str = 'object'         # Generated scene: 'object' | 'forward'.
   generated_size: Sequence[int] = (64, 80)  # Generated scene image (H, W).
@@ -160,4 +163,7 @@ class Config:
   # default, so the paper configs train as released; configs/demo.gin turns it on.
   curve_every: int = 0                  # Steps between curve points, plus the last step (0 = no curve).
   curve_test_ids: Sequence[int] = (0, 1, 2)  # Positions in the test split of the views scored.
+  # > 0: in place of curve_test_ids, this many views evenly spread over the test split (the middle view of each
+  # of that many equal parts); configs/common/dtu.gin sets 3.
+  curve_spread_views: int = 0
   curve_factor: int = 4                 # Curve views load at Config.factor * this (in place of eval_factor).

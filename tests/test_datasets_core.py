@@ -175,6 +175,16 @@ def test_pinhole_rays_opengl_closed_form():
   assert rays.radii.shape == rays.near.shape == (h, w, 1)
 
 
+def test_pinhole_rays_at_integer_pixel_coordinates_of_a_rotated_camera():
+  """pixel_offset 0: the released Blender code's R ((i - W/2)/f, -(j - H/2)/f, -1), by hand for two pixels."""
+  rotation = np.array([[0., 0., 1.], [0., 1., 0.], [-1., 0., 0.]])  # 90 degrees about y: camera -z is world -x.
+  c2w = np.concatenate([rotation, [[0.], [0.], [4.]]], 1)
+  rays = raygen.pinhole_rays(c2w, cameras.focal_pixtocam(2., 4, 4), 4, 4, 2., 6., opengl=True, pixel_offset=0.)
+  # Pixel (i, j) = (0, 0): camera (-1, 1, -1) -> world (-1, 1, 1); the principal point (2, 2): (0, 0, -1) -> -x.
+  np.testing.assert_allclose(rays.directions[0, 0], [-1., 1., 1.], atol=1e-6)
+  np.testing.assert_allclose(rays.directions[2, 2], [-1., 0., 0.], atol=1e-6)
+
+
 def test_row_radii_uses_row_neighbours():
   dirs = np.zeros((3, 2, 3))
   dirs[:, :, 0] = np.arange(2)[None, :] * 10.   # Column steps of 10 must not matter.

@@ -54,6 +54,15 @@ def test_generated_scene_packed_equals_unpacked(tmp_path, rig):
     assert f['cameras/camtoworlds'].dtype == np.float64
 
 
+def test_integer_pixel_rays_pack_and_are_checked(tmp_path):
+  config = dataclasses.replace(generated_config(tmp_path, 'object'), pixel_offset=0.)
+  datasets, reloaded = pack_and_compare(config, tmp_path / 'scene.npz')
+  centred = load_dataset('train', dataclasses.replace(config, pixel_offset=.5))
+  assert not np.allclose(datasets['train'].rays.directions, centred.rays.directions)
+  with pytest.raises(DatasetError, match=r'Config.pixel_offset = 0.5, but .* made with Config.pixel_offset = 0.0'):
+    load_dataset('train', dataclasses.replace(reloaded, pixel_offset=.5))
+
+
 def test_settings_that_shaped_the_pack_are_checked(tmp_path):
   config = generated_config(tmp_path, 'object')
   pack_scene.pack(config, str(tmp_path / 'scene.npz'))

@@ -266,6 +266,22 @@ def test_lego_rays_pass_through_projected_point(lego):
     assert off.max() < 1e-5
 
 
+def test_blender_nerf_config_rays_run_through_integer_pixel_coordinates():
+  """The released Blender code's direction of pixel (column i, row j): R ((i - W/2)/f, -(j - H/2)/f, -1)."""
+  from internal import config_loader  # Only this test reads a config file.
+  path = pathlib.Path(__file__).resolve().parents[1] / 'configs' / 'nerf' / 'blender8_nerf.gin'
+  config = config_loader.load_config([str(path)], [f"Config.data_dir = '{DATA / 'blender'}'", 'Config.factor = 8'])
+  for split in ('train', 'test'):
+    data = load_dataset(split, config)
+    meta = json.loads((DATA / f'blender/lego/transforms_{split}.json').read_text())
+    f = 50. / np.tan(.5 * meta['camera_angle_x'])  # 100 x 100 images.
+    j, i = np.meshgrid(np.arange(100.), np.arange(100.), indexing='ij')
+    cam = np.stack([(i - 50.) / f, -(j - 50.) / f, -np.ones_like(i)], -1)
+    for k in (0, len(data.ids) - 1):
+      rotation = np.array(meta['frames'][data.ids[k]]['transform_matrix'])[:3, :3]
+      np.testing.assert_allclose(data.rays.directions[k], cam @ rotation.T, atol=1e-6)
+
+
 def test_lego_first_n_split():
   data = load_dataset('train', blender_config(blender_split='first_n', n_input_views=2))
   assert data.ids == [0, 1] and data.images.shape == (2, 400, 400, 3)

@@ -2,6 +2,7 @@
 
 import csv
 import dataclasses
+import pathlib
 
 import gin
 import numpy as np
@@ -92,10 +93,29 @@ def test_a_damaged_csv_is_named(tmp_path):
     ('Config.curve_test_ids = (0, 0)', r'Config.curve_test_ids = \(0, 0\); expected .* distinct'),
     ('Config.curve_test_ids = [-1]', r'Config.curve_test_ids = \[-1\]; expected'),
     ("Config.curve_test_ids = 'a'", "Config.curve_test_ids = 'a'; expected"),
+    ('Config.curve_spread_views = -1', 'Config.curve_spread_views = -1; expected >= 0'),
 ])
 def test_bad_settings_are_named(binding, message):
   with pytest.raises(ValueError, match=message):
     config_loader.load_config([], [binding])
+
+
+@pytest.mark.parametrize('num_views, expected', [
+    (13, [2, 6, 10]),   # Thirds [0, 4.33), [4.33, 8.67), [8.67, 13): middles 2.17, 6.5, 10.83.
+    (25, [4, 12, 20]),  # Thirds of 25: middles 4.17, 12.5, 20.83.
+    (3, [0, 1, 2])])
+def test_spread_views_are_the_middle_of_equal_parts_of_the_test_split(num_views, expected):
+  config = config_loader.load_config([], ['Config.curve_spread_views = 3', 'Config.curve_test_ids = (0, 1)'])
+  assert learning_curve.curve_positions(config, num_views) == expected
+  with pytest.raises(ValueError, match='Config.curve_spread_views = 3: the test split has only 2 views'):
+    learning_curve.curve_positions(config, 2)
+
+
+@pytest.mark.parametrize('name', ['freenerf/dtu3_freenerf.gin', 'mipnerf/dtu3_mipnerf.gin',
+                                  'mini/dtu3_regnerf.gin'])
+def test_dtu_configs_spread_their_curve_views(name):
+  path = str(pathlib.Path(__file__).resolve().parents[1] / 'configs' / name)
+  assert config_loader.load_config([path], ["Config.data_dir = 'elsewhere'"]).curve_spread_views == 3
 
 
 def test_packed_scenes_need_the_packed_factor():

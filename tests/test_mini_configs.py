@@ -60,3 +60,6 @@ def test_mini_blender_config_is_the_paper_config_at_the_cpu_scale(method):
   assert config.lr_final == pytest.approx(5e-4 * 0.1**(config.max_steps / 500_000), rel=1e-6)  # 0.1^(t/500k).
   assert config.precrop_steps == round(500 * config.max_steps / 50_000)                         # 1% of the steps.
   assert config.freq_reg == (method == 'freenerf')
+  # Alone after either paper config: T = 0.5 x steps and occlusion on 7 of the 64 fine samples (20 of 192).
+  assert config.freq_reg_end == config.max_steps // 2 and config.occ_reg_range == round(20 * 64 / 192)
+  assert mlp.weight_init == 'xavier' and config.pixel_offset == 0.  # The released Blender code's, kept.

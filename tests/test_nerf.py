@@ -70,6 +70,73 @@ def test_paper_mask_on_the_interleaved_layout_opens_sin_and_cos_of_a_band_togeth
   np.testing.assert_array_equal(mip_point, freq_schedule.paper_mask(16, 25, 110))
 
 
+def _blender_code_mask(length, t, end):
+  """The released Blender code's mask, in float64: ptr = length/3 t/T + 1; 3 int(ptr) ones, 3 at ptr - int(ptr)."""
+  if t >= end:
+    return np.ones(length)
+  ptr = length / 3 * t / end + 1
+  alpha = np.zeros(length)
+  alpha[:3 * int(ptr)] = 1.
+  alpha[3 * int(ptr):3 * int(ptr) + 3] = ptr - int(ptr)
+  return np.clip(alpha, 1e-8, 1. - 1e-8)
+
+
+def test_blender_freenerf_config_masks_every_step_as_the_released_blender_code():
+  config = config_loader.load_config([str(ROOT / 'configs' / 'freenerf' / 'blender8_freenerf.gin')])
+  end = config.freq_reg_end
+  model = nerf.NerfModel()
+  for t in (0, 1, 1190, 1191, 5000, 12345, 12500, 23809, 23810, end - 1, end, end + 1, config.max_steps):
+    point, view = freq_schedule.model_masks(config, model, t)
+    np.testing.assert_allclose(point, _blender_code_mask(63, t, end), atol=1e-6, err_msg=f'step {t}')
+    np.testing.assert_allclose(view, _blender_code_mask(27, t, end), atol=1e-6, err_msg=f'step {t}')
+  # Interleaved order: at t/T = 1/4 (ptr 6.25) sin of degree 2 (features 15..17) is open, its cos (18..20) at 1/4.
+  point, _ = freq_schedule.model_masks(config, model, end // 4)
+  np.testing.assert_array_equal(point[:18], 1.)
+  np.testing.assert_allclose(point[18:21], .25, atol=1e-6)
+
+
+# ---------------------------------------------------------------- initialization
+
+def _xavier_bound(fan_in, fan_out, relu):
+  return (2. if relu else 1.)**.5 * (6. / (fan_in + fan_out))**.5
+
+
+def test_xavier_init_matches_the_released_blender_layers_statistics():
+  gin.parse_config(['NerfMLP.weight_init = "xavier"'])
+  mlp = nerf.NerfMLP()
+  params = mlp.init(random.PRNGKey(3), None, np.zeros((2, 4, 3), np.float32), np.zeros((2, 3), np.float32),
+                    None, None)['params']
+  trunk = [f'Dense_{i}' for i in range(8)]
+  relu_layers = set(trunk) | {'Dense_10'}  # The trunk and the view layer; density 8, feature 9, rgb 11 are linear.
+  shapes = {'Dense_0': (63, 256), 'Dense_5': (319, 256), 'Dense_8': (256, 1), 'Dense_9': (256, 256),
+            'Dense_10': (283, 128), 'Dense_11': (128, 3)}
+  for name, layer in params.items():
+    kernel, bias = np.asarray(layer['kernel']), np.asarray(layer['bias'])
+    if name in shapes:
+      assert kernel.shape == shapes[name]
+    bound = _xavier_bound(*kernel.shape, name in relu_layers)
+    np.testing.assert_array_equal(bias, 0.)
+    assert np.abs(kernel).max() <= bound
+    if kernel.size >= 10000:  # Uniform on [-b, b]: std b / sqrt(3), within 3% on >= 10^4 draws.
+      assert abs(kernel.std() / (bound / 3**.5) - 1.) < .03, name
+
+
+def test_default_init_stays_pytorch_linear_and_blender_configs_bind_xavier():
+  params = nerf.NerfMLP().init(random.PRNGKey(3), None, np.zeros((2, 4, 3), np.float32),
+                               np.zeros((2, 3), np.float32), None, None)['params']
+  bias = np.asarray(params['Dense_1']['bias'])
+  assert np.abs(bias).max() <= 1. / 16. and np.abs(bias).min() > 0.  # uniform(+-1/sqrt(256)), not zero.
+  for name in ('nerf/blender8_nerf.gin', 'freenerf/blender8_freenerf.gin'):
+    gin.clear_config()
+    config_loader.load_config([str(ROOT / 'configs' / name)])
+    assert nerf.NerfMLP().weight_init == 'xavier'
+
+
+def test_unknown_weight_init_is_an_error_naming_the_setting():
+  with pytest.raises(ValueError, match="NerfMLP.weight_init = 'he'; expected one of"):
+    config_loader.load_config([], ["Config.model = 'nerf'", "NerfMLP.weight_init = 'he'"])
+
+
 # ---------------------------------------------------------------- samples, occlusion loss
 
 def test_fine_pass_is_the_sorted_union_of_64_coarse_and_128_importance_samples():

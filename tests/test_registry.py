@@ -146,8 +146,9 @@ def test_records_take_the_loader_files_functions_and_settings():
       'dtu': ('dtu_scan', 'dtu_light_cond', 'dtu_max_images', 'dtu_split_type', 'dtuhold', 'near', 'far',
               'near_origin'),
       'llff': ('llff_scan', 'llffhold'),
-      'blender': ('blender_scene', 'blender_split', 'near', 'far', 'white_background'),
-      'generated': ('generated_rig', 'generated_seed', 'generated_size', 'near', 'far', 'white_background', 'llffhold'),
+      'blender': ('blender_scene', 'blender_split', 'near', 'far', 'white_background', 'pixel_offset'),
+      'generated': ('generated_rig', 'generated_seed', 'generated_size', 'near', 'far', 'white_background', 'llffhold',
+                    'pixel_offset'),
       'colmap': ('capture_scene', 'capture_images', 'capture_model', 'capture_rig', 'llffhold', 'train_view_ids',
                  'test_view_ids'),
       'packed': ()}

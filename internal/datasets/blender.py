@@ -14,7 +14,7 @@ SETTING_CHOICES = (('blender_split', SPLIT_MODES),)
 TEST_STRIDE = 8  # DietNeRF/FreeNeRF evaluate on test frames [::8] (25 views).
 PROTOCOL_SCENES = ('chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship')  # NeRF-synthetic's 8.
 # Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
-SHAPING_SETTINGS = ('blender_scene', 'blender_split', 'near', 'far', 'white_background')
+SHAPING_SETTINGS = ('blender_scene', 'blender_split', 'near', 'far', 'white_background', 'pixel_offset')
 
 
 def read_transforms(scene_dir: str, split: str) -> dict:
@@ -61,6 +61,12 @@ def composite(rgba: np.ndarray, white_background: bool) -> np.ndarray:
   return rgba[..., :3]
 
 
+def frame_rays(config, camtoworld, pixtocam, height: int, width: int):
+  """Rays [H,W,...] of one OpenGL camera through pixels + Config.pixel_offset, near/far from Config."""
+  return raygen.pinhole_rays(camtoworld, pixtocam, height, width, config.near, config.far, True,
+                             config.pixel_offset)
+
+
 def load_blender(split: str, config, scene_dir: str, name: str, mode: str, test_stride: int) -> base.Dataset:
   """Loads one split of a Blender-layout scene (OpenGL cameras, near/far from Config)."""
   meta = read_transforms(scene_dir, split)
@@ -79,8 +85,7 @@ def load_blender(split: str, config, scene_dir: str, name: str, mode: str, test_
   focal = .5 * width / np.tan(.5 * float(meta['camera_angle_x']))
   pixtocam = cameras.focal_pixtocam(focal, height, width)
   c2w = np.array([meta['frames'][i]['transform_matrix'] for i in ids], np.float64)[:, :3, :4]
-  rays = raygen.stack_rays((raygen.pinhole_rays(p, pixtocam, height, width, config.near, config.far, True)
-                            for p in c2w), len(c2w))
+  rays = raygen.stack_rays((frame_rays(config, p, pixtocam, height, width) for p in c2w), len(c2w))
   return base.Dataset(images=images.astype(np.float32), camtoworlds=c2w.astype(np.float32),
                       pixtocams=np.repeat(pixtocam[None], len(ids), 0).astype(np.float32), ids=list(ids),
                       height=height, width=width, near=config.near, far=config.far, masks=None, rays=rays,
@@ -120,8 +125,7 @@ def render_path_rays(config, scene_dir: str):
   """Rays [F,H,W,...] of an orbit at the test cameras' mean radius and height, facing the origin."""
   poses, pixtocam, height, width = render_cameras(scene_dir, base.render_factor(config))
   path = cameras.orbit_path(poses, config.render_path_frames)
-  return raygen.stack_rays((raygen.pinhole_rays(p, pixtocam, height, width, config.near, config.far, True)
-                            for p in path), len(path))
+  return raygen.stack_rays((frame_rays(config, p, pixtocam, height, width) for p in path), len(path))
 
 
 def camera_record(config, datasets: dict, scene_dir: str) -> dict:

@@ -57,7 +57,9 @@ def make_rays(kind: str, c2w, pixtocam, height: int, width: int, params: dict):
     return raygen.dtu_rays(c2w, pixtocam, height, width, params['near'], params['far'], params['near_origin'])
   if kind == 'llff':
     return raygen.llff_rays(c2w, pixtocam, height, width, params['focal'])
-  return raygen.pinhole_rays(c2w, pixtocam, height, width, params['near'], params['far'], True)
+  # Packs written before Config.pixel_offset existed hold pixel-centre rays.
+  return raygen.pinhole_rays(c2w, pixtocam, height, width, params['near'], params['far'], True,
+                             params.get('pixel_offset', .5))
 
 
 def path_poses(kind: str, source, bounds, n_frames: int) -> np.ndarray:
@@ -89,7 +91,7 @@ def pack_arrays(config, datasets: dict, source_settings, record: dict) -> dict:
           'settings': settings(config, source_settings),
           'ray_kind': record['ray_kind'], 'path_kind': record['path_kind'],
           'ray_params': {'near': float(config.near), 'far': float(config.far),
-                         'near_origin': float(config.near_origin)},
+                         'near_origin': float(config.near_origin), 'pixel_offset': float(config.pixel_offset)},
           'render': {**record['render'], 'factor': base.render_factor(config)}, 'splits': splits}
   arrays['meta'] = np.array(json.dumps(meta))
   return arrays

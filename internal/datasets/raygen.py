@@ -1,4 +1,4 @@
-"""Pinhole ray generation (pixel centres), DTU origin shift and LLFF NDC conversion, as numpy Rays."""
+"""Pinhole ray generation (through pixel centres or integer pixels), DTU origin shift, LLFF NDC, as numpy Rays."""
 
 import numpy as np
 
@@ -74,9 +74,11 @@ def pack_rays(origins, directions, viewdirs, radii, near: float, far: float) -> 
               radii.astype(np.float32), ones, ones * np.float32(near), ones * np.float32(far))
 
 
-def pinhole_rays(camtoworld, pixtocam, height, width, near, far, opengl) -> Rays:
-  """Rays [H,W,...] of one pinhole camera: origins at its centre, unit viewdirs, row-neighbour radii."""
-  return camera_rays(camtoworld, camera_directions(pixtocam, height, width, opengl), near, far)
+def pinhole_rays(camtoworld, pixtocam, height, width, near, far, opengl, pixel_offset: float = .5) -> Rays:
+  """Rays [H,W,...] of one pinhole camera through pixels (i, j) + pixel_offset: origins at its centre, unit
+  viewdirs, row-neighbour radii."""
+  offset = (pixel_offset, pixel_offset)
+  return camera_rays(camtoworld, camera_directions(pixtocam, height, width, opengl, offset), near, far)
 
 
 def camera_rays(camtoworld, cam_dirs: np.ndarray, near: float, far: float) -> Rays:

@@ -40,7 +40,7 @@ class Views(NamedTuple):
 
 
 def load_views(config, test_set: datasets.Dataset) -> Optional[Views]:
-  """The test views at positions Config.curve_test_ids, at Config.factor * Config.curve_factor; None when off.
+  """The test views at curve_positions, at Config.factor * Config.curve_factor; None when off.
 
   test_set is the test split loaded at Config.eval_factor, reused when the factors agree.
   """
@@ -48,10 +48,21 @@ def load_views(config, test_set: datasets.Dataset) -> Optional[Views]:
     return None
   if config.curve_factor != config.eval_factor:
     test_set = datasets.load_dataset('test', dataclasses.replace(config, eval_factor=config.curve_factor))
-  positions = evaluate.checked_positions(config.curve_test_ids, len(test_set.ids), 'curve_test_ids')
+  positions = curve_positions(config, len(test_set.ids))
   masks = None if test_set.masks is None else test_set.masks[positions]
   return Views(test_set.images[positions], masks, rays_lib.map_rays(lambda x: x[positions], test_set.rays),
                [int(test_set.ids[p]) for p in positions])
+
+
+def curve_positions(config, num_views: int) -> list:
+  """Test-split positions of the curve's views: Config.curve_spread_views evenly spread over num_views, the
+  middle view of each equal part, floor((i + 1/2) * num_views / k); else Config.curve_test_ids (checked)."""
+  k = config.curve_spread_views
+  if not k:
+    return evaluate.checked_positions(config.curve_test_ids, num_views, 'curve_test_ids')
+  if k > num_views:
+    raise ValueError(f'Config.curve_spread_views = {k}: the test split has only {num_views} views')
+  return [(2 * i + 1) * num_views // (2 * k) for i in range(k)]
 
 
 def curve_row(step: int, seconds: float, images, renders, masks=None) -> dict:

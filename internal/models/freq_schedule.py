@@ -8,9 +8,10 @@ Four settings decide it, all `Config` fields:
 - `max_vis_freq_ratio` (float in [0, 1]): the fixed visible-ratio ablation (paper Fig. 2): the first
   int(L * ratio) features stay visible for the whole run, the rest hidden; acts only under `freq_reg` (as
   released) and then replaces the ramp. 0 = off.
-- `freq_mask_layout`: 'released' opens 3 features at a time left to right over the model's feature order (on
-  mip-NeRF's block order every sin band opens before any cos band; on NeRF's interleaved order this is exactly
-  the Blender code's rule); 'paper' opens the identity, then sin and cos of one degree together (paper eq. 3).
+- `freq_mask_layout`: 'released' opens 3 features at a time left to right over the model's feature order (paper
+  eq. 3's "3 bits at a time"; on mip-NeRF's block order every sin band opens before any cos band; on NeRF's
+  interleaved order this is exactly the Blender code's rule, a band's sin one group before its cos); 'paper'
+  opens the identity, then sin and cos of one degree together (a band at a time, our variant).
 The released name `warmup_end` is read as `freq_reg_end` (internal/config_loader.py).
 """
 

@@ -19,8 +19,12 @@ from internal.models import sampling
 from internal.models import volume_render
 
 
-def linear_init(in_dim: int, out_dim: int):
-  """PyTorch nn.Linear's default initializer: kernel [in, out] and bias [out] uniform in +-1/sqrt(in)."""
+WEIGHT_INITS = ('torch_linear', 'xavier')  # NerfMLP.weight_init: torch_linear_init or xavier_init.
+
+
+def torch_linear_init(in_dim: int, out_dim: int, gain: float):
+  """PyTorch nn.Linear's default: kernel [in, out] and bias [out] uniform in +-1/sqrt(in) (gain unused)."""
+  del gain
   bound = 1. / in_dim**0.5
 
   def init(key):
@@ -28,6 +32,24 @@ def linear_init(in_dim: int, out_dim: int):
     return {'kernel': random.uniform(kernel_key, (in_dim, out_dim), minval=-bound, maxval=bound),
             'bias': random.uniform(bias_key, (out_dim,), minval=-bound, maxval=bound)}
   return init
+
+
+def xavier_init(in_dim: int, out_dim: int, gain: float):
+  """The released Blender code's layers: kernel [in, out] Xavier-uniform, +-gain*sqrt(6/(in+out)); bias [out] 0."""
+  bound = gain * (6. / (in_dim + out_dim))**0.5
+
+  def init(key):
+    return {'kernel': random.uniform(key, (in_dim, out_dim), minval=-bound, maxval=bound),
+            'bias': jnp.zeros((out_dim,), jnp.float32)}
+  return init
+
+
+def layer_init(weight_init: str, in_dim: int, out_dim: int, relu: bool):
+  """The initializer of one dense layer: NerfMLP.weight_init's rule, gain sqrt(2) before a ReLU, else 1."""
+  inits = {'torch_linear': torch_linear_init, 'xavier': xavier_init}
+  if weight_init not in inits:
+    raise ValueError(f'NerfMLP.weight_init = {weight_init!r}; expected one of {list(WEIGHT_INITS)}')
+  return inits[weight_init](in_dim, out_dim, 2.**0.5 if relu else 1.)
 
 
 @gin.configurable(denylist=['precision'])
@@ -42,10 +64,15 @@ class NerfMLP(nn.Module):
   use_viewdirs: bool = True
   density_noise: float = 0.  # Std of N(0, 1) noise per sample on the raw density, in training (0 = none).
   point_identity: bool = True  # The raw points first in their encoding, as released; False drops them (xyz ablation).
+  # 'torch_linear': PyTorch nn.Linear's default; 'xavier': Xavier-uniform kernels (gain sqrt(2) before a ReLU, 1
+  # for the density, feature and rgb heads) and zero biases, as the released Blender code's layers.
+  weight_init: str = 'torch_linear'
   precision: str = 'float32'  # One of precision.PRECISIONS, set from Config.precision (not a gin binding).
 
   def setup(self):
-    self.layers = {name: self.param(name, linear_init(i, o)) for name, i, o in self.layer_shapes()}
+    relu = self.relu_layers()
+    self.layers = {name: self.param(name, layer_init(self.weight_init, i, o, name in relu))
+                   for name, i, o in self.layer_shapes()}
     self.dtype, self.matmul_precision = precision_lib.settings(self.precision)
 
   def encoding_degrees(self):
@@ -69,6 +96,11 @@ class NerfMLP(nn.Module):
     else:
       heads = [(width, 1), (width, 3)]
     return shapes + [(f'Dense_{self.net_depth + k}', i, o) for k, (i, o) in enumerate(heads)]
+
+  def relu_layers(self):
+    """Names of the layers a ReLU follows: the trunk and, with view directions, the view layer."""
+    trunk = {f'Dense_{i}' for i in range(self.net_depth)}
+    return trunk | ({f'Dense_{self.net_depth + 2}'} if self.use_viewdirs else set())
 
   def _dense(self, index: int, *parts):
     """Dense layer Dense_index of parts [..., d_i] at this MLP's matmul precision."""

@@ -54,7 +54,7 @@ NOT_FINGERPRINTED = (
     'print_every', 'train_render_every', 'render_chunk_size', 'data_dir', 'dtu_mask_path', 'allow_missing_test_views',
     'render_factor', 'render_path_frames', 'eval_test_ids', 'eval_factor', 'lpips_weights_path',
     'lpips_input_range', 'compute_lpips', 'max_skipped_steps', 'depth_reference_dir', 'curve_every',
-    'curve_test_ids', 'curve_factor', 'stuck_warning_steps', 'test_view_ids')
+    'curve_test_ids', 'curve_spread_views', 'curve_factor', 'stuck_warning_steps', 'test_view_ids')
 # flax bookkeeping fields of the model and its MLP, and precision (set from Config.precision, fingerprinted there).
 MODULE_NOT_FINGERPRINTED = ('parent', 'name', 'precision')
 # white_background is set from Config.white_background; the MLPs a model holds are fingerprinted as <MLP class>.*.
