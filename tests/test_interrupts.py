@@ -36,8 +36,11 @@ def _interrupt(script: str, run, scene_dir, started) -> tuple:
   env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=JAX_CACHE, JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS='0',
              PYTHONUNBUFFERED='1')
   env.pop(cli.DEBUG_ENV, None)
+  # SIGINT back to its default in the child: a shell running the suite in the background (nohup ... &) ignores it,
+  # and Python started with SIGINT ignored never raises KeyboardInterrupt.
   proc = subprocess.Popen([sys.executable, script, '--gin_configs', DEMO, '--gin_bindings', *flags], cwd=ROOT,
-                          env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                          env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
   chunks, out = [], []
   threading.Thread(target=_read_stderr, args=(proc, chunks), daemon=True).start()
   threading.Thread(target=lambda: out.extend(line.decode() for line in proc.stdout), daemon=True).start()
