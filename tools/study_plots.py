@@ -107,7 +107,7 @@ def comparison_plot(study: study_spec.Study, comparisons, metric: str, path: str
   if any(c.verdict.startswith(study_stats.UNDECIDED) for c in comparisons):
     ax.plot([], [], color='red', label=f'{study_stats.UNDECIDED}: no difference shown')
   vis.save_figure(fig, ax, f'paired difference of {metric}, mean and {study_stats.LEVEL:.0%} interval', '',
-                  f'{study.name}: {metric}, paired over seeds and scenes', path)
+                  f'{study.name}: {metric}, paired', path)
   return True
 
 
