@@ -2,7 +2,6 @@
 finishes the work."""
 
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -72,10 +71,30 @@ def test_ctrl_c_during_eval_stops_in_one_line_and_the_rerun_evaluates(finished_r
 
 
 def test_ctrl_c_during_render_stops_in_one_line_and_is_not_taken_for_a_render(finished_run, scene_dir):
+  renders = finished_run / 'path_renders_step_2'
+  # Started once a frame is on disk (in a pipe the progress line comes every 5 s: a fast machine may be done by then).
   status, errout = _interrupt('render.py', finished_run, scene_dir,
-                              lambda text: re.search(rf'\b[1-9]\d*/{FRAMES}\b', text))
+                              lambda _: (renders / 'color_000.png').exists())
   _assert_one_interrupted_line(status, errout)
   config = tiny_config(scene_dir, finished_run, *BINDINGS)
-  assert os.listdir(finished_run / 'path_renders_step_2') and not render_path.existing_renders(config)
+  assert os.listdir(renders) and not render_path.existing_renders(config)
   render_path.render(config)  # Renders again what was interrupted, without Config.overwrite.
+  assert render_path.existing_renders(config)
+
+
+def test_a_render_stopped_while_writing_its_videos_is_not_complete(finished_run, scene_dir, tmp_path, monkeypatch):
+  config = tiny_config(scene_dir, finished_run, *BINDINGS, 'Config.render_path_frames = 2',
+                       f"Config.output_dir = '{tmp_path}'")
+
+  def stopped(frames, path):
+    raise KeyboardInterrupt
+
+  monkeypatch.setattr(render_path, 'can_write_video', lambda: True)
+  monkeypatch.setattr(render_path, 'write_video', stopped)
+  with pytest.raises(KeyboardInterrupt):
+    render_path.render(config)
+  assert (tmp_path / 'path_renders_step_2' / 'color_001.png').exists()  # Every frame, yet no complete render.
+  assert not render_path.existing_renders(config)
+  monkeypatch.setattr(render_path, 'write_video', lambda frames, path: open(path, 'wb').close())
+  render_path.render(config)
   assert render_path.existing_renders(config)

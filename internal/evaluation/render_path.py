@@ -1,6 +1,7 @@
 """Rendering of a scene's camera path with a run's newest checkpoint to frames and videos."""
 
 import importlib.util
+import json
 import os
 import warnings
 
@@ -14,10 +15,13 @@ from internal.datasets import loader
 from internal.evaluation import inference
 from internal.training import run_dir as run_dir_lib
 from internal.evaluation import vis
+from internal import atomic
 from internal import progress
 
 VIDEO_FPS = 30
 VIDEO_HINT = 'frames only; for mp4 videos: pip install imageio imageio-ffmpeg'
+# Written last, after every frame and video: its presence is what makes a render complete.
+DONE_FILE = 'render.json'
 
 
 def output_dir(root: str, step: int) -> str:
@@ -25,16 +29,16 @@ def output_dir(root: str, step: int) -> str:
   return os.path.join(root, f'path_renders_step_{step}')
 
 
-def last_frame(out_dir: str, config) -> str:
-  """The colour frame render writes last (of Config.render_path_frames): present once a render is complete."""
-  return os.path.join(out_dir, f'color_{config.render_path_frames - 1:03d}.png')
+def is_complete(out_dir: str) -> bool:
+  """True when out_dir holds a finished render (frames and videos); an interrupted one lacks DONE_FILE."""
+  return os.path.isfile(os.path.join(out_dir, DONE_FILE))
 
 
 def existing_renders(config) -> bool:
   """True when the run's newest step has complete path renders (an interrupted render is not)."""
   run_dir = run_dir_lib.check_run_dir(config)
   out_dir = output_dir(run_dir_lib.outputs_root(config), checkpoints.latest_step(run_dir))
-  return os.path.isfile(last_frame(out_dir, config))
+  return is_complete(out_dir)
 
 
 def can_write_video() -> bool:
@@ -63,7 +67,7 @@ def render(config) -> str:
   model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], path_rays))
   step = int(state.step)  # The newest intact checkpoint's.
   out_dir = output_dir(run_dir_lib.outputs_root(config), step)
-  if os.path.isfile(last_frame(out_dir, config)) and not config.overwrite:
+  if is_complete(out_dir) and not config.overwrite:
     raise FileExistsError(f'{out_dir!r} holds renders of step {step} already; set Config.overwrite = True to '
                           'replace them')
   run_dir_lib.make_output_folder(config, out_dir)
@@ -79,10 +83,14 @@ def render(config) -> str:
       vis.save_png(image, os.path.join(out_dir, f'{name}_{f:03d}.png'))
       frames[name].append(vis.to_uint8(image))
   print(f'{num_frames} frames of step {step} in {out_dir!r}')
+  videos = []
   if can_write_video():
     scene = loader.filed_as(config)[1]
     for name, images in frames.items():
-      write_video(np.stack(images), os.path.join(out_dir, f'{scene}_{config.expname}_{name}.mp4'))
+      videos.append(f'{scene}_{config.expname}_{name}.mp4')
+      write_video(np.stack(images), os.path.join(out_dir, videos[-1]))
   else:
     print(VIDEO_HINT)
+  atomic.write_text(os.path.join(out_dir, DONE_FILE),
+                    json.dumps({'step': step, 'frames': num_frames, 'videos': videos}, indent=1) + '\n')
   return out_dir

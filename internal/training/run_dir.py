@@ -37,7 +37,8 @@ LEGACY_KEYS = {'Config.batch_size', 'Config.max_steps', 'Config.lr_init', 'Confi
 _ATOMIC_TMP = '.{}.*.tmp'  # The temporary file of atomic.write_text(<name>) left by a crash.
 _OUTPUTS = {pattern: None for pattern in (
     'color_[0-9]*.png', 'depth_[0-9]*.png', 'depth_[0-9]*.npz', 'opacity_[0-9]*.png', 'metrics.json',
-    'metrics.csv', '*_color.mp4', '*_depth.mp4', '*_opacity.mp4', _ATOMIC_TMP.format('metrics.*'))}
+    'metrics.csv', '*_color.mp4', '*_depth.mp4', '*_opacity.mp4', 'render.json', _ATOMIC_TMP.format('metrics.*'),
+    _ATOMIC_TMP.format('render.json'))}
 # What this project writes into a run directory, by name pattern: None deletes the entry whole, a dict only the
 # entries of that folder it names (the folder goes when left empty). Config.overwrite deletes these alone, in this
 # order (the settings last, so that an interrupted overwrite still refuses other settings).
