@@ -47,7 +47,7 @@ def matmul_runner(shapes, reduce, runs: int = 8, dtype=jnp.float32, precision=No
 
 
 def step_runner(config, model, batch):
-  """(zero-arg callable returning one step's seconds, [state, stats], XLA {'flops', 'bytes'} of the step)."""
+  """(zero-arg callable returning one step's seconds, [state, stats], flops.compiled_cost of the step)."""
   _, state = ts.create_train_state(config, random.PRNGKey(0), batch['rays'])
   step = ts.make_train_step(config, model)
   key = random.PRNGKey(1)

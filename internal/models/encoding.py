@@ -1,43 +1,59 @@
 """Positional encodings: mip-NeRF's released order [identity | sin block | cos block] and NeRF's interleaved one."""
 
+import jax
 import numpy as np
 import jax.numpy as jnp
+
+from internal.models import trig
 
 
 def safe_sin(x):
   """sin(x) [...] with x taken mod 100*pi when |x| >= 100*pi (float32 precision guard)."""
   period = 100. * jnp.pi
-  return jnp.sin(jnp.where(jnp.abs(x) < period, x, jnp.remainder(x, period)))
+  return trig.sin(jnp.where(jnp.abs(x) < period, x, trig.remainder(x, period)))
 
 
-def _scale(x, min_deg, max_deg, power):
-  """x [...,C] -> [..., (max_deg-min_deg)*C] scaled by (2^power)^deg, degree-major, coord-minor."""
-  scales = (2.**power)**jnp.arange(min_deg, max_deg, dtype=jnp.float32)
-  xb = x[..., None, :] * scales[:, None]
-  return xb.reshape(x.shape[:-1] + (-1,))
+def _lift(x, min_deg, max_deg, power, append_identity, interleaved=False):
+  """x [..., C] -> [..., L] in feature_layout's order: x_c * (2^power)^deg, identity columns x_c (0 if power != 1).
+
+  A matmul with one power of two per column, so exact; unlike broadcasting and concatenating, it leaves the
+  encodings' transcendental functions one element-wise loop over contiguous columns, which XLA vectorizes.
+  """
+  kind, degree, coord = feature_layout(max_deg - min_deg, x.shape[-1], append_identity, interleaved)
+  scale = np.where(kind == 0, float(power == 1), (2.**power)**(degree + min_deg))
+  matrix = np.zeros((x.shape[-1], len(kind)), np.float32)
+  matrix[coord, np.arange(len(kind))] = scale
+  return jnp.matmul(x, matrix, precision=jax.lax.Precision.HIGHEST), kind
+
+
+def _released_blocks(x, kind, features):
+  """features [..., L] in the block order, with the identity columns of kind [L] taken from x [..., L]."""
+  return jnp.where(kind == 0, x, features)
+
+
+def _cos_shift(kind):
+  """pi/2 for the cos columns of kind [L], else 0: the released encodings take cos(y) as sin(y + pi/2)."""
+  return np.where(kind == 2, np.float32(0.5 * np.pi), np.float32(0.))
 
 
 def pos_enc(x, min_deg, max_deg, append_identity=True):
   """x [...,C] -> [..., C*(append_identity + 2*(max_deg-min_deg))]: [x | sin | cos]."""
-  xb = _scale(x, min_deg, max_deg, 1)
-  four_feat = jnp.sin(jnp.concatenate([xb, xb + 0.5 * jnp.pi], axis=-1))
-  return jnp.concatenate([x, four_feat], axis=-1) if append_identity else four_feat
+  y, kind = _lift(x, min_deg, max_deg, 1, append_identity)
+  return _released_blocks(y, kind, trig.sin(y + _cos_shift(kind)))
 
 
 def integrated_pos_enc(mean, cov_diag, min_deg, max_deg, append_identity=True):
   """Expected pos_enc under N(mean [...,C], diag(cov_diag [...,C])); same length and order."""
-  y = _scale(mean, min_deg, max_deg, 1)
-  y_var = _scale(cov_diag, min_deg, max_deg, 2)
-  damp = jnp.exp(-0.5 * jnp.concatenate([y_var, y_var], axis=-1))
-  enc = damp * safe_sin(jnp.concatenate([y, y + 0.5 * jnp.pi], axis=-1))
-  return jnp.concatenate([mean, enc], axis=-1) if append_identity else enc
+  y, kind = _lift(mean, min_deg, max_deg, 1, append_identity)
+  y_var, _ = _lift(cov_diag, min_deg, max_deg, 2, append_identity)
+  return _released_blocks(y, kind, jnp.exp(-0.5 * y_var) * safe_sin(y + _cos_shift(kind)))
 
 
 def interleaved_pos_enc(x, num_degrees, append_identity=True):
   """NeRF's encoding of x [...,C] -> [..., C*(append_identity + 2D)]: [x, sin(2^0 x), cos(2^0 x), sin(2^1 x), ...]."""
-  xb = x[..., None, :] * (2.**jnp.arange(num_degrees, dtype=jnp.float32))[:, None]  # [..., D, C]
-  bands = jnp.stack([jnp.sin(xb), jnp.cos(xb)], axis=-2).reshape(x.shape[:-1] + (-1,))  # [..., D, 2, C] flat
-  return jnp.concatenate([x, bands], axis=-1) if append_identity else bands
+  y, kind = _lift(x, 0, num_degrees, 1, append_identity, interleaved=True)
+  sin, cos = trig.sin_cos(y)
+  return _released_blocks(y, kind, jnp.where(kind == 1, sin, cos))
 
 
 def width(num_degrees, num_coords=3, append_identity=True):
@@ -51,7 +67,8 @@ def feature_layout(num_degrees, num_coords=3, append_identity=True, interleaved=
   interleaved: NeRF's order (interleaved_pos_enc), else the released block order (pos_enc).
   """
   if interleaved:
-    return _interleaved_layout(num_degrees, num_coords)
+    layout = _interleaved_layout(num_degrees, num_coords)
+    return layout if append_identity else tuple(a[num_coords:] for a in layout)
   band_degree = np.repeat(np.arange(num_degrees), num_coords)
   band_coord = np.tile(np.arange(num_coords), num_degrees)
   kinds = [np.full(band_degree.shape, 1), np.full(band_degree.shape, 2)]

@@ -8,9 +8,10 @@ from internal.training import train_step as train_step_lib
 
 
 def compiled_cost(jitted, *args) -> dict:
-  """XLA's {'flops', 'bytes'} of jitted compiled for args (nan where the backend reports none).
+  """XLA's {'flops', 'bytes', 'hlo'} of jitted compiled for args (nan where the backend reports none).
 
-  'bytes' is XLA's estimate of the program's memory: arguments + outputs + temporaries - aliased.
+  'bytes' is XLA's estimate of the program's memory: arguments + outputs + temporaries - aliased; 'hlo' the
+  compiled module's text (operations with their source locations, for profiles).
   """
   compiled = jitted.lower(*args).compile()
   cost = compiled.cost_analysis()
@@ -19,7 +20,8 @@ def compiled_cost(jitted, *args) -> dict:
   return {'flops': float((cost or {}).get('flops', float('nan'))),
           'bytes': float('nan') if memory is None else float(
               memory.argument_size_in_bytes + memory.output_size_in_bytes + memory.temp_size_in_bytes
-              - memory.alias_size_in_bytes)}
+              - memory.alias_size_in_bytes),
+          'hlo': compiled.as_text()}
 
 
 def compiled_flops(jitted, *args) -> float:

@@ -1,0 +1,39 @@
+"""bench.profile_step: operations are charged to the stage of their source, and one scale's figures agree."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bench import profile_step
+from internal.models import encoding
+
+STAGES = set(profile_step.FILE_STAGES.values()) | {
+    'MLP matmuls', 'MLP activations and layout', 'losses', 'clipping and Adam', 'other (step glue)'}
+
+
+def test_operations_of_the_encoding_are_charged_to_the_encoding():
+  fn = jax.jit(lambda m, c: encoding.integrated_pos_enc(m, c, 0, 16))
+  args = (jnp.ones((64, 3)), jnp.full((64, 3), 1e-3))
+  sources = profile_step.operation_sources(fn.lower(*args).compile().as_text())
+  stages = {profile_step.stage_of(source) for source in sources.values()}
+  assert 'encoding' in stages and stages <= STAGES
+  assert {file for file, _, _ in sources.values()} >= {'encoding.py', 'trig.py'}
+
+
+def test_a_scale_reports_consistent_figures(tmp_path):
+  out = tmp_path / 'profile.json'
+  profile_step.main(['--scales', 'demo', '--repeats', '1', '--profile_steps', '1', '--out', str(out)])
+  report = json.loads(out.read_text())['scales']['demo']
+  assert report['achieved_gflops'] == pytest.approx(report['step_gflop'] / report['step_ms'] * 1e3)
+  assert report['of_matmul_bench'] == pytest.approx(report['achieved_gflops'] / report['matmul_bench_gflops'])
+  assert report['mlp_matmul_shape'] == [512 * 64, 64, 64]  # 512 rays x (32 + 32) fine samples, a 4 x 64 MLP.
+  assert set(report['stage_ms']) <= STAGES and report['stage_ms']['MLP matmuls'] > 0
+  assert report['traced_ms'] == pytest.approx(np.sum(list(report['stage_ms'].values())))
+
+
+def test_unknown_scales_are_named():
+  with pytest.raises(SystemExit):
+    profile_step.main(['--scales', 'demo,huge'])
