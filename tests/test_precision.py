@@ -30,20 +30,24 @@ def _render(name, params, rays):
   return model.apply({'params': params}, None, rays)[0][-1]
 
 
-def _dot_precisions(name):
-  """(matmul precision, operand dtype) of every dot_general in the tiny model's forward pass."""
+def _dot_precisions(name, encoding=False):
+  """(matmul precision, operand dtype) of every dot_general of the MLP (or of the encodings, whose matmuls lift
+  the 3 coordinates) in the tiny model's forward pass."""
   gin.parse_config(TINY)
   rays = random_rays(0, 4)
   model, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False, name)
   jaxpr = jax.make_jaxpr(lambda v: model.apply(v, None, rays))(variables)
   return {(str(e.params['precision']), str(e.invars[0].aval.dtype))
-          for e in jaxpr.jaxpr.eqns if e.primitive.name == 'dot_general'}
+          for e in jaxpr.jaxpr.eqns
+          if e.primitive.name == 'dot_general' and (e.invars[1].aval.shape[0] == 3) == encoding}
 
 
 def test_every_matmul_uses_the_chosen_precision_and_dtype():
   assert _dot_precisions('float32') == {('(Precision.HIGHEST, Precision.HIGHEST)', 'float32')}
   assert _dot_precisions('default') == {('None', 'float32')}
   assert _dot_precisions('bfloat16') == {('None', 'bfloat16')}
+  for name in precision.PRECISIONS:  # The encodings stay exact float32 (their matmuls multiply by powers of 2).
+    assert _dot_precisions(name, encoding=True) == {('(Precision.HIGHEST, Precision.HIGHEST)', 'float32')}
 
 
 @pytest.mark.parametrize('name', precision.PRECISIONS)
