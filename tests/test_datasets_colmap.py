@@ -225,3 +225,28 @@ def test_forward_captures_follow_llffs_pipeline(tmp_path):
     for field in ('origins', 'directions', 'radii'):
       np.testing.assert_allclose(getattr(ours.rays, field), getattr(theirs.rays, field), atol=1e-5)
     np.testing.assert_array_equal(ours.images, theirs.images)
+  # RegNeRF's random poses: LLFF's rule (all n draws, as LLFF with the released bugs fixed).
+  capture, llff = (dataclasses.replace(c, n_random_poses=5, regnerf_fix_released_bugs=True) for c in (capture, llff))
+  ours, theirs = (loader.random_pose_cameras(load_dataset('train', c), c, np.random.default_rng(0))
+                  for c in (capture, llff))
+  for a, b in zip(ours, theirs):
+    np.testing.assert_allclose(a, b, atol=1e-5)
+
+
+def test_inward_captures_draw_regnerfs_random_poses_by_dtus_rule(generated_capture):
+  config = _capture_config(generated_capture[1], n_input_views=3, n_random_poses=200,
+                           random_pose_focusptjitter=False)
+  data = load_dataset('train', config)
+  poses, pixtocam, ndc_focal = loader.random_pose_cameras(data, config, np.random.default_rng(0))
+  assert poses.shape == (200, 3, 4) and ndc_focal == 0.
+  np.testing.assert_allclose(pixtocam, data.pixtocams.mean(0), rtol=1e-6)
+  centres = colmap.read_capture(config).camtoworlds[:, :, 3]
+  # In a box of half-sides radius x max |centre| per axis about the mean camera (rotated: bounded by its norm).
+  reach = config.random_pose_radius * np.linalg.norm(np.abs(centres).max(0)) + np.linalg.norm(centres.mean(0))
+  assert np.linalg.norm(poses[:, :, 3], axis=-1).max() <= reach + 1e-6
+  # Without the focus jitter every +z axis passes through the centre (the origin of the capture's frame).
+  np.testing.assert_allclose(colmap.cameras.focus_point(colmap.read_capture(config).camtoworlds), 0., atol=1e-9)
+  to_centre = -poses[:, :, 3]
+  along = np.sum(to_centre * poses[:, :, 2], -1)
+  np.testing.assert_allclose(to_centre, along[:, None] * poses[:, :, 2], atol=1e-9)
+  assert np.all(along > 0)

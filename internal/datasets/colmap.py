@@ -24,7 +24,7 @@ from typing import Dict, List
 
 import numpy as np
 
-from internal.datasets import base, cameras, colmap_model, distortion, image_io, llff, raygen
+from internal.datasets import base, cameras, colmap_model, distortion, image_io, llff, random_poses, raygen
 
 RIGS = ('auto', 'inward', 'forward')
 # (Config field, its allowed values) of this loader's own settings, checked before any work.
@@ -251,6 +251,21 @@ def orbit_path(capture: Capture, n_frames: int) -> np.ndarray:
                           np.linspace(azimuth[-1], azimuth[0], n_frames // 2)])
   positions = np.stack([radius * np.cos(sweep), radius * np.sin(sweep), np.full_like(sweep, height)], -1)
   return np.stack([cameras.viewmatrix(-p, np.array([0., 0., -1.]), p) for p in positions])
+
+
+def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> tuple:
+  """(RegNeRF's random poses [n,3,4], pixtocam [3,3], NDC focal or 0) of the capture: DTU's rule for inward
+  captures (OpenCV cameras in the box of the captured ones, looking at the centre; the training images' mean
+  intrinsics), LLFF's for forward ones (all n poses: no released code keeps only the last for captures)."""
+  capture = read_capture(config)
+  if not capture.forward:
+    poses = random_poses.dtu_random_poses(capture.camtoworlds, config.n_random_poses, rng,
+                                          config.random_pose_radius, config.random_pose_focusptjitter)
+    return poses, dataset.pixtocams.mean(0).astype(np.float64), 0.
+  focal = _ndc_focal(capture, dataset.width)
+  poses = random_poses.llff_random_poses(capture.camtoworlds @ np.diag([1., -1., -1., 1.]), capture.bounds,
+                                         config.n_random_poses, rng, keep_last_only=False)
+  return poses, cameras.focal_pixtocam(focal, dataset.height, dataset.width), focal
 
 
 def scene_render_path(config):
