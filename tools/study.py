@@ -33,8 +33,9 @@ import time
 from typing import Dict, List, Optional
 
 from internal import cli
-from tools import study_export
+from tools import study_budget
 from tools import study_cost
+from tools import study_export
 from tools import study_plots
 from tools import study_spec
 from tools import study_stats
@@ -297,11 +298,12 @@ def write_statistics(study: study_spec.Study, rows: List[dict], out_dir: str) ->
 def write_results(study: study_spec.Study, out: str) -> List[str]:
   """Writes results.csv, the statistics over seeds and the plots (learning curves too, where recorded);
   returns the written paths."""
-  rows = gather(study, out)
+  rows, curve_rows = gather(study, out), gather_curves(study, out)
   out_dir = study_dir(study, out)
   path = _write_csv(os.path.join(out_dir, RESULTS_FILE), rows)
   return ([path] + write_statistics(study, rows, out_dir) + study_plots.write_plots(study, rows, out_dir)
-          + study_plots.write_curve_plots(study, gather_curves(study, out), out_dir))
+          + study_plots.write_curve_plots(study, curve_rows, out_dir)
+          + study_budget.write_budget_results(study, curve_rows, out_dir, study_plots.CURVE_METRICS))
 
 
 def run_study(study: study_spec.Study, out: str, data_root: str = 'data', jobs: int = 1,

@@ -10,7 +10,7 @@ A study file (see studies/*.toml):
   [[axis]]  name = "M"  points = [{label = "M=5", value = 5, bindings = [...], configs = [...]}, ...]
   seeds = 3  (or [0, 1, 2])                 # replicates: the seed axis, last; binds both of a cell's seeds
   [[compare]]  a = "freenerf"  b = "mipnerf"  axis = "method"   # paired a - b over seeds and scenes (95% CI)
-  [plot]  x = ["T"]  metrics = ["psnr"]  pareto = false
+  [plot]  x = ["T"]  metrics = ["psnr"]  pareto = false  budgets = [60, 300]  # budgets: training seconds
   [[paper]]  method = "mipnerf"  metric = "psnr"  x = "ratio"  points = [[0.1, 17.62], [1.0, 9.01]]
 
 Cells are the product methods x scenes x axis points. A cell's gin input, in order: the method's configs, the
@@ -77,6 +77,7 @@ class Plot:
   x: Tuple[str, ...]
   metrics: Tuple[str, ...]
   pareto: bool
+  budgets: Tuple[float, ...] = ()  # Training seconds at which budgets.md picks the best setting (learning curves).
 
 
 @dataclasses.dataclass(frozen=True)
@@ -240,6 +241,15 @@ def _names(r: _Reader, table: dict, key: str) -> dict:
   return entries
 
 
+def _budgets(r, plot_table: dict) -> Tuple[float, ...]:
+  """[plot] budgets: positive training seconds, increasing."""
+  budgets = r.get(plot_table, 'budgets', 'plot', list, [])
+  if not all(isinstance(b, (int, float)) and not isinstance(b, bool) and b > 0 for b in budgets) or (
+      sorted(budgets) != budgets):
+    r.fail('plot.budgets', f'{budgets!r}; expected increasing positive numbers of training seconds')
+  return tuple(float(b) for b in budgets)
+
+
 def _paper(r: _Reader, entries: list, axes) -> Tuple[PaperCurve, ...]:
   curves = []
   for i, table in enumerate(entries):
@@ -330,9 +340,10 @@ def parse(text: str, path: str) -> Study:
   if reserved:
     r.fail('axis', f'names {sorted(reserved)} are reserved (template fields or results.csv columns)')
   plot_table = r.get(data, 'plot', '', dict, {})
-  r.unknown(plot_table, ('x', 'metrics', 'pareto'), 'plot')
+  r.unknown(plot_table, ('x', 'metrics', 'pareto', 'budgets'), 'plot')
   plot = Plot(r.strings(plot_table, 'x', 'plot') or tuple(axis_names[:1]),
-              r.strings(plot_table, 'metrics', 'plot') or ('psnr',), r.get(plot_table, 'pareto', 'plot', bool, False))
+              r.strings(plot_table, 'metrics', 'plot') or ('psnr',), r.get(plot_table, 'pareto', 'plot', bool, False),
+              _budgets(r, plot_table))
   for x in plot.x:
     if x not in axis_names and x not in RECORDED_X:
       r.fail('plot.x', f'{x!r} is neither an axis {axis_names} nor a recorded value {list(RECORDED_X)}')
