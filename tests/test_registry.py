@@ -127,10 +127,11 @@ def test_unknown_loader_and_unpackable_loader_name_the_setting():
 
 def test_random_poses_come_from_the_loaders_that_have_them():
   having = [name for name, record in loader.REGISTRY.items() if record.random_pose_cameras]
-  assert having == ['dtu', 'llff', 'generated']
-  for name in ('blender', 'colmap', 'packed'):
+  assert having == ['dtu', 'llff', 'generated', 'colmap']
+  for name in ('blender', 'packed'):
     with pytest.raises(ValueError, match=r"^Config.depth_tvnorm_loss_mult / depth_tvnorm_decay: random poses exist "
-                                         r"for scenes of Config.dataset_loader in \['dtu', 'llff', 'generated'\] "
+                                         r"for scenes of Config.dataset_loader in \['dtu', 'llff', 'generated', "
+                                         r"'colmap'\] "
                                          rf"only; this Config.dataset_loader = '{name}' scene has none$"):
       loader.random_pose_cameras(None, Config(dataset_loader=name), np.random.default_rng(0))
 
