@@ -24,7 +24,7 @@ from internal import environment
 from internal import progress
 from internal.training import checkpoints
 from internal.training import distributed
-from internal.training import memory
+from internal.training import out_of_memory
 from internal.training import run_dir
 from internal.training import train_step
 
@@ -40,7 +40,7 @@ DEBUG_ENV = 'FREENERF_DEBUG'
 # PrimaryFailed is what the other processes of a several-process training say when process 0 met such an error;
 # OutOfMemoryError is XLA's RESOURCE_EXHAUSTED or the host batch's MemoryError, named by the setting to lower.
 USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, run_dir.RunDirError,
-               checkpoints.NoCheckpointError, distributed.PrimaryFailed, memory.OutOfMemoryError)
+               checkpoints.NoCheckpointError, distributed.PrimaryFailed, out_of_memory.OutOfMemoryError)
 
 
 def one_line(err: BaseException) -> str:

@@ -13,7 +13,7 @@ from internal import configs
 from internal.training import loop
 from internal.training import stuck
 from test_checkpoints import DEMO, TINY, tiny_config
-from test_trust import _cli, _one_error_line
+from test_run_dir_errors import _cli, _one_error_line
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
