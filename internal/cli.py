@@ -22,10 +22,10 @@ import warnings
 from internal import config_loader
 from internal import environment
 from internal import progress
-from internal.training import checkpoints
-from internal.training import distributed
-from internal.training import out_of_memory
-from internal.training import run_dir
+from internal.run import checkpoints
+from internal.run import distributed
+from internal.run import out_of_memory
+from internal.run import run_dir
 from internal.training import train_step
 
 CONFIG_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'configs')

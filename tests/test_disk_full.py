@@ -16,8 +16,8 @@ import train as train_script
 from conftest import JAX_CACHE, random_rays
 from internal import atomic
 from internal import cli
-from internal.training import checkpoints
-from internal.training import loop
+from internal.run import checkpoints
+from internal.pipeline import loop
 from test_checkpoints import DEMO, ROOT, TINY, tiny_config
 from test_run_dir_errors import _cli, _one_error_line
 

@@ -16,7 +16,7 @@ from internal.configs import Config
 from internal.datasets import generated_scene
 from internal.evaluation import mesh
 from internal.evaluation import ply
-from internal.training import loop
+from internal.pipeline import loop
 from test_checkpoints import DEMO, TINY, tiny_config
 from tools import mesh as mesh_tool
 

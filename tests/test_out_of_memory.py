@@ -9,7 +9,7 @@ import train as train_script
 from internal import cli
 from internal import rays as rays_lib
 from internal.evaluation import inference
-from internal.training import out_of_memory
+from internal.run import out_of_memory
 from internal.training import train_step
 from conftest import random_rays
 from test_checkpoints import TINY, tiny_config

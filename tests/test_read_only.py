@@ -10,7 +10,7 @@ import eval as eval_script
 import render as render_script
 import train as train_script
 from internal import cli
-from internal.training import loop
+from internal.pipeline import loop
 from test_checkpoints import TINY, tiny_config
 from test_run_dir_errors import _cli, _one_error_line
 

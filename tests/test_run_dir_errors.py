@@ -11,7 +11,7 @@ import render as render_script
 import train as train_script
 from internal import atomic
 from internal import cli
-from internal.training import run_dir as run_dir_lib
+from internal.run import run_dir as run_dir_lib
 from test_checkpoints import DEMO, TINY, tiny_config
 
 

@@ -11,9 +11,9 @@ import train as train_script
 from internal import cli
 from internal.evaluation import evaluate
 from internal.evaluation import render_path
-from internal.training import checkpoints
-from internal.training import loop
-from internal.training import run_dir as run_dir_lib
+from internal.run import checkpoints
+from internal.pipeline import loop
+from internal.run import run_dir as run_dir_lib
 from test_checkpoints import TINY, tiny_config
 from test_run_dir_errors import _cli, _one_error_line
 

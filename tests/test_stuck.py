@@ -1,7 +1,7 @@
 """The stuck-training warning: the detector on loss histories, and one warning naming Config.lr_init."""
 
-from internal.training import loop
-from internal.training import stuck
+from internal.pipeline import loop
+from internal.run import stuck
 from test_checkpoints import tiny_config
 
 

@@ -28,8 +28,8 @@ from internal.datasets import loader
 from internal.datasets import generated_scene
 from internal.evaluation import mesh
 from internal.evaluation import ply
-from internal.training import checkpoints
-from internal.training import run_dir as run_dir_lib
+from internal.run import checkpoints
+from internal.run import run_dir as run_dir_lib
 
 BLENDER_BOX = ((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5))  # Holds every object of the Blender scenes.
 NDC_BOX = ((-1., -1., -1.), (1., 1., .99))  # NDC z = 1 is infinitely far.

@@ -8,7 +8,7 @@ import numpy as np
 
 from internal import rays as rays_lib
 from internal.models import freq_schedule
-from internal.training import out_of_memory
+from internal.run import out_of_memory
 
 OUTPUT_KEYS = ('rgb', 'acc', 'distance_mean', 'distance_median')
 

@@ -12,17 +12,17 @@ from jax import random
 import tensorboardX
 import tqdm
 
-from internal.training import checkpoints
+from internal.run import checkpoints
 from internal import datasets
-from internal.training import distributed
+from internal.run import distributed
 from internal.evaluation import evaluate
 from internal.evaluation import inference
 from internal.evaluation import learning_curve
 from internal.evaluation import metrics
-from internal.training import run_dir as run_dir_lib
-from internal.training import out_of_memory
-from internal.training import sharding
-from internal.training import stuck
+from internal.run import run_dir as run_dir_lib
+from internal.run import out_of_memory
+from internal.run import sharding
+from internal.run import stuck
 from internal.training import train_step as train_step_lib
 from internal.evaluation import vis
 from internal import progress
