@@ -15,9 +15,9 @@ import jax
 from internal import cli
 from internal import demo
 from internal import environment
-from internal.training import distributed
-from internal.training import loop
-from internal.training import run_dir
+from internal.pipeline import loop
+from internal.run import distributed
+from internal.run import run_dir
 
 
 def run_demo(bindings, stop_at_step: int = 0) -> int:

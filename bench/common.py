@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 from jax import random
 
-from internal.training import flops
+from internal.run import flops
 from internal.training import train_step as ts
 
 

@@ -42,8 +42,8 @@ SCALES = {'demo': (cli.DEMO_CONFIGS, None),
 # Stages by the source file of an operation; the model files split into matmuls and the rest by operation.
 FILE_STAGES = {'encoding.py': 'encoding', 'trig.py': 'encoding', 'gaussians.py': 'Gaussians of the samples',
                'sampling.py': 'sampling and resampling', 'volume_render.py': 'volume rendering',
-               'freq_schedule.py': 'frequency masks', 'freq_ramp.py': 'frequency masks',
-               'optim.py': 'clipping and Adam', 'schedule.py': 'clipping and Adam', 'anneal.py': 'sampling and resampling'}
+               'freq_schedule.py': 'frequency masks', 'optim.py': 'clipping and Adam', 'schedule.py': 'clipping and Adam',
+               'anneal.py': 'sampling and resampling'}
 MODEL_FILES = ('mip_nerf.py', 'nerf.py')
 LOSS_DIR = os.sep + 'losses' + os.sep
 

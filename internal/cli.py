@@ -22,10 +22,10 @@ import warnings
 from internal import config_loader
 from internal import environment
 from internal import progress
-from internal.training import checkpoints
-from internal.training import distributed
-from internal.training import memory
-from internal.training import run_dir
+from internal.run import checkpoints
+from internal.run import distributed
+from internal.run import out_of_memory
+from internal.run import run_dir
 from internal.training import train_step
 
 CONFIG_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'configs')
@@ -40,7 +40,7 @@ DEBUG_ENV = 'FREENERF_DEBUG'
 # PrimaryFailed is what the other processes of a several-process training say when process 0 met such an error;
 # OutOfMemoryError is XLA's RESOURCE_EXHAUSTED or the host batch's MemoryError, named by the setting to lower.
 USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, run_dir.RunDirError,
-               checkpoints.NoCheckpointError, distributed.PrimaryFailed, memory.OutOfMemoryError)
+               checkpoints.NoCheckpointError, distributed.PrimaryFailed, out_of_memory.OutOfMemoryError)
 
 
 def one_line(err: BaseException) -> str:

@@ -14,7 +14,7 @@ import gin
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from internal.training import checkpoints
+from internal.run import checkpoints
 from internal import config_loader
 from internal import datasets
 from internal.evaluation import depth_metrics
@@ -23,7 +23,7 @@ from internal.evaluation import learning_curve
 from internal.evaluation import render_path
 from internal.evaluation import vis
 from internal import cli
-from internal.training import run_dir
+from internal.run import run_dir
 
 METHODS = {'NeRF': cli.DEMO_CONFIGS + [os.path.join(cli.CONFIG_DIR, 'demo_nerf.gin')],
            'FreeNeRF': cli.DEMO_CONFIGS}

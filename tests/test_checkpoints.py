@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from conftest import JAX_CACHE
-from internal.training import checkpoints
+from internal.run import checkpoints
 from internal import config_loader
 from internal import datasets
-from internal.training import run_dir as run_dir_lib
+from internal.run import run_dir as run_dir_lib
 from internal.training import train_step
-from internal.training import loop
+from internal.pipeline import loop
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DEMO = str(ROOT / 'configs' / 'demo.gin')

@@ -7,9 +7,9 @@ import sys
 import pytest
 import tqdm
 
-from internal.training import checkpoints
+from internal.run import checkpoints
 from internal import cli
-from internal.training import run_dir
+from internal.run import run_dir
 from internal.training import train_step
 from internal import progress
 from test_checkpoints import DEMO, ROOT

@@ -14,7 +14,7 @@ from internal import configs
 from internal import datasets
 from internal.models import mip_nerf
 from internal.models import nerf
-from internal.training import loop
+from internal.pipeline import loop
 from internal.training import schedule
 from internal import cli
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from conftest import random_rays
-from internal.training import checkpoints
+from internal.run import checkpoints
 from internal.evaluation import evaluate
 from internal.training import train_step
-from internal.training import loop
+from internal.pipeline import loop
 from test_checkpoints import tiny_config
 
 BINDINGS = ('Config.max_steps = 8', 'Config.checkpoint_every = 2', 'Config.compute_lpips = False',

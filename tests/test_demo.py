@@ -12,7 +12,7 @@ import pytest
 from internal import config_loader
 from internal import demo
 from internal.evaluation import evaluate
-from internal.training import loop
+from internal.pipeline import loop
 from test_checkpoints import TINY
 import train
 

@@ -10,7 +10,7 @@ import pytest
 from internal import datasets
 from internal.evaluation import depth_metrics
 from internal.evaluation import evaluate
-from internal.training import loop
+from internal.pipeline import loop
 from test_checkpoints import tiny_config
 
 

@@ -8,15 +8,18 @@ import subprocess
 import sys
 import types
 
+import jax
+import numpy as np
 import pytest
 
-from conftest import JAX_CACHE
+import train as train_script
+from conftest import JAX_CACHE, random_rays
 from internal import atomic
 from internal import cli
-from internal.training import checkpoints
-from internal.training import loop
+from internal.run import checkpoints
+from internal.pipeline import loop
 from test_checkpoints import DEMO, ROOT, TINY, tiny_config
-from test_trust import small_disk  # pylint: disable=unused-import  (a fixture)
+from test_run_dir_errors import _cli, _one_error_line
 
 NO_SPACE = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
@@ -84,3 +87,49 @@ def test_a_full_disk_during_a_save_prints_no_traceback(small_disk, scene_dir):
   last = done.stderr.strip().splitlines()[-1]
   assert last.startswith('error: no space left on the device while saving a checkpoint'), done.stderr[-3000:]
   assert 'step 3, is kept' in last
+
+
+def test_disk_full_errors_are_recognised_bare_and_as_orbax_wraps_them():
+  assert checkpoints.is_disk_full(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), 'x'))
+  assert checkpoints.is_disk_full(ValueError(
+      'RESOURCE_EXHAUSTED: Error writing "params.w/0" in OCDBT database at local file "/r/checkpoints/2.orbax-'
+      'checkpoint-tmp/": Failed to write 199981 bytes to file 5: No space left on device [os_error_code=\'28\']'))
+  assert not checkpoints.is_disk_full(OSError(errno.EACCES, os.strerror(errno.EACCES)))
+  assert not checkpoints.is_disk_full(ValueError('RESOURCE_EXHAUSTED: Out of memory'))
+
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+  """A 32 MiB tmpfs mounted at tmp_path/disk, unmounted afterwards; skips where mounting is not allowed."""
+  disk = tmp_path / 'disk'
+  disk.mkdir()
+  mount = subprocess.run(['mount', '-t', 'tmpfs', '-o', 'size=32m', 'tmpfs', str(disk)], capture_output=True,
+                         text=True, check=False)
+  if mount.returncode:
+    pytest.skip(f'cannot mount a small tmpfs here (needs root): {mount.stderr.strip()}')
+  yield disk
+  subprocess.run(['umount', str(disk)], check=True)
+
+
+
+def test_a_checkpoint_save_on_a_full_disk_keeps_the_previous_one_and_exits_4(small_disk, scene_dir, monkeypatch,
+                                                                              capsys, caplog):
+  bindings = (f"Config.checkpoint_dir = '{small_disk / 'run'}'", 'Config.max_steps = 6', 'Config.checkpoint_every = 3')
+  first = loop.train(tiny_config(scene_dir, small_disk / 'run', *bindings[1:]), stop_at_step=3)
+  kept = [np.asarray(x) for x in jax.tree.leaves(jax.device_get(first.state))]
+  step_dir = small_disk / 'run' / 'checkpoints' / '3'
+  checkpoint_bytes = sum(f.stat().st_size for f in step_dir.rglob('*') if f.is_file())
+  filler = small_disk / 'filler'
+  filler.write_bytes(b'\1' * (shutil.disk_usage(small_disk).free - checkpoint_bytes // 4))
+  status, errout = _cli(monkeypatch, capsys, train_script.main, *TINY, f"Config.data_dir = '{scene_dir}'", *bindings)
+  assert status == cli.DISK_FULL_STATUS == 4
+  _one_error_line(errout, 'no space left on the device while saving a checkpoint',
+                  'the newest intact checkpoint, step 3, is kept', 'run the same command again to resume')
+  assert not [r for r in caplog.records if r.name == 'absl' and r.levelno >= logging.ERROR]  # Orbax's tracebacks.
+  filler.unlink()
+  assert checkpoints.latest_step(str(small_disk / 'run')) == 3
+  config = tiny_config(scene_dir, small_disk / 'run', *bindings[1:])
+  _, state = checkpoints.restore_model(config, str(small_disk / 'run'), random_rays(0, 8))
+  for a, b in zip(kept, jax.tree.leaves(jax.device_get(state))):
+    np.testing.assert_array_equal(a, b)

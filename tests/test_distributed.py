@@ -17,10 +17,10 @@ from tensorboardX.proto import event_pb2
 
 from internal import datasets
 from internal.evaluation import learning_curve
-from internal.training import checkpoints
-from internal.training import distributed
-from internal.training import loop
-from internal.training import run_dir as run_dir_lib
+from internal.run import checkpoints
+from internal.run import distributed
+from internal.pipeline import loop
+from internal.run import run_dir as run_dir_lib
 from conftest import JAX_CACHE
 from test_checkpoints import DEMO, ROOT, TINY, _leaves, tiny_config
 

@@ -22,7 +22,7 @@ from internal.evaluation import metrics
 from internal.evaluation import render_path
 from internal.evaluation import results
 from internal.training import train_step
-from internal.training import loop
+from internal.pipeline import loop
 from internal.evaluation import vis
 from test_checkpoints import ROOT, tiny_config
 

@@ -1,4 +1,4 @@
-"""Tests of internal/models/freq_schedule.py and freq_ramp.py against worked examples of the released mask and a literal reference."""
+"""Tests of internal/models/freq_schedule.py against worked examples of the released mask and a literal reference."""
 
 import gin
 import jax

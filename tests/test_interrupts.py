@@ -13,7 +13,7 @@ import pytest
 from conftest import JAX_CACHE
 from internal import cli
 from internal.evaluation import render_path
-from internal.training import loop
+from internal.pipeline import loop
 from test_checkpoints import DEMO, ROOT, TINY, _read_stderr, tiny_config
 
 FRAMES = 40

@@ -9,10 +9,10 @@ import time
 import jax
 import numpy as np
 
-from internal.training import checkpoints
+from internal.run import checkpoints
 from internal import datasets
 from internal.training import train_step
-from internal.training import loop
+from internal.pipeline import loop
 from conftest import JAX_CACHE
 from test_checkpoints import DEMO, ROOT, TINY, _leaves, _read_stderr, tiny_config
 

@@ -43,18 +43,20 @@ def test_internal_does_not_import_tools(path):
   assert 'tools' not in imported_modules(path)
 
 
-# The pipeline's stages in order (docs/design.md). A module imports its own stage and earlier ones; the
-# orchestrators above every stage (the training loop, the demo, the command line, config loading) import any.
-STAGES = ('records', 'datasets', 'models', 'losses', 'training', 'evaluation')
-# Plain data and utilities that import nothing of internal/.
+# The pipeline's stages in order (docs/design.md). Every module of internal/ belongs to one and imports only its
+# own stage and earlier ones: the run infrastructure after the step it checkpoints and before the evaluation that
+# reads its runs, the training loop (pipeline/) above training and evaluation, the entry points on top.
+STAGES = ('records', 'datasets', 'models', 'losses', 'training', 'run', 'evaluation', 'pipeline', 'entry')
+# The modules directly under internal/: plain data and utilities that import nothing of internal/, and the entry
+# points of the scripts (the command line, the demo, config loading that validates every stage's settings).
 RECORDS = {'rays', 'configs', 'atomic', 'progress', 'environment'}
-ORCHESTRATORS = {'internal/training/loop.py', 'internal/demo.py', 'internal/cli.py', 'internal/config_loader.py'}
+ENTRY_POINTS = {'cli', 'demo', 'config_loader'}
 
 
 def stage(module: str) -> str:
   """The stage of a dotted internal module name, e.g. 'internal.models.encoding' -> 'models'."""
   part = module.split('.')[1]
-  return 'records' if part in RECORDS else part
+  return 'records' if part in RECORDS else 'entry' if part in ENTRY_POINTS else part
 
 
 def internal_imports(path: pathlib.Path) -> set:
@@ -68,13 +70,19 @@ def internal_imports(path: pathlib.Path) -> set:
 
 def test_stage_of_a_module():
   assert stage('internal.configs') == 'records' and stage('internal.models.encoding') == 'models'
-  assert stage('internal.datasets') == 'datasets'
+  assert stage('internal.datasets') == 'datasets' and stage('internal.cli') == 'entry'
+  assert stage('internal.pipeline.loop') == 'pipeline' and stage('internal.run.checkpoints') == 'run'
 
 
 def _staged_modules() -> list:
-  """The modules of internal/ that belong to a stage (not the orchestrators)."""
-  return [p for p in _modules('internal') if p.relative_to(ROOT).as_posix() not in ORCHESTRATORS
-          and (p.parent != ROOT / 'internal' or p.stem in RECORDS)]
+  """The modules of internal/ (all but its own __init__.py, which imports nothing)."""
+  return [p for p in _modules('internal') if p != ROOT / 'internal' / '__init__.py']
+
+
+def test_every_module_has_a_stage():
+  unstaged = {p.relative_to(ROOT).as_posix() for p in _staged_modules()
+              if stage(p.relative_to(ROOT).as_posix().removesuffix('.py').replace('/', '.')) not in STAGES}
+  assert not unstaged and not internal_imports(ROOT / 'internal' / '__init__.py'), unstaged
 
 
 @pytest.mark.parametrize('path', _staged_modules(), ids=lambda p: str(p.relative_to(ROOT)))
@@ -87,7 +95,7 @@ def test_stages_import_only_earlier_stages(path):
 
 def test_every_module_is_checked():
   checked = {p.relative_to(ROOT).as_posix() for p in _modules('internal') + _modules('tools')}
-  assert {'internal/training/loop.py', 'internal/evaluation/evaluate.py', 'internal/evaluation/render_path.py',
+  assert {'internal/pipeline/loop.py', 'internal/evaluation/evaluate.py', 'internal/evaluation/render_path.py',
           'internal/demo.py', 'internal/models/mip_nerf.py', 'tools/study.py', 'tools/tables.py'} <= checked
 
 

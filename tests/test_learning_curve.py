@@ -11,8 +11,8 @@ import pytest
 from internal import config_loader
 from internal.evaluation import evaluate
 from internal.evaluation import learning_curve
-from internal.training import loop
-from internal.training import run_dir as run_dir_lib
+from internal.pipeline import loop
+from internal.run import run_dir as run_dir_lib
 from test_checkpoints import tiny_config
 
 # Curve every 5 of 20 steps on test positions 1 and 3 at half the (32 x 40) size; the frequency mask is still

@@ -13,10 +13,10 @@ from conftest import SHARED_DATA
 from internal import cli
 from internal import datasets
 from internal.configs import Config
-from internal.datasets import synthetic
+from internal.datasets import generated_scene
 from internal.evaluation import mesh
 from internal.evaluation import ply
-from internal.training import loop
+from internal.pipeline import loop
 from test_checkpoints import DEMO, TINY, tiny_config
 from tools import mesh as mesh_tool
 
@@ -67,7 +67,7 @@ def test_ply_header_and_records_by_hand(tmp_path):
 
 
 def test_bounds_per_scene_kind_and_a_clear_error_where_there_are_none():
-  scene, _ = synthetic.build_scene(synthetic.scene_params('object', 0, 32, 40, 2))
+  scene, _ = generated_scene.build_scene(generated_scene.scene_params('object', 0, 32, 40, 2))
   tops = []
   for solid in scene['solids'][1:]:
     if solid['shape'] == 'sphere':
@@ -75,7 +75,7 @@ def test_bounds_per_scene_kind_and_a_clear_error_where_there_are_none():
     else:  # The highest of the box's 8 corners.
       corners = np.array(np.meshgrid(*[[-h, h] for h in solid['half']])).reshape(3, -1).T
       tops.append((np.array(solid['centre']) + corners @ np.array(solid['rotation']).T)[:, 2].max())
-  np.testing.assert_allclose(synthetic.scene_bounds(scene), [[-1.5, -1.5, 0.], [1.5, 1.5, max(tops)]], atol=1e-9)
+  np.testing.assert_allclose(generated_scene.scene_bounds(scene), [[-1.5, -1.5, 0.], [1.5, 1.5, max(tops)]], atol=1e-9)
   assert mesh_tool.scene_bounds(Config(dataset_loader='blender'), None).tolist() == [[-1.5] * 3, [1.5] * 3]
   assert mesh_tool.scene_bounds(Config(dataset_loader='llff'), None)[0].tolist() == [-1.] * 3
   with pytest.raises(ValueError, match="Config.dataset_loader = 'packed' .* --bounds"):

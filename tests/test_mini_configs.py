@@ -9,7 +9,7 @@ from internal import config_loader
 from internal.evaluation import evaluate
 from internal.models import mip_nerf
 from internal.models import nerf
-from internal.training import loop
+from internal.pipeline import loop
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA = {'dtu': ["Config.data_dir = '{root}/dtu'", "Config.dtu_scan = 'dtu_scan24'", "Config.dtu_mask_path = ''",

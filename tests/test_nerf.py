@@ -19,7 +19,7 @@ from internal.models import freq_schedule
 from internal.models import mip_nerf
 from internal.models import nerf
 from internal.models import registry
-from internal.training import loop
+from internal.pipeline import loop
 from internal.training import train_step
 
 TINY = ['NerfMLP.net_depth = 3', 'NerfMLP.net_width = 16', 'NerfMLP.net_width_viewdirs = 8',

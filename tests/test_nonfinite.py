@@ -6,13 +6,13 @@ import numpy as np
 import orbax.checkpoint as ocp
 import pytest
 
-from internal.training import checkpoints
+from internal.run import checkpoints
 from internal import config_loader
 from internal import configs
 from internal import datasets
 from internal.training import schedule
 from internal.training import train_step
-from internal.training import loop
+from internal.pipeline import loop
 from test_checkpoints import DEMO, TINY, tiny_config
 import train
 

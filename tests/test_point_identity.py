@@ -10,7 +10,7 @@ from internal.configs import Config
 from internal.models import freq_schedule
 from internal.models import mip_nerf
 from internal.models import nerf
-from internal.training import run_dir
+from internal.run import run_dir
 
 MIP_TINY = ['MLP.net_depth = 4', 'MLP.net_width = 16', 'MLP.net_width_viewdirs = 8', 'MLP.skip_layer = 2',
             'MipNerfModel.num_samples = 4']

@@ -12,7 +12,7 @@ from internal import config_loader
 from internal import configs
 from internal.models import mip_nerf
 from internal.models import precision
-from internal.training import run_dir
+from internal.run import run_dir
 from internal.training import train_step as ts
 
 TINY = ['MLP.net_depth = 3', 'MLP.net_width = 32', 'MLP.skip_layer = 2', 'MLP.net_width_viewdirs = 16',

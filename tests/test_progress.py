@@ -6,7 +6,7 @@ import types
 import jax.numpy as jnp
 import pytest
 
-from internal.training import loop
+from internal.pipeline import loop
 
 
 class Writer:

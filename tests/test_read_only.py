@@ -10,9 +10,9 @@ import eval as eval_script
 import render as render_script
 import train as train_script
 from internal import cli
-from internal.training import loop
+from internal.pipeline import loop
 from test_checkpoints import TINY, tiny_config
-from test_trust import _cli, _one_error_line
+from test_run_dir_errors import _cli, _one_error_line
 
 BINDINGS = ('Config.max_steps = 2', 'Config.render_path_frames = 2', 'Config.compute_lpips = False')
 

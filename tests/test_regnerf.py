@@ -9,10 +9,9 @@ import pytest
 from jax import random
 
 from conftest import random_rays
-from internal.models import anneal
 from internal import configs
 from internal.losses import depth_smoothness
-from internal.training import train_step
+from internal.training import anneal, schedule, train_step
 from internal.datasets import cameras, raygen, random_poses
 
 
@@ -34,7 +33,7 @@ def test_tv_weighting_released_zero_mask_weight_zeroes_the_loss_and_the_fix_unwe
 
 @pytest.mark.parametrize('step,expected', [(0, 400.), (256, 200.05), (512, 0.1), (1000, 0.1)])
 def test_tv_weight_schedule_of_the_released_configs(step, expected):
-  assert float(depth_smoothness.loss_weight(step, 512, 400., 0.1)) == pytest.approx(expected)
+  assert float(schedule.linear(step, 512, 400., 0.1)) == pytest.approx(expected)
 
 
 def test_expected_depth_clamps_the_opacity_and_clips_to_the_ray():
@@ -44,12 +43,11 @@ def test_expected_depth_clamps_the_opacity_and_clips_to_the_ray():
   np.testing.assert_allclose(depth_smoothness.expected_depth(weights, t_vals), [2., 1.])
 
 
-def test_tv_levels_weighted_as_released():
+def test_tv_weight_decays_only_when_asked():
   config = configs.Config(depth_tvnorm_decay=True, depth_tvnorm_maxstep=512, depth_tvnorm_loss_mult_start=400.,
                           depth_tvnorm_loss_mult_end=0.1, depth_tvnorm_loss_mult=0.1)
-  assert [float(w) for w in depth_smoothness.level_weights(config, 256, 2)] == pytest.approx([0.1, 200.05])
-  flat = configs.Config(depth_tvnorm_loss_mult=0.3)
-  assert depth_smoothness.level_weights(flat, 256, 2) == [0.1, 0.3]
+  assert float(schedule.depth_tv_weight(config, 256)) == pytest.approx(200.05)
+  assert schedule.depth_tv_weight(configs.Config(depth_tvnorm_loss_mult=0.3), 256) == 0.3
 
 
 @pytest.mark.parametrize('step,expected', [(0, (1.25, 2.75)), (128, (0.875, 3.125)), (256, (0.5, 3.5)),

@@ -9,9 +9,9 @@ import subprocess
 import pytest
 
 from internal import atomic
-from internal.training import checkpoints
-from internal.training import run_dir as run_dir_lib
-from internal.training import loop
+from internal.run import checkpoints
+from internal.run import run_dir as run_dir_lib
+from internal.pipeline import loop
 from test_checkpoints import tiny_config
 
 

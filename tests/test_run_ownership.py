@@ -11,11 +11,11 @@ import train as train_script
 from internal import cli
 from internal.evaluation import evaluate
 from internal.evaluation import render_path
-from internal.training import checkpoints
-from internal.training import loop
-from internal.training import run_dir as run_dir_lib
+from internal.run import checkpoints
+from internal.pipeline import loop
+from internal.run import run_dir as run_dir_lib
 from test_checkpoints import TINY, tiny_config
-from test_trust import _cli, _one_error_line
+from test_run_dir_errors import _cli, _one_error_line
 
 # A folder of another tool: a model's config.json (a name we use too), its weights and the user's notes.
 FOREIGN = {'config.json': json.dumps({'architectures': ['BertModel'], 'hidden_size': 768, 'batch_size': 4096}),

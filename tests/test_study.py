@@ -14,7 +14,7 @@ import pytest
 
 from internal import config_loader
 from internal import demo
-from internal.training import loop
+from internal.pipeline import loop
 from tools import study as study_lib
 from tools import study_plots
 from tools import study_spec

@@ -143,7 +143,7 @@ SHARDED = textwrap.dedent('''
     import jax, numpy as np
     from jax import random
     import test_train_step as t
-    from internal.training import sharding
+    from internal.run import sharding
     assert len(jax.devices()) == 2
     results = []
     for mesh in (None, sharding.data_mesh()):

@@ -10,10 +10,10 @@ import pytest
 import train as train_script
 from internal import cli
 from internal import configs
-from internal.training import loop
-from internal.training import stuck
+from internal.pipeline import loop
+from internal.run import stuck
 from test_checkpoints import DEMO, TINY, tiny_config
-from test_trust import _cli, _one_error_line
+from test_run_dir_errors import _cli, _one_error_line
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 

@@ -18,9 +18,10 @@ from internal.evaluation import lpips
 from internal.models import precision
 from internal.models import sampling
 from internal.training import train_step
-from internal.datasets import batching, colmap, image_io, loader, packed, synthetic
+from internal.datasets import batching, colmap, generated_scene, image_io, loader, packed
 from internal.datasets import blender as blender_lib
 from internal.datasets import DatasetError, dtu, load_dataset
+from test_checkpoints import tiny_config
 from test_datasets_dtu_layouts import config as dtu_config, synthetic_projections, write_idr, write_regnerf
 from test_datasets_errors import blender, llff
 
@@ -72,7 +73,7 @@ def test_sizes_of_the_nerf_model_are_checked_when_it_is_the_model():
     ('Config.blender_split', blender_lib.SPLIT_MODES), ('Config.downsample_mode', image_io.DOWNSAMPLE_MODES),
     ('Config.batching', batching.BATCHING_MODES), ('Config.freq_mask_layout', freq_schedule.LAYOUTS),
     ('Config.nonfinite_grad_policy', train_step.NONFINITE_POLICIES), ('Config.lpips_input_range', lpips.INPUT_RANGES),
-    ('Config.generated_rig', synthetic.RIGS), ('Config.precision', precision.PRECISIONS),
+    ('Config.generated_rig', generated_scene.RIGS), ('Config.precision', precision.PRECISIONS),
     ('Config.capture_rig', colmap.RIGS),
     ('MipNerfModel.ray_shape', gaussians.RAY_SHAPES), ('MipNerfModel.pdf_padding', sampling.PDF_PADDINGS)])
 def test_option_settings_use_the_list_of_the_module_that_implements_them(name, options):
@@ -218,3 +219,8 @@ def test_dtu_mask_path_may_be_a_folder_of_idr_scans(tmp_path):
   os.remove(tmp_path / 'scan24' / 'mask' / '001.png')
   with pytest.raises(DatasetError, match=r"not all present in any of \[.*scan24', .*scan24/mask'\]"):
     load_dataset('test', dtu_config(tmp_path, 'scan24', dtu_mask_path=str(tmp_path)))
+
+
+def test_zero_render_path_frames_is_refused_naming_the_setting():
+  with pytest.raises(ValueError, match=r'Config\.render_path_frames = 0; expected a positive integer'):
+    tiny_config('s', 'run', 'Config.render_path_frames = 0')

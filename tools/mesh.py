@@ -25,11 +25,11 @@ import numpy as np
 from internal import cli
 from internal import datasets
 from internal.datasets import loader
-from internal.datasets import synthetic
+from internal.datasets import generated_scene
 from internal.evaluation import mesh
 from internal.evaluation import ply
-from internal.training import checkpoints
-from internal.training import run_dir as run_dir_lib
+from internal.run import checkpoints
+from internal.run import run_dir as run_dir_lib
 
 BLENDER_BOX = ((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5))  # Holds every object of the Blender scenes.
 NDC_BOX = ((-1., -1., -1.), (1., 1., .99))  # NDC z = 1 is infinitely far.
@@ -46,7 +46,7 @@ def scene_bounds(config, flag_bounds) -> np.ndarray:
   if loader.ndc(config):
     return np.array(NDC_BOX)
   if config.dataset_loader == 'generated':
-    box = synthetic.scene_bounds(synthetic.read_scene(config.data_dir))
+    box = generated_scene.scene_bounds(generated_scene.read_scene(config.data_dir))
     return box + np.array([-1., 1.])[:, None] * MARGIN * (box[1] - box[0])
   if config.dataset_loader == 'blender':
     return np.array(BLENDER_BOX)

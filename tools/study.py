@@ -96,7 +96,8 @@ def run_cell(path: str) -> dict:
   # pylint: disable=import-outside-toplevel
   from internal import config_loader
   from internal.evaluation import evaluate
-  from internal.training import checkpoints, flops, loop
+  from internal.pipeline import loop
+  from internal.run import checkpoints, flops
   commit = study_export.git_commit(REPO)  # The code this cell starts with.
   with open(os.path.join(path, SPEC_FILE)) as f:
     spec = json.load(f)

@@ -39,7 +39,8 @@ def measure(config) -> Dict[str, float]:
   from jax import random
   from internal import datasets
   from internal.evaluation import evaluate, inference
-  from internal.training import sharding, train_step
+  from internal.run import sharding
+  from internal.training import train_step
   tic = time.perf_counter()
   batcher = datasets.make_batcher(datasets.load_dataset('train', config), config)
   mesh = sharding.data_mesh()

@@ -1,22 +1,22 @@
-"""The generated scene (synthetic.py) as a loader: written into Config.data_dir if absent, then read through the
+"""The generated scene (generated_scene.py) as a loader: written into Config.data_dir if absent, then read through the
 Blender layout (object rig, world-space rays) or the LLFF layout (forward rig, NDC rays)."""
 
 import dataclasses
 
 import numpy as np
 
-from internal.datasets import base, blender, llff, synthetic
+from internal.datasets import base, blender, generated_scene, llff
 
 # Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
 SHAPING_SETTINGS = ('generated_rig', 'generated_seed', 'generated_size', 'near', 'far', 'white_background',
                     'llffhold', 'pixel_offset')
 # (Config field, its allowed values) of this loader's own settings, checked before any work.
-SETTING_CHOICES = (('generated_rig', synthetic.RIGS),)
+SETTING_CHOICES = (('generated_rig', generated_scene.RIGS),)
 
 
 def scene(config) -> str:
   """Config.data_dir after writing the generated scene there if it is absent (checked to match otherwise)."""
-  synthetic.ensure_scene(config.data_dir, config.generated_rig, config.generated_seed, config.generated_size)
+  generated_scene.ensure_scene(config.data_dir, config.generated_rig, config.generated_seed, config.generated_size)
   return config.data_dir
 
 
@@ -31,7 +31,7 @@ def with_ground_truth(data: base.Dataset, config) -> base.Dataset:
   """data with the exact depths [N,H,W] (in the units of its rays) and object masks [N,H,W] of its views."""
   rig, scene_dir = config.generated_rig, config.data_dir
   scale = 1. if rig == 'object' else 1. / (.75 * llff.read_poses_bounds(scene_dir)[:, 15:17].min())
-  depths, masks = synthetic.load_ground_truth(scene_dir, rig, data.split, data.ids,
+  depths, masks = generated_scene.load_ground_truth(scene_dir, rig, data.split, data.ids,
                                               base.load_factor(config, data.split), config.downsample_mode)
   return dataclasses.replace(data, depths=(depths * scale).astype(np.float32), object_masks=masks)
 

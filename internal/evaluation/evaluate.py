@@ -9,7 +9,7 @@ import jax
 import numpy as np
 
 from internal import atomic
-from internal.training import checkpoints
+from internal.run import checkpoints
 from internal import datasets
 from internal.evaluation import depth_metrics
 from internal.datasets import loader
@@ -17,7 +17,7 @@ from internal.evaluation import inference
 from internal.evaluation import lpips
 from internal.evaluation import metrics
 from internal.evaluation import results
-from internal.training import run_dir as run_dir_lib
+from internal.run import run_dir as run_dir_lib
 from internal.evaluation import vis
 
 

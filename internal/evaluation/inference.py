@@ -8,7 +8,7 @@ import numpy as np
 
 from internal import rays as rays_lib
 from internal.models import freq_schedule
-from internal.training import memory
+from internal.run import out_of_memory
 
 OUTPUT_KEYS = ('rgb', 'acc', 'distance_mean', 'distance_median')
 
@@ -47,7 +47,7 @@ def render_image(render_fn, rays, chunk_size: int):
   pad = (-num_rays) % chunk_size if num_rays > chunk_size else 0
   padded = rays_lib.map_rays(lambda x: np.pad(x, ((0, pad), (0, 0)), mode='edge'), flat)
   size = min(chunk_size, num_rays)
-  with memory.naming_setting('rendering', f'Config.render_chunk_size = {chunk_size} (rays rendered at once)'):
+  with out_of_memory.naming_setting('rendering', f'Config.render_chunk_size = {chunk_size} (rays rendered at once)'):
     pieces = [jax.device_get(render_fn(rays_lib.map_rays(functools.partial(_slice, i, size), padded)))
               for i in range(0, num_rays + pad, size)]
   return {k: np.concatenate([p[k] for p in pieces])[:num_rays].reshape(shape + pieces[0][k].shape[1:])

@@ -26,7 +26,7 @@ from internal.evaluation import evaluate
 from internal.evaluation import inference
 from internal.evaluation import metrics
 from internal.evaluation import results
-from internal.training import sharding
+from internal.run import sharding
 
 CSV_FILE = 'learning_curve.csv'
 

@@ -9,11 +9,11 @@ import jax
 import numpy as np
 import tqdm
 
-from internal.training import checkpoints
+from internal.run import checkpoints
 from internal import datasets
 from internal.datasets import loader
 from internal.evaluation import inference
-from internal.training import run_dir as run_dir_lib
+from internal.run import run_dir as run_dir_lib
 from internal.evaluation import vis
 from internal import atomic
 from internal import progress

@@ -19,12 +19,6 @@ def tv_norm(depth, weighting):
   return jnp.mean(tv * weighting)
 
 
-def loss_weight(step, maxstep: int, start: float, end: float):
-  """Schedule start (1 - w) + end w, w = clip(step / maxstep, 0, 1)."""
-  w = jnp.clip(step / maxstep, 0., 1.)
-  return start * (1. - w) + end * w
-
-
 def tv_weighting(acc, mask_weight: float, fix: bool):
   """Weights [P, ps-1, ps-1] from patch opacity acc [P, ps, ps]: stop_grad(acc) * mask_weight.
 
@@ -35,21 +29,11 @@ def tv_weighting(acc, mask_weight: float, fix: bool):
   return jax.lax.stop_gradient(acc[:, :-1, :-1]) * mask_weight
 
 
-def level_weights(config, step, num_levels: int):
-  """Multiplier of each level's TV: coarse_loss_mult below the last, the (scheduled) TV mult on the last."""
-  last = (loss_weight(step, config.depth_tvnorm_maxstep, config.depth_tvnorm_loss_mult_start,
-                      config.depth_tvnorm_loss_mult_end) if config.depth_tvnorm_decay
-          else config.depth_tvnorm_loss_mult)
-  return [config.coarse_loss_mult] * (num_levels - 1) + [last]
+def patch_depth_tv(weights, t_vals, patch_shape, mask_weight: float, fix: bool):
+  """Unweighted TV of one level's expected depth, weights [P*ps*ps, S], t_vals [P*ps*ps, S+1] -> scalar.
 
-
-def depth_smoothness_loss(config, history, patch_shape, step):
-  """(weighted total, per-level TV [L]) of the ray history of patch rays rendered as [P * ps * ps]."""
-  tvs = []
-  for level in history:
-    depth = expected_depth(level['weights'], level['t_vals']).reshape(patch_shape)
-    acc = jnp.sum(level['weights'], axis=-1).reshape(patch_shape)
-    tvs.append(tv_norm(depth, tv_weighting(acc, config.depth_tvnorm_mask_weight,
-                                           config.regnerf_fix_released_bugs)))
-  total = sum(w * tv for w, tv in zip(level_weights(config, step, len(tvs)), tvs))
-  return total, jnp.stack(tvs)
+  patch_shape: (P, ps, ps); mask_weight and fix as in tv_weighting.
+  """
+  depth = expected_depth(weights, t_vals).reshape(patch_shape)
+  acc = jnp.sum(weights, axis=-1).reshape(patch_shape)
+  return tv_norm(depth, tv_weighting(acc, mask_weight, fix))

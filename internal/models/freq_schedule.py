@@ -13,6 +13,10 @@ Four settings decide it, all `Config` fields:
   interleaved order this is exactly the Blender code's rule, a band's sin one group before its cos); 'paper'
   opens the identity, then sin and cos of one degree together (a band at a time, our variant).
 The released name `warmup_end` is read as `freq_reg_end` (internal/config_loader.py).
+
+The ramp's pointer (docs/numerics.md): the released ptr = num/den * t/T + 1 in float64 is split exactly in
+integers, so that a mask computed under jit in int32/float32 equals the released one (the open group gets the
+float32 rounding of the exact fraction).
 """
 
 import warnings
@@ -22,15 +26,45 @@ import jax.numpy as jnp
 
 from internal.configs import Config
 from internal.models import encoding
-from internal.models import freq_ramp
 
 LAYOUTS = ('released', 'paper')  # Config.freq_mask_layout: released_mask or paper_mask.
 IDENTITY_WIDTH = 3  # The raw coordinates that lead both feature orders (encoding.feature_layout).
+_LOW, _HIGH = 1e-8, 1. - 1e-8  # The released clip: a closed feature is 1e-8, never exactly 0.
+
+
+def pointer_fits(num: int, den: int, end: int) -> bool:
+  """Whether num * T and den * T fit the int32 / float32-exact ranges the ramp computes in."""
+  return num * end < 2**31 and den * end < 2**24
+
+
+def _check_pointer(end: int, groups, what: str = '') -> None:
+  """Raises a ValueError naming Config.freq_reg_end when T = end is too large for a (num, den) of groups."""
+  if not all(pointer_fits(num, den, end) for num, den in groups):
+    raise ValueError(f'Config.freq_reg_end = {end} is too large for the exact mask pointer{what} '
+                     f'(at most {_max_end(groups)})')
+
+
+def ramp(group, num: int, den: int, step, end: int):
+  """Opens feature groups (group [L] int) left to right, ptr = num/den * t/T + 1 -> f32 [L].
+
+  num*t = (den*T) * (ptr - 1) splits into an integer part n and a remainder r; group n + 1 gets r / (den*T).
+  The cap ptr <= num/den (an integer group count) needs no code: when it applies every group is <= n.
+  """
+  if end == 0:
+    return jnp.ones(group.shape, jnp.float32)
+  _check_pointer(end, [(num, den)])
+  t = jnp.clip(jnp.asarray(step, jnp.int32), 0, end)
+  n, r = jnp.divmod(num * t, den * end)
+  frac = r.astype(jnp.float32) / jnp.float32(den * end)
+  group = jnp.asarray(group, jnp.int32)
+  mask = jnp.where(group <= n, 1., jnp.where(group == n + 1, frac, 0.))
+  mask = jnp.clip(mask, _LOW, _HIGH)
+  return jnp.where(t >= end, jnp.ones_like(mask), mask)
 
 
 def released_mask(length, step, end):
   """Released mask: chunks of 3 features open left to right; f32 [length]."""
-  return freq_ramp.ramp(np.arange(length) // 3, length, 3, step, end)
+  return ramp(np.arange(length) // 3, length, 3, step, end)
 
 
 def paper_mask(num_degrees, step, end, num_coords=3, interleaved=False):
@@ -39,7 +73,7 @@ def paper_mask(num_degrees, step, end, num_coords=3, interleaved=False):
   interleaved: for NeRF's interleaved feature order, else mip-NeRF's block order.
   """
   _, degree, _ = encoding.feature_layout(num_degrees, num_coords, append_identity=True, interleaved=interleaved)
-  return freq_ramp.ramp(degree + 1, num_degrees + 1, 1, step, end)
+  return ramp(degree + 1, num_degrees + 1, 1, step, end)
 
 
 def fixed_ratio_mask(length, ratio):
@@ -101,9 +135,7 @@ def check_settings(config: Config, degrees) -> None:
   if not config.freq_reg:
     return
   groups = [(encoding.width(d), 3) if config.freq_mask_layout == 'released' else (d + 1, 1) for d in degrees]
-  if not all(freq_ramp.pointer_fits(num, den, config.freq_reg_end) for num, den in groups):
-    raise ValueError(f'Config.freq_reg_end = {config.freq_reg_end} is too large for the exact mask pointer of '
-                     f'encodings of {tuple(degrees)} degrees (at most {_max_end(groups)})')
+  _check_pointer(config.freq_reg_end, groups, f' of encodings of {tuple(degrees)} degrees')
   if config.freq_reg_end > config.max_steps:
     warnings.warn(f'Config.freq_reg_end = {config.freq_reg_end} exceeds Config.max_steps = {config.max_steps}: '
                   'the frequency mask never fully opens during training', stacklevel=4)

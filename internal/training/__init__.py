@@ -1,1 +1,1 @@
-"""Training: train step, optimizer, schedules, loop, checkpoints, run directories, devices."""
+"""Training: the jitted train step, its optimizer and its schedules (learning rate, padding, annealing, weights)."""

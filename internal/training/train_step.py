@@ -9,15 +9,15 @@ import jax.numpy as jnp
 from jax import random
 import optax
 
-from internal.models import anneal
-from internal.losses import depth_smoothness
+from internal.datasets import random_poses
 from internal.models import freq_schedule
-from internal.losses import reconstruction
 from internal.models import registry
+from internal.losses import depth_smoothness
 from internal.losses import occlusion
+from internal.losses import reconstruction
+from internal.training import anneal
 from internal.training import optim
 from internal.training import schedule
-from internal.datasets import random_poses
 
 
 @flax.struct.dataclass
@@ -80,9 +80,11 @@ def compute_loss(config, model, params, batch, key, step):
     stats['loss_distortion'] = reconstruction.distortion_loss(s_vals, fine['weights'])
     loss += config.distortion_loss_mult * stats['loss_distortion']
   if random_poses.needs_patches(config):
-    stats['loss_depth_tv'], tvs = _depth_smoothness(config, model, params, batch['patch_rays'], key, step,
-                                                    mask_point, mask_view)
+    tvs = _depth_tvs(config, model, params, batch['patch_rays'], key, step, mask_point, mask_view)
     stats.update({f'depth_tv_level{level}': tv for level, tv in enumerate(tvs)})
+    # As released: the coarse levels by coarse_loss_mult, the last by the scheduled weight.
+    level_mults = [config.coarse_loss_mult] * (len(tvs) - 1) + [schedule.depth_tv_weight(config, step)]
+    stats['loss_depth_tv'] = sum(mult * tv for mult, tv in zip(level_mults, tvs))
     loss += stats['loss_depth_tv']
   if mask_point is not None:
     stats['mask_visible_point'] = jnp.mean(mask_point)
@@ -92,15 +94,17 @@ def compute_loss(config, model, params, batch, key, step):
   return loss, stats
 
 
-def _depth_smoothness(config, model, params, patch_rays, key, step, mask_point, mask_view):
-  """(weighted depth-TV loss, per-level TV [L]) of the model on random-pose patch rays [P, ps, ps, ...]."""
+def _depth_tvs(config, model, params, patch_rays, key, step, mask_point, mask_view):
+  """Unweighted depth TV per level [L] of the model on random-pose patch rays [P, ps, ps, ...]."""
   patch_shape = patch_rays.origins.shape[:3]
   rays = jax.tree.map(lambda x: x.reshape((-1, x.shape[-1])), patch_rays)
   if config.anneal_nearfar:
     rays = anneal.anneal_rays(config, rays, step)
   _, history = model.apply({'params': params}, random.fold_in(key, 1) if config.randomized else None, rays,
                            mask_point, mask_view, schedule.resample_padding(config, step))
-  return depth_smoothness.depth_smoothness_loss(config, history, patch_shape, step)
+  return jnp.stack([depth_smoothness.patch_depth_tv(level['weights'], level['t_vals'], patch_shape,
+                                                    config.depth_tvnorm_mask_weight, config.regnerf_fix_released_bugs)
+                    for level in history])
 
 
 def make_train_step(config, model):

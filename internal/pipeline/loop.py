@@ -12,17 +12,17 @@ from jax import random
 import tensorboardX
 import tqdm
 
-from internal.training import checkpoints
+from internal.run import checkpoints
 from internal import datasets
-from internal.training import distributed
+from internal.run import distributed
 from internal.evaluation import evaluate
 from internal.evaluation import inference
 from internal.evaluation import learning_curve
 from internal.evaluation import metrics
-from internal.training import run_dir as run_dir_lib
-from internal.training import memory
-from internal.training import sharding
-from internal.training import stuck
+from internal.run import run_dir as run_dir_lib
+from internal.run import out_of_memory
+from internal.run import sharding
+from internal.run import stuck
 from internal.training import train_step as train_step_lib
 from internal.evaluation import vis
 from internal import progress
@@ -169,7 +169,7 @@ def _example_rays(batcher):
 def _host_memory_named(config, batcher):
   """batcher(step) whose running out of host memory is an OutOfMemoryError naming Config.batch_size."""
   def batch(step: int) -> dict:
-    with memory.naming_host_setting('drawing the training batch', f'Config.batch_size = {config.batch_size}'):
+    with out_of_memory.naming_host_setting('drawing the training batch', f'Config.batch_size = {config.batch_size}'):
       return batcher(step)
   return batch
 
@@ -239,9 +239,9 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
   first = int(state.step) + 1
   progress = Progress(config, writer, first)
   test_set = None
-  needed = lambda: memory.compiled_bytes(step_fn, state, sharding.shard_batch(batcher(first), mesh), key)
+  needed = lambda: out_of_memory.compiled_bytes(step_fn, state, sharding.shard_batch(batcher(first), mesh), key)
   try:
-    with memory.naming_setting('in the training step', f'Config.batch_size = {config.batch_size}', needed):
+    with out_of_memory.naming_setting('in the training step', f'Config.batch_size = {config.batch_size}', needed):
       for step in range(first, last + 1):
         state, stats = step_fn(state, sharding.shard_batch(batcher(step), mesh), key)
         progress.add(step, stats)

@@ -19,7 +19,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 import tensorstore
 
-from internal.training import distributed
+from internal.run import distributed
 from internal.training import train_step
 
 CHECKPOINT_SUBDIR = 'checkpoints'
