@@ -26,8 +26,8 @@ def _lift(x, min_deg, max_deg, power, append_identity, interleaved=False):
   return jnp.matmul(x, matrix, precision=jax.lax.Precision.HIGHEST), kind
 
 
-def _released_blocks(x, kind, features):
-  """features [..., L] in the block order, with the identity columns of kind [L] taken from x [..., L]."""
+def _with_identity(x, kind, features):
+  """features [..., L] of an encoding, its identity columns (kind 0 of kind [L]) taken from x [..., L] instead."""
   return jnp.where(kind == 0, x, features)
 
 
@@ -39,21 +39,21 @@ def _cos_shift(kind):
 def pos_enc(x, min_deg, max_deg, append_identity=True):
   """x [...,C] -> [..., C*(append_identity + 2*(max_deg-min_deg))]: [x | sin | cos]."""
   y, kind = _lift(x, min_deg, max_deg, 1, append_identity)
-  return _released_blocks(y, kind, trig.sin(y + _cos_shift(kind)))
+  return _with_identity(y, kind, trig.sin(y + _cos_shift(kind)))
 
 
 def integrated_pos_enc(mean, cov_diag, min_deg, max_deg, append_identity=True):
   """Expected pos_enc under N(mean [...,C], diag(cov_diag [...,C])); same length and order."""
   y, kind = _lift(mean, min_deg, max_deg, 1, append_identity)
   y_var, _ = _lift(cov_diag, min_deg, max_deg, 2, append_identity)
-  return _released_blocks(y, kind, jnp.exp(-0.5 * y_var) * safe_sin(y + _cos_shift(kind)))
+  return _with_identity(y, kind, jnp.exp(-0.5 * y_var) * safe_sin(y + _cos_shift(kind)))
 
 
 def interleaved_pos_enc(x, num_degrees, append_identity=True):
   """NeRF's encoding of x [...,C] -> [..., C*(append_identity + 2D)]: [x, sin(2^0 x), cos(2^0 x), sin(2^1 x), ...]."""
   y, kind = _lift(x, 0, num_degrees, 1, append_identity, interleaved=True)
   sin, cos = trig.sin_cos(y)
-  return _released_blocks(y, kind, jnp.where(kind == 1, sin, cos))
+  return _with_identity(y, kind, jnp.where(kind == 1, sin, cos))
 
 
 def width(num_degrees, num_coords=3, append_identity=True):
