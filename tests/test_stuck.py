@@ -17,6 +17,18 @@ def test_stuck_detector_on_flat_falling_and_late_losses():
   assert stuck.is_stuck([(step, float('nan')) for step in (10, 30, 60)], 50)  # Non-finite never improves.
 
 
+def test_a_plateau_after_learning_is_not_stuck_but_divergence_is():
+  # The window losses of a healthy DTU FreeNeRF run on a GPU (3100 steps, patience 500), which once warned: the loss
+  # fell 9x, then sat at 0.031-0.032 for 500 steps while the frequency band opened.
+  healthy = [(300, .2881), (500, .1642), (700, .0719), (900, .0522), (1100, .0416), (1300, .0360), (1400, .0311),
+             (1500, .0311), (1700, .0322), (1900, .0321), (2000, .0320)]
+  assert not stuck.is_stuck(healthy, 500)
+  assert stuck.is_stuck(healthy + [(2000, .0700)], 500)  # Rose above twice the best: diverging.
+  assert stuck.is_stuck(healthy + [(2000, float('nan'))], 500)
+  barely = [(step, 0.3 - 1e-4 * step / 100) for step in range(100, 700, 100)] + [(1000, 0.2997)]
+  assert stuck.is_stuck(barely, 500)  # Never learned: best above half the first loss.
+
+
 
 def test_a_huge_learning_rate_warns_once_naming_lr_init(tmp_path, scene_dir, capsys):
   config = tiny_config(scene_dir, tmp_path / 'run', 'Config.lr_init = 1e4', 'Config.lr_final = 1e4',

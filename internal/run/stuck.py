@@ -1,11 +1,14 @@
-"""Stuck training: a loss that sets no new best for a while early in a run (e.g. a learning rate so large that the
-network died and renders one colour), which would otherwise train to the end without a word."""
+"""Stuck training: a loss that sets no new best for a while early in a run and either never learned (e.g. a learning
+rate so large that the network died and renders one colour) or has since diverged, which would otherwise train to
+the end without a word. A plateau after the loss fell (normal while FreeNeRF's frequency band opens) is not stuck."""
 
 import math
 
 RELATIVE_IMPROVEMENT = 1e-3  # A window improves on the best loss when it is lower by more than this fraction.
 EARLY_FACTOR = 4  # Only the first EARLY_FACTOR * patience steps are watched: later plateaus are normal.
 MIN_WINDOWS = 4  # A patience scaled to a short run spans at least this many logged windows (noise of one window).
+LEARNED_FRACTION = 0.5  # A run whose best loss is below this fraction of its first window's has learned something,
+DIVERGED_FACTOR = 2.  # and is stuck only once its loss rose above this multiple of the best (or is not finite).
 
 
 def patience(config) -> int:
@@ -22,7 +25,8 @@ def is_stuck(windows, patience: int) -> bool:
   """Windows [(end step, mean loss), ...] in step order -> True when none improved on the best for patience steps.
 
   The best is the lowest loss so far (non-finite means never improve); patience 0 turns the check off, and a last
-  window past step EARLY_FACTOR * patience is no longer early, so never stuck.
+  window past step EARLY_FACTOR * patience is no longer early, so never stuck. A run that learned (best below
+  LEARNED_FRACTION of the first finite loss) is stuck only when its last loss is DIVERGED_FACTOR above the best.
   """
   if patience <= 0 or not windows or windows[-1][0] > EARLY_FACTOR * patience:
     return False
@@ -30,7 +34,12 @@ def is_stuck(windows, patience: int) -> bool:
   for step, loss in windows:
     if math.isfinite(loss) and loss < best * (1. - RELATIVE_IMPROVEMENT):
       best, best_step = loss, step
-  return windows[-1][0] - best_step >= patience
+  if windows[-1][0] - best_step < patience:
+    return False
+  first = next((loss for _, loss in windows if math.isfinite(loss)), math.inf)
+  last = windows[-1][1]
+  learned = best < LEARNED_FRACTION * first
+  return not learned or not math.isfinite(last) or last > DIVERGED_FACTOR * best
 
 
 def warning(config, windows) -> str:
