@@ -6,6 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from conftest import assert_float32_exact
 from internal import config_loader
 from internal.models import freq_schedule
 
@@ -48,14 +49,14 @@ def _reference_released(length, step, end):
 def test_released_worked_example(ratio, length, expected):
   mask = freq_schedule.released_mask(length, int(ratio * END), END)
   assert mask.dtype == jnp.float32 and mask.shape == (length,)
-  np.testing.assert_array_equal(mask, expected)
+  assert_float32_exact(mask, expected)
 
 
 def test_released_matches_literal_reference():
   for length in (99, 27):
     for step in range(0, 1100, 7):
-      np.testing.assert_array_equal(freq_schedule.released_mask(length, step, END),
-                                    _reference_released(length, step, END).astype(np.float32))
+      assert_float32_exact(freq_schedule.released_mask(length, step, END),
+                           _reference_released(length, step, END).astype(np.float32))
 
 
 def test_released_pointer_is_exact():
@@ -63,8 +64,9 @@ def test_released_pointer_is_exact():
   96..98) gets the float32 rounding of 4670 / 62791 = 0.0743737 (a float32 pointer gave 0.0743713)."""
   mask = np.asarray(freq_schedule.released_mask(99, 59127, 62791))
   ptr = 99 / 3 * 59127 / 62791 + 1  # The released formula in float64.
-  np.testing.assert_array_equal(mask[96:], np.float32(ptr - int(ptr)))
-  assert mask[96] == np.float32(4670 / 62791) and abs(mask[96] - 0.0743737) < 5e-8
+  assert_float32_exact(mask[96:], np.float32(ptr - int(ptr)))
+  assert_float32_exact(mask[96], np.float32(4670 / 62791))
+  assert abs(mask[96] - 0.0743737) < 5e-8
   np.testing.assert_array_equal(mask[:96], 1.)
   traced = jax.jit(lambda s: freq_schedule.released_mask(99, s, 62791))(jnp.int32(59127))
   np.testing.assert_array_equal(traced, mask)
@@ -116,7 +118,7 @@ def _expected_paper(length, ones, fracs, frac):
 def test_paper_worked_example(ratio, num_degrees, expected):
   mask = freq_schedule.paper_mask(num_degrees, int(ratio * END), END)
   assert mask.dtype == jnp.float32
-  np.testing.assert_array_equal(mask, expected)
+  assert_float32_exact(mask, expected)
 
 
 def test_paper_ends():

@@ -120,6 +120,11 @@ def test_unknown_ray_shape_is_a_clear_error():
     _tiny(["MipNerfModel.ray_shape = 'sphere'"])
 
 
+def _dense(layers, i, x):
+  """Layer Dense_i of a parameter tree applied to x in true float32 (an accelerator's default would be TF32)."""
+  return jnp.dot(x, layers[f'Dense_{i}']['kernel'], precision='highest') + layers[f'Dense_{i}']['bias']
+
+
 def test_mlp_matches_concatenating_reference():
   # The split dense layers and the per-ray view term equal the textbook concatenated MLP.
   model, variables = _tiny()
@@ -129,7 +134,7 @@ def test_mlp_matches_concatenating_reference():
   viewdirs = rng.normal(size=(3, 3)).astype(np.float32)
   rgb, density = mip_nerf.MLP().apply({'params': layers}, None, means, covs, viewdirs, None, None)
   x = encoding.integrated_pos_enc(means, covs, 0, 16)
-  dense = lambda i, x: x @ layers[f'Dense_{i}']['kernel'] + layers[f'Dense_{i}']['bias']
+  dense = lambda i, x: _dense(layers, i, x)
   x = jax.nn.relu(dense(1, jax.nn.relu(dense(0, x))))  # net_depth 2: no skip.
   np.testing.assert_allclose(density, jax.nn.softplus(dense(2, x)[..., 0] - 1.), rtol=1e-5, atol=1e-6)
   view = jnp.broadcast_to(encoding.pos_enc(viewdirs, 0, 4)[:, None], (3, 8, 27))
@@ -147,7 +152,7 @@ def test_skip_connection_reuses_masked_encoding():
   assert layers['Dense_2']['kernel'].shape == (16 + 99, 16)
   mask = freq_schedule.fixed_ratio_mask(99, 3 / 99)
   enc = encoding.integrated_pos_enc(means, covs, 0, 16) * mask
-  dense = lambda i, x: x @ layers[f'Dense_{i}']['kernel'] + layers[f'Dense_{i}']['bias']
+  dense = lambda i, x: _dense(layers, i, x)
   # skip_layer 1: the (masked) encoding is appended after layers 1 and 2.
   x = jax.nn.relu(dense(1, jax.nn.relu(dense(0, enc))))
   x = jax.nn.relu(dense(2, jnp.concatenate([x, enc], -1)))
@@ -184,5 +189,6 @@ def test_model_and_released_equivalent_mlp_take_the_mlp_bindings_and_their_degre
   variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False)[1]
   masks = (jnp.ones(63), jnp.ones(15))
   ours = model.apply(variables, None, rays, *masks)[0][-1]['rgb']
-  theirs = released.apply(variables, None, rays, *masks, mutable=['intermediates'])[0][0][-1]['rgb']
+  with jax.default_matmul_precision('highest'):  # Ours is true float32; the released graph, the backend default.
+    theirs = released.apply(variables, None, rays, *masks, mutable=['intermediates'])[0][0][-1]['rgb']
   np.testing.assert_allclose(theirs, ours, atol=1e-5)
