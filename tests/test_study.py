@@ -5,6 +5,7 @@ import csv
 import json
 import os
 import pathlib
+import shutil
 import subprocess
 import sys
 
@@ -216,3 +217,33 @@ def test_committed_study_files_parse():
     assert study_spec.cells(study)
     for cell in study_spec.cells(study):
       study_spec.cell_gin(study, cell, 'out', 'data', 'run')
+
+
+def _cell_folder(root, name, renders):
+  """A finished cell's folder under root: cell_spec.json and, with renders, one evaluated image."""
+  evaluated = root / name / study_lib.RUN_SUBDIR / 'test_preds_step_20'
+  evaluated.mkdir(parents=True)
+  (root / name / 'cell_spec.json').write_text('{}')
+  if renders:
+    (evaluated / 'color_000.png').write_bytes(b'')
+  return str(root / name)
+
+
+def test_pictures_come_from_the_first_seed_whose_cells_kept_their_renders(tmp_path):
+  cells = [{'cell': f'{m}_{s}', 'step': 20, 'labels': {study_spec.SEED_AXIS: s}} for s in ('1', '2') for m in 'ab']
+  kept = {'a_1': True, 'b_1': False, 'a_2': True, 'b_2': True}           # b_1 was imported from an export.
+  paths = {c['cell']: _cell_folder(tmp_path, c['cell'], kept[c['cell']]) for c in cells}
+  assert study_lib.study_export._picture_cells(cells, paths, ['1', '2']) == cells[2:]
+  assert study_lib.study_export._picture_cells(cells, paths, ['1']) == []
+
+
+def test_export_without_renders_warns_and_draws_no_picture(ran, tmp_path, capsys):
+  _, out, path = ran
+  copy = tmp_path / 'out'
+  shutil.copytree(out, copy)
+  for image in (copy / 'mini').glob('*object*/run/test_preds_step_*/color_*.png'):
+    image.unlink()
+  assert study_lib.main([str(path), '--out', str(copy), '--plots-only', '--export', str(tmp_path / 'x')]) == 0
+  assert 'warning: side_by_side_object.png not drawn' in capsys.readouterr().out
+  assert not (tmp_path / 'x' / 'side_by_side_object.png').exists()
+  assert (tmp_path / 'x' / 'side_by_side_forward.png').is_file()

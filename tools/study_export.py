@@ -7,6 +7,7 @@ method's render of the first evaluated test views, of the first seed), table.md 
 and commit) and provenance.json: the command, the commit each cell ran at, the machine and the package versions.
 """
 
+import glob
 import json
 import os
 import platform
@@ -116,10 +117,26 @@ def markdown_table(cells: List[dict]) -> str:
   return '\n'.join(lines) + '\n'
 
 
-def _first_seed(study: study_spec.Study):
-  """The label of the study's first seed (the one its side-by-side pictures show), None without seeds."""
+def _seeds(study: study_spec.Study) -> list:
+  """The labels of the study's seeds in axis order, [None] for a study without a seed axis."""
   axis = next((a for a in study.axes if a.name == study_spec.SEED_AXIS), None)
-  return axis.points[0].label if axis else None
+  return [p.label for p in axis.points] if axis else [None]
+
+
+def _has_renders(cell_path: str, cell: dict) -> bool:
+  """Whether a finished cell kept what a picture is drawn from (its settings and its evaluation's images); a
+  cell.json copied in from an export has neither."""
+  images = glob.glob(os.path.join(eval_dir(cell_path, cell['step']), 'color_*.png'))
+  return bool(images) and os.path.isfile(os.path.join(cell_path, 'cell_spec.json'))
+
+
+def _picture_cells(cells: List[dict], paths: Dict[str, str], seeds: list) -> List[dict]:
+  """The cells of the first seed whose every finished cell has its renders ([] when no seed has)."""
+  for seed in seeds:
+    chosen = [c for c in cells if c['labels'].get(study_spec.SEED_AXIS) == seed]
+    if chosen and all(_has_renders(paths[c['cell']], c) for c in chosen):
+      return chosen
+  return []
 
 
 def export(study: study_spec.Study, study_file: str, study_folder: str, dest: str, command: str) -> List[str]:
@@ -138,10 +155,11 @@ def export(study: study_spec.Study, study_file: str, study_folder: str, dest: st
       paths[cell.cell_id] = path
       _copy_cell(path, finished[-1], dest)
   pictures = []
-  first_seed = _first_seed(study)
   for scene in dict.fromkeys(c['scene'] for c in finished):
-    cells = [c for c in finished if c['scene'] == scene and c['labels'].get(study_spec.SEED_AXIS) == first_seed]
+    cells = _picture_cells([c for c in finished if c['scene'] == scene], paths, _seeds(study))
     if not cells:
+      print(f'warning: side_by_side_{scene}.png not drawn: no seed has every finished cell with its renders '
+            f'(color_*.png) and cell_spec.json')
       continue
     pictures.append(os.path.join(dest, f'side_by_side_{scene}.png'))
     _scene_picture(cells, paths, _ground_truth(paths[cells[0]['cell']], cells[0], PICTURE_VIEWS), pictures[-1])
