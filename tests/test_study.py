@@ -247,3 +247,25 @@ def test_export_without_renders_warns_and_draws_no_picture(ran, tmp_path, capsys
   assert 'warning: side_by_side_object.png not drawn' in capsys.readouterr().out
   assert not (tmp_path / 'x' / 'side_by_side_object.png').exists()
   assert (tmp_path / 'x' / 'side_by_side_forward.png').is_file()
+
+
+def test_reuse_takes_the_exported_cells_with_the_same_settings(ran, tmp_path, capsys):
+  _, out, path = ran
+  export = tmp_path / 'export'
+  assert study_lib.main([str(path), '--out', out, '--plots-only', '--export', str(export)]) == 0
+  fresh = tmp_path / 'fresh'                                             # Another machine: no run folders.
+  assert study_lib.main([str(path), '--out', str(fresh), '--reuse', str(export), '--plots-only']) == 0
+  assert capsys.readouterr().out.count('reused ') == 4
+  columns = ('cell', 'psnr', 'steps_per_sec', 'status')
+  pick = lambda rows: [{k: r[k] for k in columns} for r in rows]
+  assert pick(_rows(fresh / 'mini' / 'results.csv')) == pick(_rows(pathlib.Path(out, 'mini', 'results.csv')))
+  assert (fresh / 'mini' / 'psnr_vs_step.png').is_file()                 # The learning curves came along.
+  changed = tmp_path / 'changed'
+  shutil.copytree(export, changed)
+  toml = changed / 'mini.toml'
+  toml.write_text(toml.read_text().replace('"Config.freq_reg_end = 0"', '"Config.freq_reg_end = 5"'))
+  assert study_lib.main([str(path), '--out', str(tmp_path / 'other'), '--reuse', str(changed), '--list']) == 0
+  listing = capsys.readouterr().out
+  assert listing.count('reused ') == 2 and listing.count('not reused') == 2 and listing.count('pending') == 2
+  with pytest.raises(study_spec.StudyError, match='expected one exported study file'):
+    study_lib.main([str(path), '--out', str(tmp_path / 'none'), '--reuse', str(tmp_path), '--list'])

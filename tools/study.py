@@ -2,13 +2,15 @@
 
 Usage: python -m tools.study STUDY.toml [--out out/studies] [--data_root data] [--jobs N] [--gpus 0,1,...]
                              [--shard K/N] [--list [--estimate]] [--plots-only] [--gin_bindings B ...]
+                             [--export DIR] [--reuse DIR]
 
 Each cell runs `train(config)` then eval's `evaluate(config)` in a subprocess (`python -m tools.study
 --run-cell <cell dir>`: gin state stays per process and cells can run in parallel) in the run directory
 <out>/<study>/<cell id>/run/, and writes <out>/<study>/<cell id>/cell.json: the evaluation means, wall times (train, eval; they
 include data loading and compilation), steps/s, XLA's flop count of one train step, the process's peak RSS
 and, on accelerators, the device's peak bytes. Its output goes to <cell>/log.txt.
-Resumable: a cell with cell.json is skipped; a half-trained one resumes from its newest checkpoint.
+Resumable: a cell with cell.json is skipped; a half-trained one resumes from its newest checkpoint. --reuse DIR
+takes the finished cells of an earlier export (another machine's, say) instead of running them again.
 --jobs N runs N cells at a time; --gpus gives one GPU per worker (CUDA_VISIBLE_DEVICES), --shard K/N takes
 every N-th cell from K (one command per host on a shared folder). At the end (also after failures) the
 results of all finished cells are gathered into <out>/<study>/results.csv and <metric>_vs_<x>.png plots, and
@@ -37,6 +39,7 @@ from tools import study_budget
 from tools import study_cost
 from tools import study_export
 from tools import study_plots
+from tools import study_reuse
 from tools import study_spec
 from tools import study_stats
 
@@ -336,6 +339,8 @@ def main(argv=None) -> int:
                       help='gin bindings appended to every cell (after the study file\'s own)')
   parser.add_argument('--export', metavar='DIR', help='after the run, copy results, plots, per-cell metrics, '
                       'side-by-side pictures and provenance (no checkpoints) into DIR, to be committed')
+  parser.add_argument('--reuse', metavar='DIR', help='first take the finished cells of an earlier --export DIR '
+                      'that this study lacks and runs with the same settings (tools/study_reuse.py)')
   parser.add_argument('--run-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
   parser.add_argument('--measure-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
   args = parser.parse_args(argv)
@@ -354,7 +359,12 @@ def main(argv=None) -> int:
                  'delete that one) so that earlier results are not overwritten')
   if args.estimate and not args.list:
     parser.error('--estimate goes with --list')
+  if args.reuse and args.gin_bindings:
+    parser.error('--reuse matches cells by the study file\'s settings, and an export does not record '
+                 '--gin_bindings: put those bindings in the study file')
   study = study_spec.load(args.study)
+  if args.reuse:
+    study_reuse.reuse(study, args.reuse, study_dir(study, args.out), args.data_root)
   if args.list:
     _list(study, args)
     return 0

@@ -1,0 +1,69 @@
+"""Finished cells taken from an earlier export (`tools.study --reuse DIR`), so that a study moved to another machine,
+or whose run folders are gone, runs only the cells it lacks.
+
+A cell of the export is reused when the cell has not finished here and the export's copy of the study file gives it
+the same gin configs and bindings as this study file does. Its cell.json, the evaluation's metrics.json and
+metrics.csv and its learning curve go where a run here would have written them; its checkpoints and renders are not
+in an export, so a reused cell cannot resume training and appears in no side-by-side picture.
+"""
+
+import glob
+import json
+import os
+import shutil
+from typing import List
+
+from tools import study_export
+from tools import study_spec
+
+CURVE_FILE = 'learning_curve.csv'
+
+
+def exported_study(export_dir: str) -> study_spec.Study:
+  """The study file an export holds (its one .toml); StudyError naming the folder when it holds none or several."""
+  found = sorted(glob.glob(os.path.join(export_dir, '*.toml')))
+  if len(found) != 1:
+    raise study_spec.StudyError(f'--reuse {export_dir}: expected one exported study file (*.toml) there, found '
+                                f'{len(found)}; give the folder that tools.study --export wrote')
+  return study_spec.load(found[0])
+
+
+def _same_settings(study, exported, cell, out: str, data_root: str) -> bool:
+  """Whether both study files give the cell the same gin configs and bindings."""
+  if cell.cell_id not in {c.cell_id for c in study_spec.cells(exported)}:
+    return False
+  run_dir = os.path.join(out, cell.cell_id)
+  return (study_spec.cell_gin(study, cell, out, data_root, run_dir)
+          == study_spec.cell_gin(exported, cell, out, data_root, run_dir))
+
+
+def _copy_cell(source: str, target: str, step: int) -> None:
+  """Places an exported cell's files in the cell folder target as a finished run would have left them."""
+  run = os.path.join(target, study_export.RUN_SUBDIR)
+  evaluated = study_export.eval_dir(target, step)
+  os.makedirs(evaluated, exist_ok=True)
+  for name, dest in (('metrics.json', evaluated), ('metrics.csv', evaluated), (CURVE_FILE, run)):
+    if os.path.isfile(os.path.join(source, name)):
+      shutil.copy2(os.path.join(source, name), dest)
+  shutil.copy2(os.path.join(source, 'cell.json'), target)  # Last: cell.json marks the cell finished.
+
+
+def reuse(study: study_spec.Study, export_dir: str, study_folder: str, data_root: str) -> List[str]:
+  """Copies the export's finished cells that this study lacks and has with the same settings; prints a line per
+  cell reused or passed over; returns the reused cell ids."""
+  exported = exported_study(export_dir)
+  out = os.path.dirname(study_folder)
+  reused = []
+  for cell in study_spec.cells(study):
+    source, target = os.path.join(export_dir, cell.cell_id), os.path.join(study_folder, cell.cell_id)
+    if not os.path.isfile(os.path.join(source, 'cell.json')) or os.path.isfile(os.path.join(target, 'cell.json')):
+      continue
+    if not _same_settings(study, exported, cell, out, data_root):
+      print(f'warning: {cell.cell_id} not reused: {export_dir} ran it with other settings')
+      continue
+    with open(os.path.join(source, 'cell.json')) as f:
+      record = json.load(f)
+    _copy_cell(source, target, record['step'])
+    reused.append(cell.cell_id)
+    print(f'reused {cell.cell_id} from {export_dir} (commit {(record.get("commit") or "unknown")[:8]})')
+  return reused
