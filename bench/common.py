@@ -1,15 +1,28 @@
 """Pieces shared by the benchmarks: waiting and timing, interleaved medians, matmul rates, a compiled step."""
 
+import dataclasses
 import functools
 import statistics
 import time
 
+import gin
 import jax
 import jax.numpy as jnp
 from jax import random
 
+from internal import config_loader
+from internal import configs
 from internal.run import flops
 from internal.training import train_step as ts
+
+
+def gin_config(files, bindings, **overrides) -> configs.Config:
+  """The validated Config of gin files and bindings (parsed now, replacing any earlier bindings), with overrides."""
+  gin.clear_config()
+  config_loader.parse_gin(files, bindings)
+  config = dataclasses.replace(configs.Config(), **overrides)
+  config_loader.validate(config)
+  return config
 
 
 def block(tree):

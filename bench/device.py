@@ -14,7 +14,6 @@ rays, no data needed). Per precision, the methods' steps and a matmul at that pr
 """
 
 import argparse
-import dataclasses
 import json
 import os
 import resource
@@ -28,7 +27,6 @@ import numpy as np
 
 from bench import common
 from bench import train_step as bench_train_step
-from internal import config_loader
 from internal import configs
 from internal.evaluation import inference
 from internal.models import mip_nerf
@@ -49,11 +47,8 @@ def available_methods():
 
 def method_config(method: str, precision_name: str, batch_size: int, bindings) -> configs.Config:
   """The validated Config of method's gin file (parsed now, replacing any earlier bindings) at a precision."""
-  gin.clear_config()
-  config_loader.parse_gin([os.path.join(ROOT, METHOD_CONFIGS[method])], bindings)
-  config = dataclasses.replace(configs.Config(), precision=precision_name, batch_size=batch_size)
-  config_loader.validate(config)
-  return config
+  return common.gin_config([os.path.join(ROOT, METHOD_CONFIGS[method])], bindings, precision=precision_name,
+                           batch_size=batch_size)
 
 
 def peak_memory():

@@ -15,7 +15,6 @@ of the operation (the project file and function it was traced from; a fused oper
 
 import argparse
 import collections
-import dataclasses
 import glob
 import gzip
 import json
@@ -23,7 +22,6 @@ import os
 import re
 import tempfile
 
-import gin
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -31,7 +29,6 @@ import numpy as np
 from bench import common
 from bench import train_step as bench_train_step
 from internal import cli
-from internal import config_loader
 from internal import configs
 from internal import rays as rays_lib
 from internal.models import registry
@@ -51,12 +48,7 @@ LOSS_DIR = os.sep + 'losses' + os.sep
 def scale_config(name: str):
   """The validated Config of a scale (its gin files parsed now, replacing earlier bindings)."""
   files, batch_size = SCALES[name]
-  gin.clear_config()
-  config_loader.parse_gin(files, ['MLP.density_noise = 1.0'])
-  config = configs.Config()
-  config = dataclasses.replace(config, batch_size=batch_size) if batch_size else config
-  config_loader.validate(config)
-  return config
+  return common.gin_config(files, ['MLP.density_noise = 1.0'], **({'batch_size': batch_size} if batch_size else {}))
 
 
 def random_batch(config):
