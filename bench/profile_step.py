@@ -29,7 +29,6 @@ import numpy as np
 from bench import common
 from bench import train_step as bench_train_step
 from internal import cli
-from internal import configs
 from internal import rays as rays_lib
 from internal.models import registry
 
