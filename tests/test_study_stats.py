@@ -132,3 +132,9 @@ def test_statistics_files_and_plots(study, tmp_path):
   plots = study_plots.write_plots(study, rows, str(tmp_path))
   assert {p.rsplit('/', 1)[1] for p in plots} >= {'compare_psnr.png', 'compare_lpips.png'}
   assert Image.open(tmp_path / 'compare_psnr.png').size == (640, 440)
+
+
+def test_seeds_are_placed_as_categories_in_their_order():
+  study = study_spec.parse(SEEDED.replace('seeds = 3', 'seeds = [20200823, 1, 2]'), 'seeded.toml')
+  positions, ticks = study_plots._axis_positions(study, study_spec.SEED_AXIS)
+  assert positions == {'20200823': 0., '1': 1., '2': 2.} and ticks == ['20200823', '1', '2']

@@ -27,11 +27,12 @@ def pareto_front(points: Sequence[Tuple[float, float]], lower_is_better: bool) -
 
 
 def _axis_positions(study: study_spec.Study, x: str):
-  """({label: position}, tick labels or None): numeric values, or indices for a categorical axis."""
+  """({label: position}, tick labels or None): numeric values, or indices for a categorical axis (and for the
+  seeds, whose values are names, not quantities: 20200823 beside 1 and 2 would squeeze those together)."""
   axis = next((a for a in study.axes if a.name == x), None)
   if axis is None:
     return None, None
-  if all(p.value is not None for p in axis.points):
+  if x != study_spec.SEED_AXIS and all(p.value is not None for p in axis.points):
     return {p.label: p.value for p in axis.points}, None
   return {p.label: float(i) for i, p in enumerate(axis.points)}, [p.label for p in axis.points]
 
@@ -106,7 +107,7 @@ def comparison_plot(study: study_spec.Study, comparisons, metric: str, path: str
   ax.set_ylim(-.6, len(comparisons) - .2)
   if any(c.verdict.startswith(study_stats.UNDECIDED) for c in comparisons):
     ax.plot([], [], color='red', label=f'{study_stats.UNDECIDED}: no difference shown')
-  vis.save_figure(fig, ax, f'paired difference of {metric}, mean and {study_stats.LEVEL:.0%} interval', '',
+  vis.save_figure(fig, ax, f'a - b: paired mean, {study_stats.LEVEL:.0%} interval', '',
                   f'{study.name}: {metric}, paired', path)
   return True
 
