@@ -7,11 +7,11 @@ import sys
 
 import pytest
 
+from bench import device
 from conftest import SHARED_DATA
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-TINY = ['MLP.net_depth = 2', 'MLP.net_width = 32', 'MLP.net_width_viewdirs = 16', 'MipNerfModel.num_samples = 8',
-        'Config.batch_size = 64', 'Config.render_chunk_size = 4096', 'Config.occ_reg_range = 4']
+TINY = device.TINY + ['Config.batch_size = 64', 'Config.render_chunk_size = 4096', 'Config.occ_reg_range = 4']
 
 
 @pytest.mark.skipif(not (SHARED_DATA / 'dtu' / 'dtu_scan24').is_dir(), reason=f'no DTU scan24 under {SHARED_DATA}')

@@ -23,6 +23,7 @@ from internal.evaluation import vis
 from tools import study_spec
 
 RUN_SUBDIR = 'run'    # A cell's run directory (Config.checkpoint_dir) inside its folder.
+METRICS_FILES = ('metrics.json', 'metrics.csv')  # What a cell's evaluation wrote that an export keeps.
 PICTURE_VIEWS = 2     # Test views per scene in the side-by-side picture.
 MIN_TILE_WIDTH = 160  # Narrower renders are upscaled (nearest) so that the column titles fit.
 PROVENANCE_FILE = 'provenance.json'
@@ -65,7 +66,7 @@ def _copy_cell(cell_path: str, cell: dict, dest: str) -> None:
   target = os.path.join(dest, cell['cell'])
   os.makedirs(target, exist_ok=True)
   shutil.copy2(os.path.join(cell_path, 'cell.json'), target)
-  sources = [os.path.join(eval_dir(cell_path, cell['step']), name) for name in ('metrics.json', 'metrics.csv')]
+  sources = [os.path.join(eval_dir(cell_path, cell['step']), name) for name in METRICS_FILES]
   for source in sources + [learning_curve.csv_path(os.path.join(cell_path, RUN_SUBDIR))]:
     if os.path.isfile(source):
       shutil.copy2(source, target)

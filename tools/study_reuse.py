@@ -16,8 +16,6 @@ from typing import List
 from tools import study_export
 from tools import study_spec
 
-CURVE_FILE = 'learning_curve.csv'
-
 
 def exported_study(export_dir: str) -> study_spec.Study:
   """The study file an export holds (its one .toml); StudyError naming the folder when it holds none or several."""
@@ -29,9 +27,7 @@ def exported_study(export_dir: str) -> study_spec.Study:
 
 
 def _same_settings(study, exported, cell, out: str, data_root: str) -> bool:
-  """Whether both study files give the cell the same gin configs and bindings."""
-  if cell.cell_id not in {c.cell_id for c in study_spec.cells(exported)}:
-    return False
+  """Whether both study files give the cell (one of both studies') the same gin configs and bindings."""
   run_dir = os.path.join(out, cell.cell_id)
   return (study_spec.cell_gin(study, cell, out, data_root, run_dir)
           == study_spec.cell_gin(exported, cell, out, data_root, run_dir))
@@ -39,12 +35,15 @@ def _same_settings(study, exported, cell, out: str, data_root: str) -> bool:
 
 def _copy_cell(source: str, target: str, step: int) -> None:
   """Places an exported cell's files in the cell folder target as a finished run would have left them."""
-  run = os.path.join(target, study_export.RUN_SUBDIR)
+  from internal.evaluation import learning_curve  # pylint: disable=import-outside-toplevel  (jax: only when used)
   evaluated = study_export.eval_dir(target, step)
   os.makedirs(evaluated, exist_ok=True)
-  for name, dest in (('metrics.json', evaluated), ('metrics.csv', evaluated), (CURVE_FILE, run)):
-    if os.path.isfile(os.path.join(source, name)):
-      shutil.copy2(os.path.join(source, name), dest)
+  curve = learning_curve.csv_path(os.path.join(target, study_export.RUN_SUBDIR))
+  destinations = [os.path.join(evaluated, name) for name in study_export.METRICS_FILES] + [curve]
+  for dest in destinations:
+    exported = os.path.join(source, os.path.basename(dest))
+    if os.path.isfile(exported):
+      shutil.copy2(exported, dest)
   shutil.copy2(os.path.join(source, 'cell.json'), target)  # Last: cell.json marks the cell finished.
 
 
@@ -52,13 +51,14 @@ def reuse(study: study_spec.Study, export_dir: str, study_folder: str, data_root
   """Copies the export's finished cells that this study lacks and has with the same settings; prints a line per
   cell reused or passed over; returns the reused cell ids."""
   exported = exported_study(export_dir)
+  exported_ids = {c.cell_id for c in study_spec.cells(exported)}
   out = os.path.dirname(study_folder)
   reused = []
   for cell in study_spec.cells(study):
     source, target = os.path.join(export_dir, cell.cell_id), os.path.join(study_folder, cell.cell_id)
     if not os.path.isfile(os.path.join(source, 'cell.json')) or os.path.isfile(os.path.join(target, 'cell.json')):
       continue
-    if not _same_settings(study, exported, cell, out, data_root):
+    if cell.cell_id not in exported_ids or not _same_settings(study, exported, cell, out, data_root):
       print(f'warning: {cell.cell_id} not reused: {export_dir} ran it with other settings')
       continue
     with open(os.path.join(source, 'cell.json')) as f:
