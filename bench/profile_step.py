@@ -89,13 +89,30 @@ def source_table(hlo_text: str):
           for i, f in ((i, ids(v)) for i, v in tables['StackFrames'].items())}
 
 
+def matmul_operations(hlo_text: str):
+  """Names of the module's dot instructions and of the fusions whose computation holds a dot.
+
+  Judged by content, not name: XLA's CPU backend also emits reductions (the bias gradients) as library fusions
+  named like its matmuls.
+  """
+  with_dot = {match.group(1) for match in re.finditer(r'^%([\w.\-]+) \(.*?^\}', hlo_text, re.M | re.S)
+              if re.search(r' dot\(', match.group(0))}
+  names = set()
+  for match in re.finditer(r'^\s*(?:ROOT )?%([\w.\-]+) = \S+ (dot|fusion)\(.*$', hlo_text, re.M):
+    called = re.search(r'calls=%([\w.\-]+)', match.group(0))
+    if match.group(2) == 'dot' or (called and called.group(1) in with_dot):
+      names.add(match.group(1))
+  return names
+
+
 def operation_sources(hlo_text: str):
   """{operation name: (file, function, is a matmul)} of the compiled module's instructions."""
   frames = source_table(hlo_text)
+  matmuls = matmul_operations(hlo_text)
   sources = {}
   for match in re.finditer(r'^\s*(?:ROOT )?%([\w.\-]+) = .*?stack_frame_id=(\d+)', hlo_text, re.M):
     name = match.group(1)
-    sources[name] = frames.get(int(match.group(2)), ('?', '?')) + (name.startswith(('ynn_fusion', 'dot')),)
+    sources[name] = frames.get(int(match.group(2)), ('?', '?')) + (name in matmuls,)
   return sources
 
 

@@ -1,6 +1,7 @@
 """bench.profile_step: operations are charged to the stage of their source, and one scale's figures agree."""
 
 import json
+import re
 
 import jax
 import jax.numpy as jnp
@@ -37,3 +38,11 @@ def test_a_scale_reports_consistent_figures(tmp_path):
 def test_unknown_scales_are_named():
   with pytest.raises(SystemExit):
     profile_step.main(['--scales', 'demo,huge'])
+
+
+def test_only_operations_that_multiply_matrices_count_as_matmuls():
+  fn = jax.jit(lambda x, w: (x @ w, jnp.sum(x, axis=0)))  # A matmul and a bias-gradient-like column sum.
+  hlo = fn.lower(jnp.ones((4096, 128)), jnp.ones((128, 128))).compile().as_text()
+  matmuls = [name for name, (_, _, is_matmul) in profile_step.operation_sources(hlo).items() if is_matmul]
+  output_shapes = {re.search(rf'%{re.escape(name)} = (\S+)', hlo).group(1).split('{')[0] for name in matmuls}
+  assert output_shapes == {'f32[4096,128]'}
