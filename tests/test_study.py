@@ -10,6 +10,7 @@ import subprocess
 import sys
 
 import gin
+import numpy as np
 from PIL import Image
 import pytest
 
@@ -151,8 +152,13 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   assert json.loads((dest / 'provenance.json').read_text()) == provenance
   h, w = 120, 160                                                         # 12 x 16 renders upscaled x10.
   for scene in ('object', 'forward'):
-    with Image.open(dest / f'side_by_side_{scene}.png') as picture:    # Two views x (truth + 2 methods).
-      assert picture.size == (demo.LABEL_WIDTH + 3 * (w + demo.GAP), demo.HEADER + 2 * (h + demo.GAP))
+    with Image.open(dest / f'side_by_side_{scene}.png') as picture:    # Two views x (colour, depth) x (truth + 2).
+      assert picture.size == (demo.LABEL_WIDTH + 3 * (w + demo.GAP), demo.HEADER + 4 * (h + demo.GAP))
+      pixels = np.asarray(picture.convert('RGB'))
+    depth_row = pixels[demo.HEADER + h + demo.GAP + h // 2]                # Blank under the truth, coloured beside.
+    truth_column = slice(demo.LABEL_WIDTH, demo.LABEL_WIDTH + w)
+    render_columns = slice(demo.LABEL_WIDTH + w + demo.GAP, None)
+    assert (depth_row[truth_column] == 255).all() and (depth_row[render_columns] != 255).any(axis=-1).mean() > 0.5
 
 
 def test_tables_gather_the_study(ran, tmp_path):

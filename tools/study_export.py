@@ -72,20 +72,38 @@ def _copy_cell(cell_path: str, cell: dict, dest: str) -> None:
       shutil.copy2(source, target)
 
 
+def _depth_row(folders: List[str], view_id: int, image: np.ndarray):
+  """The depth row of one test view: blank under the ground truth, then each evaluation's rendered distance in
+  one colour range shared by the renders (so that they compare); None when an evaluation kept no depth."""
+  from internal.evaluation import depth_metrics  # pylint: disable=import-outside-toplevel
+  files = [depth_metrics.depth_file(folder, view_id) for folder in folders]
+  if not all(os.path.isfile(f) for f in files):
+    return None
+  depths = [np.load(f)['distance'] for f in files]
+  value_range = vis.depth_range(np.concatenate([d.ravel() for d in depths]))
+  return [np.ones_like(image)] + [vis.colorize_depth(d, value_range) for d in depths]
+
+
 def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Dict[int, np.ndarray], path: str) -> None:
-  """Writes one scene's picture: per row a test view (by id), columns ground truth then each cell's render."""
+  """Writes one scene's picture: per test view (by id) a colour row and, where kept, a depth row; columns ground
+  truth then each cell's render."""
   from internal import demo  # pylint: disable=import-outside-toplevel
-  rows = []
+  folders = [eval_dir(paths[c['cell']], c['step']) for c in cells]
+  rows, row_titles = [], []
   for view_id, image in truth.items():
-    renders = [np.asarray(Image.open(os.path.join(eval_dir(paths[c['cell']], c['step']),
-                                                  f'color_{view_id:03d}.png')).convert('RGB')) / 255.
-               for c in cells]
+    renders = [np.asarray(Image.open(os.path.join(folder, f'color_{view_id:03d}.png')).convert('RGB')) / 255.
+               for folder in folders]
     rows.append([image] + renders)
+    row_titles.append(f'test view {view_id}')
+    depth = _depth_row(folders, view_id, image)
+    if depth is not None:
+      rows.append(depth)
+      row_titles.append('depth')
   one_method = len({c['method'] for c in cells}) == 1
   titles = [' '.join(([] if one_method and c['labels'] else [c['method']]) +
                      [f'{k}={v}' for k, v in c['labels'].items()]) for c in cells]
   scale = -(-MIN_TILE_WIDTH // rows[0][0].shape[1])
-  picture = demo.grid(rows, ['ground truth'] + titles, [f'test view {i}' for i in truth], scale=scale)
+  picture = demo.grid(rows, ['ground truth'] + titles, row_titles, scale=scale)
   vis.save_png(picture / 255., path)
 
 
