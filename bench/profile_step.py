@@ -8,8 +8,9 @@ Each scale is a gin setting of this project with random rays of its batch size (
   paper  the paper's DTU FreeNeRF (configs/freenerf/dtu3_freenerf.gin: 8 x 256, 2 x 128 samples; batch 256).
 Per scale, interleaved with two matmuls in the same run: the median step time, XLA's flop count of the compiled
 step and the achieved GFLOP/s, against the best rate of the benchmark's matmuls (bench.train_step's
-[4096 | 32768, 256] @ [256, 256]) and of the scale's own MLP matmul ([rays x samples, width] @ [width, width]).
-Then a profiler trace of --profile_steps steps: every XLA operation's time is charged to a stage by the source
+[4096 | 32768, 256] @ [256, 256]) and of the scale's own MLP matmul ([rays x samples, width] @ [width, width]),
+and the time of the step's own matrix products run alone, one after another (what the step would take if all
+else were free). Then a profiler trace of --profile_steps steps: every XLA operation's time is charged to a stage by the source
 of the operation (the project file and function it was traced from; a fused operation by its root).
 """
 
@@ -105,6 +106,35 @@ def matmul_operations(hlo_text: str):
   return names
 
 
+def module_dots(hlo_text: str):
+  """Counter of the compiled module's matrix products: (lhs shape, rhs shape, dimension numbers) -> how many.
+
+  Every dot instruction, inside library fusions too, as XLA left it after optimization (a product it turned into
+  element-wise work is not one); each runs once per step (the step's loops and branches hold none).
+  """
+  shapes = {name: tuple(int(d) for d in dims.split(',') if d) for name, dims in
+            re.findall(r'%([\w.\-]+) = f32\[([\d,]*)\]', hlo_text)}
+  dots = collections.Counter()
+  for operands, numbers in re.findall(r'= f32\[[\d,]*\]\S* dot\(([^)]*)\), ((?:\w+_dims=\{[\d,]*\}, )+)', hlo_text):
+    lhs, rhs = (shapes[name] for name in re.findall(r'%([\w.\-]+)', operands))
+    dims = dict(re.findall(r'(\w+)_dims=\{([\d,]*)\}', numbers))
+    axes = lambda key: tuple(int(d) for d in dims.get(key, '').split(',') if d)
+    dimension_numbers = ((axes('lhs_contracting'), axes('rhs_contracting')), (axes('lhs_batch'), axes('rhs_batch')))
+    dots[(lhs, rhs, dimension_numbers)] += 1
+  return dots
+
+
+def dots_alone_runner(dots):
+  """Zero-arg callable: seconds to run every product of dots (module_dots) alone, as often as the step does."""
+  calls = []
+  for (lhs, rhs, dimension_numbers), count in dots.items():
+    f = jax.jit(lambda a, b, n=dimension_numbers: jax.lax.dot_general(a, b, n, precision=jax.lax.Precision.HIGHEST))
+    args = (jnp.ones(lhs, jnp.float32), jnp.ones(rhs, jnp.float32))
+    common.block(f(*args))
+    calls += [(f, args)] * count
+  return lambda: common.timed(lambda: [common.block(f(*args)) for f, args in calls])
+
+
 def operation_sources(hlo_text: str):
   """{operation name: (file, function, is a matmul)} of the compiled module's instructions."""
   frames = source_table(hlo_text)
@@ -166,7 +196,8 @@ def measure(name: str, args):
   rows, width = mlp_shape(config, model)
   runners = {'step': run,
              'matmul_bench': common.matmul_runner(bench_train_step.MATMUL_SHAPES, min),
-             'matmul_mlp': common.matmul_runner(((rows, width, width),), min)}
+             'matmul_mlp': common.matmul_runner(((rows, width, width),), min),
+             'dots_alone': dots_alone_runner(module_dots(xla['hlo']))}
   times = common.interleaved_medians(runners, args.repeats)
   achieved = xla['flops'] / times['step'] / 1e9
   rates = {key: 1 / times[key] / 1e9 for key in ('matmul_bench', 'matmul_mlp')}
@@ -176,18 +207,19 @@ def measure(name: str, args):
           'matmul_bench_gflops': rates['matmul_bench'], 'matmul_mlp_gflops': rates['matmul_mlp'],
           'mlp_matmul_shape': [rows, width, width],
           'of_matmul_bench': achieved / rates['matmul_bench'], 'of_matmul_mlp': achieved / rates['matmul_mlp'],
+          'dots_alone_ms': times['dots_alone'] * 1e3, 'dots_alone_of_step': times['dots_alone'] / times['step'],
           'stage_ms': {stage: seconds * 1e3 for stage, seconds in stages.items()},
           'traced_ms': sum(stages.values()) * 1e3}
 
 
 def table(results) -> str:
   """Markdown rows: the rate per scale, then each scale's stages in ms and share of the traced time."""
-  lines = ['| scale | step ms | GFLOP | GFLOP/s | matmul GFLOP/s (bench / MLP shape) | of bench | of MLP shape |',
-           '|---|---|---|---|---|---|---|']
+  lines = ['| scale | step ms | GFLOP | GFLOP/s | matmul GFLOP/s (bench / MLP shape) | of bench | of MLP shape | '
+           'its matmuls alone ms (of step) |', '|---|---|---|---|---|---|---|---|']
   for name, r in results.items():
     lines.append(f"| {name} | {r['step_ms']:.1f} | {r['step_gflop']:.2f} | {r['achieved_gflops']:.1f} | "
                  f"{r['matmul_bench_gflops']:.0f} / {r['matmul_mlp_gflops']:.0f} | {r['of_matmul_bench']:.2f} | "
-                 f"{r['of_matmul_mlp']:.2f} |")
+                 f"{r['of_matmul_mlp']:.2f} | {r['dots_alone_ms']:.1f} ({r['dots_alone_of_step']:.2f}) |")
   stages = list(dict.fromkeys(s for r in results.values() for s in r['stage_ms']))
   lines += ['', '| stage | ' + ' | '.join(f'{name} ms (share)' for name in results) + ' |',
             '|---|' + '---|' * len(results)]

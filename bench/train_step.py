@@ -5,7 +5,8 @@ Usage: python -m bench.train_step [--batch 256] [--repeats 5] [--render_rays 819
 
 Reports, side by side:
   1. FreeNeRF step (both regularizers on) / plain mip-NeRF step (both off), and RegNeRF step (depth TV on
-     batch_size_random = batch random-pose rays in 8x8 patches, near/far annealing) / mip-NeRF step;
+     batch_size_random = batch random-pose rays in 8x8 patches, near/far annealing) / mip-NeRF step, beside the
+     ratio of their XLA flop counts (how much of RegNeRF's extra time is extra work);
      FreeNeRF-on-NeRF step / plain NeRF step (the paper's Blender setting: 64 + 128 samples, paper mask layout,
      occlusion on the first 20 of 192 fine samples; the paper reports 1.02x); --nerf_only times just that pair;
   2. our FreeNeRF step / a released-equivalent graph (per-sample vmap(value_and_grad), tiled masks);
@@ -153,6 +154,7 @@ def main():
       'devices': str(jax.devices()), 'batch': args.batch, 'step_seconds': times,
       'freenerf_over_mipnerf': times['freenerf'] / times['mipnerf'],
       'regnerf_over_mipnerf': times['regnerf'] / times['mipnerf'],
+      'regnerf_flops_over_mipnerf': steps['regnerf'][2] / steps['mipnerf'][2],  # Its extra work, beside its time.
       'freenerf_nerf_over_nerf': times['freenerf_nerf'] / times['nerf'],
       'ours_over_released_equivalent': times['freenerf'] / times['released_freenerf'],
       'step_gflop': flops / 1e9, 'achieved_gflops': achieved, 'matmul_peak_gflops': peak,

@@ -33,6 +33,7 @@ def test_a_scale_reports_consistent_figures(tmp_path):
   assert report['mlp_matmul_shape'] == [512 * 64, 64, 64]  # 512 rays x (32 + 32) fine samples, a 4 x 64 MLP.
   assert set(report['stage_ms']) <= STAGES and report['stage_ms']['MLP matmuls'] > 0
   assert report['traced_ms'] == pytest.approx(np.sum(list(report['stage_ms'].values())))
+  assert report['dots_alone_of_step'] == pytest.approx(report['dots_alone_ms'] / report['step_ms'])
 
 
 def test_unknown_scales_are_named():
@@ -46,3 +47,14 @@ def test_only_operations_that_multiply_matrices_count_as_matmuls():
   matmuls = [name for name, (_, _, is_matmul) in profile_step.operation_sources(hlo).items() if is_matmul]
   output_shapes = {re.search(rf'%{re.escape(name)} = (\S+)', hlo).group(1).split('{')[0] for name in matmuls}
   assert output_shapes == {'f32[4096,128]'}
+
+
+def test_the_module_dots_are_the_products_the_program_runs():
+  a, b = jnp.ones((64, 5)), jnp.ones((7, 5))
+  fn = jax.jit(lambda a, b, c: (a @ b.T, jnp.einsum('bik,bkj->bij', c, c)))
+  c = jnp.ones((2, 8, 8))
+  dots = profile_step.module_dots(fn.lower(a, b, c).compile().as_text())
+  assert dots == {((64, 5), (7, 5), (((1,), (1,)), ((), ()))): 1,
+                  ((2, 8, 8), (2, 8, 8), (((2,), (1,)), ((0,), (0,)))): 1}
+  run = profile_step.dots_alone_runner(dots)
+  assert run() > 0
