@@ -10,8 +10,9 @@ Per scale, interleaved with two matmuls in the same run: the median step time, X
 step and the achieved GFLOP/s, against the best rate of the benchmark's matmuls (bench.train_step's
 [4096 | 32768, 256] @ [256, 256]) and of the scale's own MLP matmul ([rays x samples, width] @ [width, width]),
 and the time of the step's own matrix products run alone, one after another (what the step would take if all
-else were free). Then a profiler trace of --profile_steps steps: every XLA operation's time is charged to a stage by the source
-of the operation (the project file and function it was traced from; a fused operation by its root).
+else were free). Then a profiler trace of --profile_steps steps: every XLA operation's time is charged to a
+stage by the source of the operation (the project file and function it was traced from; a fused operation by
+its root).
 """
 
 import argparse
@@ -109,7 +110,7 @@ def matmul_operations(hlo_text: str):
 def module_dots(hlo_text: str):
   """Counter of the compiled module's matrix products: (lhs shape, rhs shape, dimension numbers) -> how many.
 
-  Every dot instruction, inside library fusions too, as XLA left it after optimization (a product it turned into
+  Every float32 dot instruction (the scales run at float32), inside library fusions too, as XLA left it after optimization (a product it turned into
   element-wise work is not one); each runs once per step (the step's loops and branches hold none).
   """
   shapes = {name: tuple(int(d) for d in dims.split(',') if d) for name, dims in
