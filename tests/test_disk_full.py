@@ -1,12 +1,14 @@
 """A full disk ends in one line and exit status 4: orbax's late reports of its failed writes print nothing."""
 
 import errno
+import gc
 import logging
 import os
 import shutil
 import subprocess
 import sys
 import types
+import warnings
 
 import jax
 import numpy as np
@@ -57,6 +59,30 @@ def test_the_filters_go_when_training_ends_without_a_full_disk(tmp_path, monkeyp
     with checkpoints.stop_when_disk_full(str(tmp_path)):
       raise KeyError('a bug')
   assert sys.unraisablehook is hook and not logging.getLogger('asyncio').filters
+
+
+async def _a_write():
+  """Stands for one of orbax's write coroutines."""
+
+
+def _warnings_of_an_abandoned_write(disk_full: bool) -> list:
+  """The warnings of a coroutine dropped unawaited after a block that raised ENOSPC (or a KeyError)."""
+  with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter('always')
+    with pytest.raises(checkpoints.DiskFullError if disk_full else KeyError):
+      with checkpoints.stop_when_disk_full('run'):
+        raise NO_SPACE if disk_full else KeyError('a bug')
+    _a_write()  # Created and dropped, never awaited.
+    gc.collect()
+  return [str(w.message) for w in caught]
+
+
+def test_unawaited_writes_are_silent_after_a_full_disk_and_reported_otherwise(monkeypatch):
+  monkeypatch.setattr(sys, 'unraisablehook', sys.unraisablehook)
+  monkeypatch.setattr(logging.getLogger('absl'), 'filters', [])
+  monkeypatch.setattr(logging.getLogger('asyncio'), 'filters', [])
+  assert not _warnings_of_an_abandoned_write(disk_full=True)
+  assert [m for m in _warnings_of_an_abandoned_write(disk_full=False) if 'was never awaited' in m]
 
 
 def test_a_full_disk_while_writing_a_settings_file_is_one_line_naming_it(tmp_path, monkeypatch, capsys):

@@ -12,6 +12,7 @@ import logging
 import os
 import sys
 import time
+import warnings
 
 import jax
 from jax import random
@@ -92,8 +93,8 @@ def stop_when_disk_full(run_dir: str):
 
   Orbax writes each step into a temporary folder and renames it when complete, so a failed save leaves the
   checkpoints before it as they were (the temporary folder is removed when training next starts). Orbax's own
-  tracebacks of the failed writes are dropped for the one line, also after the block: some come when its
-  abandoned writes end or are collected, later.
+  tracebacks of the failed writes, and the warnings that some were never awaited, are dropped for the one line,
+  also after the block: some come when its abandoned writes end or are collected, later.
   """
   restore = _drop_failed_save_reports()
   full = False
@@ -103,6 +104,8 @@ def stop_when_disk_full(run_dir: str):
     full = is_disk_full(err)
     if not full:
       raise
+    # Writes orbax created and abandoned are collected as late as exit, each warning it was never awaited.
+    warnings.filterwarnings('ignore', message="coroutine '.*' was never awaited", category=RuntimeWarning)
     folder = os.path.join(run_dir, CHECKPOINT_SUBDIR)
     try:
       kept = f'the newest intact checkpoint, step {latest_step(run_dir)}, is kept'
