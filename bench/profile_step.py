@@ -110,8 +110,9 @@ def matmul_operations(hlo_text: str):
 def module_dots(hlo_text: str):
   """Counter of the compiled module's matrix products: (lhs shape, rhs shape, dimension numbers) -> how many.
 
-  Every float32 dot instruction (the scales run at float32), inside library fusions too, as XLA left it after optimization (a product it turned into
-  element-wise work is not one); each runs once per step (the step's loops and branches hold none).
+  Every float32 dot instruction (the scales run at float32), inside library fusions too, as XLA left it after
+  optimization (a product it turned into element-wise work is not one); each runs once per step (the step's
+  loops and branches hold none).
   """
   shapes = {name: tuple(int(d) for d in dims.split(',') if d) for name, dims in
             re.findall(r'%([\w.\-]+) = f32\[([\d,]*)\]', hlo_text)}
