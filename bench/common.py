@@ -59,12 +59,16 @@ def matmul_runner(shapes, reduce, runs: int = 8, dtype=jnp.float32, precision=No
                      for f, flops in timers)
 
 
-def step_runner(config, model, batch):
-  """(zero-arg callable returning one step's seconds, [state, stats], flops.compiled_cost of the step)."""
+def step_runner(config, model, batch, compiler_options=None):
+  """(zero-arg callable returning one step's seconds, [state, stats], flops.compiled_cost of the step).
+
+  The step is compiled once, with XLA compiler_options (e.g. {'xla_gpu_enable_cublaslt': True}) where given.
+  """
   _, state = ts.create_train_state(config, random.PRNGKey(0), batch['rays'])
-  step = ts.make_train_step(config, model)
   key = random.PRNGKey(1)
-  xla = flops.compiled_cost(step, state, batch, key)
+  xla = flops.compiled_cost(ts.make_train_step(config, model), state, batch, key,
+                            compiler_options=compiler_options)
+  step = xla['compiled']
   holder = list(block(step(state, batch, key)))
 
   def run():

@@ -17,18 +17,16 @@ its root).
 
 import argparse
 import collections
-import glob
-import gzip
 import json
 import os
 import re
-import tempfile
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from bench import common
+from bench import kernel_profile
 from bench import train_step as bench_train_step
 from internal import cli
 from internal import rays as rays_lib
@@ -164,19 +162,9 @@ def stage_of(source) -> str:
 
 def traced_operation_times(run, steps: int):
   """{operation name: mean seconds per step} from a profiler trace of `steps` calls of run."""
-  with tempfile.TemporaryDirectory() as trace_dir:
-    jax.profiler.start_trace(trace_dir, create_perfetto_trace=True)
-    for _ in range(steps):
-      run()
-    jax.profiler.stop_trace()
-    trace_file = sorted(glob.glob(os.path.join(trace_dir, '**', '*.json.gz'), recursive=True))[-1]
-    with gzip.open(trace_file) as f:
-      trace = json.load(f)
-  events = trace['traceEvents'] if isinstance(trace, dict) else trace
   totals = collections.Counter()
-  for event in events:
-    if event.get('ph') == 'X':
-      totals[event['name']] += event.get('dur', 0) * 1e-6 / steps
+  for event in kernel_profile.events(kernel_profile.record(run, steps)):
+    totals[event['name']] += event.get('dur', 0) * 1e-6 / steps
   return totals
 
 

@@ -38,8 +38,18 @@ def _dot_precisions(name, encoding=False):
   model, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False, name)
   jaxpr = jax.make_jaxpr(lambda v: model.apply(v, None, rays))(variables)
   return {(str(e.params['precision']), str(e.invars[0].aval.dtype))
-          for e in jaxpr.jaxpr.eqns
+          for e in _equations(jaxpr.jaxpr)
           if e.primitive.name == 'dot_general' and (e.invars[1].aval.shape[0] == 3) == encoding}
+
+
+def _equations(jaxpr):
+  """Every equation of jaxpr and of the jaxprs nested in its equations (custom derivatives, calls)."""
+  for eqn in jaxpr.eqns:
+    yield eqn
+    for value in eqn.params.values():
+      inner = getattr(value, 'jaxpr', value)
+      if hasattr(inner, 'eqns'):
+        yield from _equations(inner)
 
 
 def test_every_matmul_uses_the_chosen_precision_and_dtype():
@@ -116,3 +126,19 @@ def test_precision_comes_from_config_only_and_is_fingerprinted():
   keys = run_dir.fingerprint(configs.Config(precision='bfloat16'))
   assert keys['Config.precision'] == 'bfloat16'
   assert 'MLP.precision' not in keys and 'MipNerfModel.precision' not in keys
+
+
+def test_bfloat16_weight_gradients_are_float32_sums_not_rounded_to_bfloat16():
+  gin.parse_config(TINY)
+  rays = random_rays(2, 64)
+  _, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False)
+  loss = lambda name: lambda p: jnp.sum(_render(name, p, rays)['rgb'] ** 2)
+  exact = jax.grad(loss('float32'))(variables['params'])
+  low = jax.grad(loss('bfloat16'))(variables['params'])
+  for layer in ('Dense_0', 'Dense_1', 'Dense_2'):
+    grad, reference = (np.asarray(g['mlp'][layer]['kernel']) for g in (low, exact))
+    assert grad.dtype == np.float32
+    # Rounded to bfloat16 (8 significant bits) nearly every entry would be exactly a bfloat16 number.
+    nonzero = grad[grad != 0]
+    assert np.mean(nonzero == np.asarray(nonzero.astype(jnp.bfloat16).astype(np.float32))) < 0.5, layer
+    assert np.linalg.norm(grad - reference) < 0.05 * np.linalg.norm(reference), layer

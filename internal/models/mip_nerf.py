@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 from jax import random
 
+from internal.models import activations
 from internal.models import encoding
 from internal.models import gaussians
 from internal.models import precision as precision_lib
@@ -17,6 +18,7 @@ from internal.models import volume_render
 gin.config.external_configurable(nn.relu, name='relu', module='flax.nn')
 gin.config.external_configurable(nn.softplus, name='softplus', module='flax.nn')
 gin.config.external_configurable(nn.sigmoid, name='sigmoid', module='flax.nn')
+gin.config.external_configurable(activations.relu_from_output, name='relu_from_output')  # A step variant.
 
 
 def _dense_init(in_dim: int, out_dim: int):
@@ -29,7 +31,32 @@ def _dense_init(in_dim: int, out_dim: int):
 
 def matmul(x, kernel, precision=None):
   """x [..., d] @ kernel [d, o] in x's dtype (the float32 kernel is cast at use) at a matmul precision."""
-  return jnp.matmul(x, kernel.astype(x.dtype), precision=precision)
+  if x.dtype == kernel.dtype:
+    return jnp.matmul(x, kernel, precision=precision)
+  return _low_precision_matmul(x, kernel)
+
+
+@jax.custom_vjp
+def _low_precision_matmul(x, kernel):
+  """x [..., d] @ kernel [d, o] in x's (lower) dtype; the kernel's gradient comes out float32, not rounded."""
+  return jnp.matmul(x, kernel.astype(x.dtype))
+
+
+def _low_precision_forward(x, kernel):
+  low = kernel.astype(x.dtype)
+  return jnp.matmul(x, low), (x, low)
+
+
+def _low_precision_backward(residuals, g):
+  x, low = residuals
+  rows = lambda a: a.reshape((-1, a.shape[-1]))
+  # Accumulated over every row in float32 and kept float32: rounding the sum to bfloat16 would cost the weight
+  # gradient 8 of its 24 bits before the float32 optimizer sees it.
+  kernel_grad = jax.lax.dot_general(rows(x), rows(g), (((0,), (0,)), ((), ())), preferred_element_type=jnp.float32)
+  return jnp.matmul(g, low.T), kernel_grad
+
+
+_low_precision_matmul.defvjp(_low_precision_forward, _low_precision_backward)
 
 
 def dense(layer, *parts, precision=None):

@@ -1,0 +1,123 @@
+"""The tables of a bench/gpu_check.sh run: step variants, kernel profiles and the precision trade, and a picture.
+
+Usage: python -m bench.gpu_report OUT_DIR
+
+Reads what gpu_check.sh left in OUT_DIR (stages.tsv, step_variants.json, train_<run>.log, metrics_<run>.json,
+test_preds_<run>/) and writes gpu_report.md (printed too) and test_views.png (per run a row of test views, colour
+over depth). A run is METHOD_PRECISION; its step time is the training's own rate once warm, its minutes the
+training stage's wall time (start-up and compilation included), its paper-length minutes 43,945 steps at that rate.
+"""
+
+import csv
+import glob
+import json
+import os
+import re
+import sys
+
+import numpy as np
+from PIL import Image
+
+from bench import step_variants
+
+PAPER_DTU_STEPS = 43945
+VIEWS_IN_PICTURE = 3
+
+
+def stage_seconds(out_dir: str):
+  """{stage: (status, seconds)} of stages.tsv."""
+  with open(os.path.join(out_dir, 'stages.tsv')) as f:
+    return {name: (status, float(seconds)) for name, status, seconds in csv.reader(f, delimiter='\t')}
+
+
+def step_rate(log_text: str):
+  """(last step, steps per second) of a training log's progress lines, or (0, None) when it has none."""
+  steps = re.findall(r'(\d+)/\d+ \[', log_text)
+  rates = re.findall(r'([\d.]+)(step/s|s/step)', log_text)
+  if not rates:
+    return (int(steps[-1]) if steps else 0), None
+  value, unit = rates[-2] if len(rates) > 1 else rates[-1]  # The last line's rate averages in the tail.
+  return int(steps[-1]), float(value) if unit == 'step/s' else 1 / float(value)
+
+
+def trade_rows(out_dir: str):
+  """One dict per run of the precision trade, in the order the runs ran."""
+  stages = stage_seconds(out_dir)
+  rows = []
+  for name, (status, seconds) in stages.items():
+    if not name.startswith('train_'):
+      continue
+    run = name[len('train_'):]
+    method, precision = run.split('_', 1)
+    log = os.path.join(out_dir, f'{name}.log')
+    last, rate = step_rate(open(log).read()) if os.path.isfile(log) else (0, None)
+    metrics_file = os.path.join(out_dir, f'metrics_{run}.json')
+    means = json.load(open(metrics_file))['means'] if os.path.isfile(metrics_file) else {}
+    rows.append({'run': run, 'method': method, 'precision': precision, 'status': status, 'steps': last,
+                 'step_ms': 1e3 / rate if rate else None, 'minutes': seconds / 60,
+                 'paper_minutes': PAPER_DTU_STEPS / rate / 60 if rate else None, **means})
+  return rows
+
+
+def _cell(value, spec):
+  return '' if value is None else format(value, spec)
+
+
+def trade_table(rows) -> str:
+  """Markdown of trade_rows."""
+  lines = ['| precision | method | steps | step ms | minutes | paper-length min | PSNR | SSIM | object PSNR | '
+           'object SSIM |', '|---|---|---|---|---|---|---|---|---|---|']
+  for r in rows:
+    lines.append(f"| {r['precision']} | {r['method']} | {r['steps']} | {_cell(r['step_ms'], '.1f')} | "
+                 f"{r['minutes']:.1f} | {_cell(r['paper_minutes'], '.1f')} | {_cell(r.get('psnr'), '.2f')} | "
+                 f"{_cell(r.get('ssim'), '.3f')} | {_cell(r.get('psnr_masked'), '.2f')} | "
+                 f"{_cell(r.get('ssim_masked'), '.3f')} |")
+  return '\n'.join(lines)
+
+
+def picture(out_dir: str, runs) -> str:
+  """test_views.png: per evaluated run, its first test views' colour over their depth; '' when none."""
+  blocks = []
+  for run in runs:
+    colour = sorted(glob.glob(os.path.join(out_dir, f'test_preds_{run}', 'color_*.png')))[:VIEWS_IN_PICTURE]
+    if colour:
+      blocks += [np.concatenate([np.asarray(Image.open(p.replace('color_', kind)).convert('RGB')) for p in colour],
+                                1) for kind in ('color_', 'depth_')]
+  if not blocks:
+    return ''
+  width = max(b.shape[1] for b in blocks)
+  blocks = [np.pad(b, ((0, 0), (0, width - b.shape[1]), (0, 0))) for b in blocks]
+  path = os.path.join(out_dir, 'test_views.png')
+  Image.fromarray(np.concatenate(blocks, 0)).save(path)
+  return path
+
+
+def report(out_dir: str) -> str:
+  """The whole report's markdown (variants, profiles, trade)."""
+  parts = []
+  variants_file = os.path.join(out_dir, 'step_variants.json')
+  if os.path.isfile(variants_file):
+    variants = json.load(open(variants_file))
+    parts += [f"## Step variants ({variants['device']}, jax {variants['jax_version']})\n\n`{variants['command']}`"
+              f'\n\n{step_variants.table(variants)}', '## Kernel profiles\n\n' + step_variants.profile_tables(variants)]
+  rows = trade_rows(out_dir)
+  if rows:
+    shown = picture(out_dir, [r['run'] for r in rows])
+    parts.append('## Precision trade\n\n' + trade_table(rows) + (f'\n\nRows of {os.path.basename(shown)}, top to '
+                 'bottom: ' + ', '.join(r['run'] for r in rows if os.path.isdir(os.path.join(out_dir, f"test_preds_{r['run']}")))
+                 + ' (colour over depth).' if shown else ''))
+  return '\n\n'.join(parts) or f'nothing to report in {out_dir}'
+
+
+def main(argv=None):
+  argv = sys.argv[1:] if argv is None else argv
+  if len(argv) != 1 or not os.path.isfile(os.path.join(argv[0], 'stages.tsv')):
+    raise SystemExit('usage: python -m bench.gpu_report OUT_DIR (a bench/gpu_check.sh output with stages.tsv)')
+  text = report(argv[0])
+  with open(os.path.join(argv[0], 'gpu_report.md'), 'w') as f:
+    f.write(text + '\n')
+  print(text)
+
+
+if __name__ == '__main__':
+  main()

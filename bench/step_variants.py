@@ -1,0 +1,162 @@
+"""Step variants timed side by side on any backend, their numerics checked against the plain step, and profiles.
+
+Usage: python -m bench.step_variants [--precisions bfloat16,default] [--variants base,cublaslt,...]
+                                     [--method freenerf] [--batch_size 4096] [--repeats 5] [--profile_steps 5]
+                                     [--out_dir DIR] [--tiny]
+
+A variant is a gin binding of the model (which the user sets the same way) and/or XLA compiler options (which a
+user sets through XLA_FLAGS, e.g. XLA_FLAGS=--xla_gpu_enable_cublaslt=true). Per precision, every variant's step
+is compiled from the same state, run once (its loss and parameters after that step are compared with the plain
+step's), then all are timed interleaved (A, B, C, A, B, C, ...) and the median reported with the rate of the
+step's matmul flops (bench.roofline) and of XLA's count of the traced step. An option this XLA does not know
+is reported as unavailable, not an error. With --profile_steps, the plain step and the fastest variant of each
+precision are traced (bench.kernel_profile): kernels per kind and the longest kernels, trace files in --out_dir.
+The tables print (and step_variants.json is written) after each precision.
+"""
+
+import argparse
+import json
+import os
+import shlex
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bench import common
+from bench import device
+from bench import kernel_profile
+from bench import roofline
+from bench import train_step as bench_train_step
+from internal.models import mip_nerf
+from internal.models import precision
+
+RELU_FROM_OUTPUT = ('MLP.net_activation = @relu_from_output',)
+CUBLASLT = {'xla_gpu_enable_cublaslt': True}  # Lets XLA fuse bias and ReLU into the matmul's epilogue.
+VARIANTS = {'base': ((), {}),
+            'relu_from_output': (RELU_FROM_OUTPUT, {}),
+            'cublaslt': ((), CUBLASLT),
+            'cublaslt_relu_from_output': (RELU_FROM_OUTPUT, CUBLASLT),
+            'triton_gemm_off': ((), {'xla_gpu_enable_triton_gemm': False}),
+            'triton_gemm_any': ((), {'xla_gpu_triton_gemm_any': True})}
+
+
+def build(variant: str, precision_name: str, args, batch):
+  """(runner, figures) of one compiled variant, figures holding its first step's loss and parameters."""
+  bindings, options = VARIANTS[variant]
+  config = device.method_config(args.method, precision_name, args.batch_size,
+                                (device.TINY if args.tiny else []) + list(bindings))
+  model = mip_nerf.MipNerfModel(white_background=config.white_background, precision=precision_name)
+  run, holder, xla = common.step_runner(config, model, batch, compiler_options=options or None)
+  figures = {'loss': float(holder[1]['loss']), 'xla_flops': xla['flops'], 'xla_step_bytes': xla['bytes'],
+             'matmul_flops': sum(layer.flops() for layer in roofline.step_layers(config, model)),
+             'params': [np.asarray(x) for x in jax.tree.leaves(holder[0].params)]}
+  return run, figures
+
+
+def numerics_against(figures, base) -> dict:
+  """Whether a variant's first step matches the plain step's: loss and parameters, exactly or how far."""
+  gaps = [float(np.max(np.abs(a - b))) for a, b in zip(figures['params'], base['params'])]
+  return {'loss_equal': figures['loss'] == base['loss'], 'loss_difference': figures['loss'] - base['loss'],
+          'params_equal': max(gaps) == 0, 'max_param_difference': max(gaps)}
+
+
+def measure_precision(precision_name: str, args, batch):
+  """{variant: figures} of every available variant at one precision (unavailable ones with their reason)."""
+  runners, results = {}, {}
+  for variant in args.variants:
+    try:
+      runners[variant], results[variant] = build(variant, precision_name, args, batch)
+    except (jax.errors.JaxRuntimeError, ValueError) as error:  # An XLA option this version does not have.
+      results[variant] = {'unavailable': str(error).splitlines()[0][:200]}
+    print(f'{precision_name} {variant}: compiled', flush=True)
+  times = common.interleaved_medians(runners, args.repeats)
+  base = results.get('base')
+  for variant, seconds in times.items():
+    figures = results[variant]
+    figures.update(step_seconds=seconds, rays_per_s=args.batch_size / seconds,
+                   matmul_tflops=figures['matmul_flops'] / seconds / 1e12,
+                   xla_tflops=figures['xla_flops'] / seconds / 1e12)
+    if base and 'step_seconds' in base:
+      figures.update(numerics_against(figures, base), vs_base=seconds / times['base'])
+  if args.profile_steps:
+    fastest = min(times, key=times.get)
+    for variant in [v for v in dict.fromkeys(('base', fastest)) if v in runners]:
+      trace_file = os.path.join(args.out_dir, f'trace_{precision_name}_{variant}.json.gz') if args.out_dir else ''
+      trace = kernel_profile.record(runners[variant], args.profile_steps, trace_file)
+      results[variant]['profile'] = kernel_profile.summarise(kernel_profile.device_kernels(trace), args.profile_steps)
+  for figures in results.values():
+    figures.pop('params', None)
+  return results
+
+
+def table(report) -> str:
+  """Markdown: per precision and variant the median step, its ratio to the plain step, rates and numerics."""
+  lines = ['| precision | variant | step ms | vs base | matmul TFLOP/s | XLA-count TFLOP/s | first step vs base |',
+           '|---|---|---|---|---|---|---|']
+  for name, variants in report['results'].items():
+    for variant, f in variants.items():
+      if 'unavailable' in f:
+        lines.append(f"| {name} | {variant} | unavailable: {f['unavailable']} | | | | |")
+        continue
+      same = ('identical' if f.get('params_equal') else
+              f"loss {f.get('loss_difference', 0):+.2e}, params within {f.get('max_param_difference', 0):.1e}")
+      lines.append(f"| {name} | {variant} | {f['step_seconds'] * 1e3:.2f} | {f.get('vs_base', 1):.3f} | "
+                   f"{f['matmul_tflops']:.3g} | {f['xla_tflops']:.3g} | {same if variant != 'base' else ''} |")
+  return '\n'.join(lines)
+
+
+def profile_tables(report) -> str:
+  """The kernel profiles of report, one block per profiled (precision, variant)."""
+  return '\n\n'.join(kernel_profile.table(f'{name}, {variant}', f['profile'])
+                     for name, variants in report['results'].items()
+                     for variant, f in variants.items() if 'profile' in f)
+
+
+def _names(text: str, options, flag: str):
+  """Comma-separated names, each checked against options."""
+  names = [n for n in text.split(',') if n]
+  unknown = [n for n in names if n not in options]
+  if unknown or not names:
+    raise SystemExit(f'{flag}: {unknown or text!r} not among {list(options)}')
+  return names
+
+
+def main(argv=None):
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--precisions', default='bfloat16,default')
+  parser.add_argument('--variants', default=','.join(VARIANTS))
+  parser.add_argument('--method', default='freenerf', choices=['mipnerf', 'freenerf'])
+  parser.add_argument('--batch_size', type=int, default=4096)
+  parser.add_argument('--repeats', type=int, default=5)
+  parser.add_argument('--profile_steps', type=int, default=5, help='0: no profile')
+  parser.add_argument('--out_dir', default='', help='step_variants.json and the traces go here')
+  parser.add_argument('--tiny', action='store_true', help='a 2 x 32 MLP with 8 samples (for tests)')
+  args = parser.parse_args(argv)
+  names = _names(args.precisions, precision.PRECISIONS, '--precisions')
+  args.variants = _names(args.variants, VARIANTS, '--variants')
+  if 'base' not in args.variants:
+    args.variants.insert(0, 'base')
+  if args.out_dir:
+    os.makedirs(args.out_dir, exist_ok=True)
+  batch = {'rays': bench_train_step.dtu_like_rays(args.batch_size),
+           'rgb': jnp.asarray(np.random.default_rng(1).uniform(size=(args.batch_size, 3)), jnp.float32)}
+  report = {'device': jax.devices()[0].device_kind, 'platform': jax.devices()[0].platform,
+            'jax_version': jax.__version__,
+            'command': shlex.join(['python', '-m', 'bench.step_variants'] + list(sys.argv[1:] if argv is None else argv)),
+            'method': args.method, 'batch_size': args.batch_size, 'repeats': args.repeats, 'tiny': args.tiny,
+            'results': {}}
+  for name in names:  # Written after each precision: a run stopped part way keeps what it measured.
+    report['results'][name] = measure_precision(name, args, batch)
+    text = f"{report['device']}, jax {report['jax_version']}: `{report['command']}`\n\n{table(report)}"
+    profiles = profile_tables(report)
+    print(text + ('\n\n' + profiles if profiles else ''), flush=True)
+    if args.out_dir:
+      with open(os.path.join(args.out_dir, 'step_variants.json'), 'w') as f:
+        json.dump(report, f, indent=1)
+  return report
+
+
+if __name__ == '__main__':
+  main()
