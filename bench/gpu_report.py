@@ -25,9 +25,13 @@ VIEWS_IN_PICTURE = 3
 
 
 def stage_seconds(out_dir: str):
-  """{stage: (status, seconds)} of stages.tsv."""
+  """{stage: (last status, seconds)} of stages.tsv; a stage listed again (a run resumed by a later call, its
+  stages.tsv appended) adds its seconds."""
+  stages = {}
   with open(os.path.join(out_dir, 'stages.tsv')) as f:
-    return {name: (status, float(seconds)) for name, status, seconds in csv.reader(f, delimiter='\t')}
+    for name, status, seconds in csv.reader(f, delimiter='\t'):
+      stages[name] = (status, stages.get(name, (None, 0.))[1] + float(seconds))
+  return stages
 
 
 def step_rate(log_text: str):
@@ -68,6 +72,9 @@ def trade_table(rows) -> str:
   lines = ['| precision | method | steps | step ms | minutes | paper-length min | PSNR | SSIM | object PSNR | '
            'object SSIM |', '|---|---|---|---|---|---|---|---|---|---|']
   for r in rows:
+    if r['status'] == 'skipped':
+      lines.append(f"| {r['precision']} | {r['method']} | not run: the budget ran out |" + ' |' * 7)
+      continue
     lines.append(f"| {r['precision']} | {r['method']} | {r['steps']} | {_cell(r['step_ms'], '.1f')} | "
                  f"{r['minutes']:.1f} | {_cell(r['paper_minutes'], '.1f')} | {_cell(r.get('psnr'), '.2f')} | "
                  f"{_cell(r.get('ssim'), '.3f')} | {_cell(r.get('psnr_masked'), '.2f')} | "
@@ -76,7 +83,7 @@ def trade_table(rows) -> str:
 
 
 def picture(out_dir: str, runs) -> str:
-  """test_views.png: per evaluated run, its first test views' colour over their depth; '' when none."""
+  """test_views.png: per run, its first test views' colour over their depth; '' when no run has views."""
   blocks = []
   for run in runs:
     colour = sorted(glob.glob(os.path.join(out_dir, f'test_preds_{run}', 'color_*.png')))[:VIEWS_IN_PICTURE]
@@ -102,10 +109,10 @@ def report(out_dir: str) -> str:
               f'\n\n{step_variants.table(variants)}', '## Kernel profiles\n\n' + step_variants.profile_tables(variants)]
   rows = trade_rows(out_dir)
   if rows:
-    shown = picture(out_dir, [r['run'] for r in rows])
-    parts.append('## Precision trade\n\n' + trade_table(rows) + (f'\n\nRows of {os.path.basename(shown)}, top to '
-                 'bottom: ' + ', '.join(r['run'] for r in rows if os.path.isdir(os.path.join(out_dir, f"test_preds_{r['run']}")))
-                 + ' (colour over depth).' if shown else ''))
+    pictured = [r['run'] for r in rows if os.path.isdir(os.path.join(out_dir, f"test_preds_{r['run']}"))]
+    caption = (f'\n\nRows of test_views.png, top to bottom: {", ".join(pictured)} (colour over depth).'
+               if picture(out_dir, pictured) else '')
+    parts.append('## Precision trade\n\n' + trade_table(rows) + caption)
   return '\n\n'.join(parts) or f'nothing to report in {out_dir}'
 
 

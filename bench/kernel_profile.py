@@ -50,8 +50,8 @@ def events(trace):
   raw = trace['traceEvents'] if isinstance(trace, dict) else trace
   names = {('process', e['pid']): e['args']['name'] for e in raw if e.get('name') == 'process_name'}
   names.update({('thread', e['pid'], e.get('tid')): e['args']['name'] for e in raw if e.get('name') == 'thread_name'})
-  return [dict(e, process=names.get(('process', e['pid']), ''), thread=names.get(('thread', e['pid'], e.get('tid')), ''))
-          for e in raw if e.get('ph') == 'X']
+  return [dict(e, process=names.get(('process', e['pid']), ''),
+               thread=names.get(('thread', e['pid'], e.get('tid')), '')) for e in raw if e.get('ph') == 'X']
 
 
 def device_kernels(trace):

@@ -144,7 +144,8 @@ def main(argv=None):
            'rgb': jnp.asarray(np.random.default_rng(1).uniform(size=(args.batch_size, 3)), jnp.float32)}
   report = {'device': jax.devices()[0].device_kind, 'platform': jax.devices()[0].platform,
             'jax_version': jax.__version__,
-            'command': shlex.join(['python', '-m', 'bench.step_variants'] + list(sys.argv[1:] if argv is None else argv)),
+            'command': shlex.join(['python', '-m', 'bench.step_variants']
+                                  + list(sys.argv[1:] if argv is None else argv)),
             'method': args.method, 'batch_size': args.batch_size, 'repeats': args.repeats, 'tiny': args.tiny,
             'results': {}}
   for name in names:  # Written after each precision: a run stopped part way keeps what it measured.

@@ -1,5 +1,7 @@
 """Config.precision: float32 is the exact float32 path, bfloat16 stays close with float32 params and outputs."""
 
+import itertools
+
 import gin
 import jax
 import jax.numpy as jnp
@@ -114,10 +116,19 @@ def test_bfloat16_close_to_float32_with_float32_outputs():
 
 
 def test_bad_precision_is_a_clear_error():
-  with pytest.raises(ValueError, match=r"Config.precision = 'fp16'; expected one of \['float32'"):
+  with pytest.raises(ValueError, match=r"Config.precision = 'fp16'; expected one of \['auto', 'float32'"):
     config_loader.validate(configs.Config(precision='fp16'))
   with pytest.raises(ValueError, match='Config.precision'):
     mip_nerf.construct_model(random.PRNGKey(0), random_rays(0, 2), False, 'fp16')
+
+
+def test_auto_is_float32_on_a_cpu_and_bfloat16_on_an_accelerator_and_runs_record_the_resolved_one():
+  expected = 'float32' if jax.default_backend() == 'cpu' else 'bfloat16'
+  assert precision.resolve('auto') == expected and precision.settings('auto') == precision.settings(expected)
+  assert configs.Config().precision == 'auto'
+  assert config_loader.load_config([], []).precision == expected
+  gin.clear_config()
+  assert config_loader.load_config([], ["Config.precision = 'default'"]).precision == 'default'
 
 
 def test_precision_comes_from_config_only_and_is_fingerprinted():
@@ -128,17 +139,17 @@ def test_precision_comes_from_config_only_and_is_fingerprinted():
   assert 'MLP.precision' not in keys and 'MipNerfModel.precision' not in keys
 
 
-def test_bfloat16_weight_gradients_are_float32_sums_not_rounded_to_bfloat16():
+def test_bfloat16_weight_and_bias_gradients_are_float32_sums_not_rounded_to_bfloat16():
   gin.parse_config(TINY)
   rays = random_rays(2, 64)
   _, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False)
   loss = lambda name: lambda p: jnp.sum(_render(name, p, rays)['rgb'] ** 2)
   exact = jax.grad(loss('float32'))(variables['params'])
   low = jax.grad(loss('bfloat16'))(variables['params'])
-  for layer in ('Dense_0', 'Dense_1', 'Dense_2'):
-    grad, reference = (np.asarray(g['mlp'][layer]['kernel']) for g in (low, exact))
+  for layer, weight in itertools.product(('Dense_0', 'Dense_1', 'Dense_2', 'Dense_5'), ('kernel', 'bias')):
+    grad, reference = (np.asarray(g['mlp'][layer][weight]) for g in (low, exact))
     assert grad.dtype == np.float32
     # Rounded to bfloat16 (8 significant bits) nearly every entry would be exactly a bfloat16 number.
     nonzero = grad[grad != 0]
-    assert np.mean(nonzero == np.asarray(nonzero.astype(jnp.bfloat16).astype(np.float32))) < 0.5, layer
-    assert np.linalg.norm(grad - reference) < 0.05 * np.linalg.norm(reference), layer
+    assert np.mean(nonzero == np.asarray(nonzero.astype(jnp.bfloat16).astype(np.float32))) < 0.5, (layer, weight)
+    assert np.linalg.norm(grad - reference) < 0.05 * np.linalg.norm(reference), (layer, weight)

@@ -33,39 +33,23 @@ def matmul(x, kernel, precision=None):
   """x [..., d] @ kernel [d, o] in x's dtype (the float32 kernel is cast at use) at a matmul precision."""
   if x.dtype == kernel.dtype:
     return jnp.matmul(x, kernel, precision=precision)
-  return _low_precision_matmul(x, kernel)
+  return precision_lib.low_precision_matmul(x, kernel)
 
 
-@jax.custom_vjp
-def _low_precision_matmul(x, kernel):
-  """x [..., d] @ kernel [d, o] in x's (lower) dtype; the kernel's gradient comes out float32, not rounded."""
-  return jnp.matmul(x, kernel.astype(x.dtype))
-
-
-def _low_precision_forward(x, kernel):
-  low = kernel.astype(x.dtype)
-  return jnp.matmul(x, low), (x, low)
-
-
-def _low_precision_backward(residuals, g):
-  x, low = residuals
-  rows = lambda a: a.reshape((-1, a.shape[-1]))
-  # Accumulated over every row in float32 and kept float32: rounding the sum to bfloat16 would cost the weight
-  # gradient 8 of its 24 bits before the float32 optimizer sees it.
-  kernel_grad = jax.lax.dot_general(rows(x), rows(g), (((0,), (0,)), ((), ())), preferred_element_type=jnp.float32)
-  return jnp.matmul(g, low.T), kernel_grad
-
-
-_low_precision_matmul.defvjp(_low_precision_forward, _low_precision_backward)
+def add_bias(x, bias):
+  """x [..., o] + bias [o] in x's dtype; at a lower precision than the bias's, its gradient summed in float32."""
+  return x + bias if x.dtype == bias.dtype else precision_lib.add_low_precision_bias(x, bias)
 
 
 def dense(layer, *parts, precision=None):
   """Dense layer {'kernel', 'bias'} of the concatenation of parts [..., d_i], never materialized."""
-  out, start = layer['bias'].astype(parts[0].dtype), 0
+  products, start = [], 0
   for part in parts:
-    out = out + matmul(part, layer['kernel'][start:start + part.shape[-1]], precision)
+    products.append(matmul(part, layer['kernel'][start:start + part.shape[-1]], precision))
     start += part.shape[-1]
-  return out
+  if parts[0].dtype == layer['bias'].dtype:  # The released order of the float32 sums: bias first.
+    return sum(products, layer['bias'])
+  return add_bias(sum(products[1:], products[0]), layer['bias'])
 
 
 @gin.configurable(denylist=['precision'])
@@ -148,7 +132,7 @@ class MLP(nn.Module):
       # [bottleneck, view] @ kernel, with the view term computed once per ray, not per sample.
       width = bottleneck.shape[-1]
       per_sample = matmul(bottleneck, layer['kernel'][:width], self.matmul_precision)
-      per_ray = matmul(view, layer['kernel'][width:], self.matmul_precision) + layer['bias'].astype(self.dtype)
+      per_ray = add_bias(matmul(view, layer['kernel'][width:], self.matmul_precision), layer['bias'])
       x = per_sample.reshape((-1, num_samples) + per_sample.shape[1:]) + per_ray[:, None]
       features = (self.net_activation(x.reshape(per_sample.shape)),)
       for _ in range(self.net_depth_viewdirs - 1):

@@ -138,8 +138,7 @@ class NerfMLP(nn.Module):
     width = feature.shape[-1]
     # [feature, view] @ kernel with the view term computed once per ray, not per sample.
     per_sample = mip_nerf.matmul(feature, layer['kernel'][:width], self.matmul_precision)
-    per_ray = (mip_nerf.matmul(view, layer['kernel'][width:], self.matmul_precision)
-               + layer['bias'].astype(self.dtype))
+    per_ray = mip_nerf.add_bias(mip_nerf.matmul(view, layer['kernel'][width:], self.matmul_precision), layer['bias'])
     x = per_sample.reshape((-1, num_samples) + per_sample.shape[1:]) + per_ray[:, None]
     h = nn.relu(x.reshape(per_sample.shape))
     return nn.sigmoid(self._dense(d + 3, h).astype(jnp.float32))
