@@ -79,7 +79,8 @@ def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = (
   parse_gin(gin_configs, gin_bindings)
   config = _apply_warmup_end(Config())
   validate(config)
-  return config
+  # Concrete from here on: a run records (and its fingerprint checks) the numerics it trained with.
+  return dataclasses.replace(config, precision=precision.resolve(config.precision))
 
 
 def _apply_warmup_end(config: Config) -> Config:
@@ -96,7 +97,7 @@ def _apply_warmup_end(config: Config) -> Config:
 CONFIG_CHOICES = loader.SETTING_CHOICES + (
     ('downsample_mode', image_io.DOWNSAMPLE_MODES), ('batching', batching.BATCHING_MODES),
     ('nonfinite_grad_policy', train_step.NONFINITE_POLICIES), ('lpips_input_range', lpips.INPUT_RANGES),
-    ('precision', precision.PRECISIONS), ('model', tuple(registry.MODELS)))
+    ('precision', precision.CHOICES), ('model', tuple(registry.MODELS)))
 MODEL_CHOICES = (('ray_shape', gaussians.RAY_SHAPES), ('pdf_padding', sampling.PDF_PADDINGS))
 
 

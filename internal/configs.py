@@ -102,7 +102,7 @@ class Config:
   resample_padding_final: float = 0.01  # Padding at max_steps (log-linear in between); evaluation uses this one.
   # Stratified jitter of the samples and density noise in training (eval is deterministic).
   randomized: bool = True
-  precision: str = 'float32'            # The MLP's numerics: one of precision.PRECISIONS.
+  precision: str = 'auto'               # The MLP's numerics: one of precision.CHOICES ('auto' per backend).
 
   # Training health.
   # Warn once, naming Config.lr_init, when the training loss (window means of print_every steps) sets no new best,

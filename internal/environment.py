@@ -68,6 +68,7 @@ def describe() -> str:
   lines += [f'{package}: {_version(package)}' for package in PACKAGES]
   matmul = jax.config.jax_default_matmul_precision or 'backend default'
   lines.append(f'precision: x64 {"on" if jax.config.jax_enable_x64 else "off"}, default matmul precision '
-               f'{matmul} (Config.precision = float32 uses HIGHEST; default and bfloat16 the backend default)')
+               f'{matmul} (Config.precision: float32 uses HIGHEST, default and bfloat16 the backend default, auto is '
+               'float32 on a CPU and bfloat16 on an accelerator)')
   lines += [f'{name}={os.environ[name]}' for name in VARIABLES if name in os.environ]
   return '\n'.join(lines)

@@ -73,7 +73,7 @@ def test_sizes_of_the_nerf_model_are_checked_when_it_is_the_model():
     ('Config.blender_split', blender_lib.SPLIT_MODES), ('Config.downsample_mode', image_io.DOWNSAMPLE_MODES),
     ('Config.batching', batching.BATCHING_MODES), ('Config.freq_mask_layout', freq_schedule.LAYOUTS),
     ('Config.nonfinite_grad_policy', train_step.NONFINITE_POLICIES), ('Config.lpips_input_range', lpips.INPUT_RANGES),
-    ('Config.generated_rig', generated_scene.RIGS), ('Config.precision', precision.PRECISIONS),
+    ('Config.generated_rig', generated_scene.RIGS), ('Config.precision', precision.CHOICES),
     ('Config.capture_rig', colmap.RIGS),
     ('MipNerfModel.ray_shape', gaussians.RAY_SHAPES), ('MipNerfModel.pdf_padding', sampling.PDF_PADDINGS)])
 def test_option_settings_use_the_list_of_the_module_that_implements_them(name, options):
