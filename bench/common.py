@@ -25,6 +25,15 @@ def gin_config(files, bindings, **overrides) -> configs.Config:
   return config
 
 
+def names_of(text: str, options, flag: str):
+  """The comma-separated names of a flag's value, each one of options (ValueError naming the flag otherwise)."""
+  names = [n for n in text.split(',') if n]
+  unknown = [n for n in names if n not in options]
+  if unknown or not names:
+    raise ValueError(f'{flag} {text!r}: expected comma-separated names among {list(options)}')
+  return names
+
+
 def block(tree):
   """Waits for every array of tree."""
   return jax.block_until_ready(tree)

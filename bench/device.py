@@ -27,6 +27,7 @@ import numpy as np
 
 from bench import common
 from bench import train_step as bench_train_step
+from internal import cli
 from internal import configs
 from internal.evaluation import inference
 from internal.models import mip_nerf
@@ -108,15 +109,6 @@ def table_rows(name: str, result) -> str:
       for method, f in result['methods'].items())
 
 
-def _names(text: str, options, flag: str):
-  """Comma-separated names, each checked against options."""
-  names = [n for n in text.split(',') if n]
-  for n in names:
-    if n not in options:
-      raise SystemExit(f'{flag}: {n!r} is not one of {list(options)}')
-  return names
-
-
 def main(argv=None):
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('--batch_size', type=int, default=4096)
@@ -127,8 +119,8 @@ def main(argv=None):
   parser.add_argument('--tiny', action='store_true', help='a 2 x 32 MLP with 8 samples (for tests)')
   parser.add_argument('--out', default='', help='JSON file for the results')
   args = parser.parse_args(argv)
-  names = _names(args.precisions, precision.PRECISIONS, '--precisions')
-  methods = _names(args.methods, available_methods(), '--methods')
+  names = common.names_of(args.precisions, precision.PRECISIONS, '--precisions')
+  methods = common.names_of(args.methods, available_methods(), '--methods')
   bindings = TINY if args.tiny else []
   report = {'device': jax.devices()[0].device_kind, 'platform': jax.devices()[0].platform,
             'jax_version': jax.__version__,
@@ -144,8 +136,7 @@ def main(argv=None):
   if args.out:
     with open(args.out, 'w') as f:
       json.dump(report, f, indent=2)
-  return report
 
 
 if __name__ == '__main__':
-  main()
+  sys.exit(cli.run(main))

@@ -19,6 +19,7 @@ import numpy as np
 from PIL import Image
 
 from bench import step_variants
+from internal import cli
 
 PAPER_DTU_STEPS = 43945
 VIEWS_IN_PICTURE = 3
@@ -119,7 +120,7 @@ def report(out_dir: str) -> str:
 def main(argv=None):
   argv = sys.argv[1:] if argv is None else argv
   if len(argv) != 1 or not os.path.isfile(os.path.join(argv[0], 'stages.tsv')):
-    raise SystemExit('usage: python -m bench.gpu_report OUT_DIR (a bench/gpu_check.sh output with stages.tsv)')
+    raise ValueError('usage: python -m bench.gpu_report OUT_DIR (a bench/gpu_check.sh output with stages.tsv)')
   text = report(argv[0])
   with open(os.path.join(argv[0], 'gpu_report.md'), 'w') as f:
     f.write(text + '\n')
@@ -127,4 +128,4 @@ def main(argv=None):
 
 
 if __name__ == '__main__':
-  main()
+  sys.exit(cli.run(main))

@@ -20,6 +20,7 @@ import collections
 import json
 import os
 import re
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -230,7 +231,7 @@ def main(argv=None):
   names = args.scales.split(',')
   unknown = sorted(set(names) - set(SCALES))
   if unknown:
-    parser.error(f'--scales: unknown {unknown}; expected some of {list(SCALES)}')
+    raise ValueError(f'--scales: unknown {unknown}; expected some of {list(SCALES)}')
   results = {name: measure(name, args) for name in names}
   print(table(results))
   if args.out:
@@ -239,4 +240,4 @@ def main(argv=None):
 
 
 if __name__ == '__main__':
-  main()
+  sys.exit(cli.run(main))

@@ -21,6 +21,7 @@ import shlex
 import sys
 
 from bench import common
+from internal import cli
 from internal.models import registry
 
 PAPER_CONFIG = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
@@ -97,7 +98,7 @@ def measured_steps(path: str):
     report = json.load(f)
   gpu = gpu_of(report['device'])
   if not gpu or report.get('tiny'):
-    raise SystemExit(f'--measured {path}: a {report["device"]} run{" (tiny)" if report.get("tiny") else ""}; '
+    raise ValueError(f'--measured {path}: a {report["device"]} run{" (tiny)" if report.get("tiny") else ""}; '
                      f'expected a paper-size run on one of {list(GPUS)}')
   steps = []
   for precision, result in report['results'].items():
@@ -154,8 +155,7 @@ def main(argv=None):
   if args.out:
     with open(args.out, 'w') as f:
       f.write(text + '\n')
-  return layers
 
 
 if __name__ == '__main__':
-  main()
+  sys.exit(cli.run(main))

@@ -29,6 +29,7 @@ from bench import device
 from bench import kernel_profile
 from bench import roofline
 from bench import train_step as bench_train_step
+from internal import cli
 from internal.models import mip_nerf
 from internal.models import precision
 
@@ -114,15 +115,6 @@ def profile_tables(report) -> str:
                      for variant, f in variants.items() if 'profile' in f)
 
 
-def _names(text: str, options, flag: str):
-  """Comma-separated names, each checked against options."""
-  names = [n for n in text.split(',') if n]
-  unknown = [n for n in names if n not in options]
-  if unknown or not names:
-    raise SystemExit(f'{flag}: {unknown or text!r} not among {list(options)}')
-  return names
-
-
 def main(argv=None):
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('--precisions', default='bfloat16,default')
@@ -134,8 +126,8 @@ def main(argv=None):
   parser.add_argument('--out_dir', default='', help='step_variants.json and the traces go here')
   parser.add_argument('--tiny', action='store_true', help='a 2 x 32 MLP with 8 samples (for tests)')
   args = parser.parse_args(argv)
-  names = _names(args.precisions, precision.PRECISIONS, '--precisions')
-  args.variants = _names(args.variants, VARIANTS, '--variants')
+  names = common.names_of(args.precisions, precision.PRECISIONS, '--precisions')
+  args.variants = common.names_of(args.variants, VARIANTS, '--variants')
   if 'base' not in args.variants:
     args.variants.insert(0, 'base')
   if args.out_dir:
@@ -156,8 +148,7 @@ def main(argv=None):
     if args.out_dir:
       with open(os.path.join(args.out_dir, 'step_variants.json'), 'w') as f:
         json.dump(report, f, indent=1)
-  return report
 
 
 if __name__ == '__main__':
-  main()
+  sys.exit(cli.run(main))

@@ -19,6 +19,7 @@ import argparse
 import functools
 import json
 import statistics
+import sys
 
 import gin
 import jax
@@ -27,6 +28,7 @@ import numpy as np
 
 from bench import common
 from bench import released_equivalent
+from internal import cli
 from internal.models import freq_schedule
 from internal import configs
 from internal.evaluation import inference
@@ -167,4 +169,4 @@ def main():
 
 
 if __name__ == '__main__':
-  main()
+  sys.exit(cli.run(main))

@@ -35,5 +35,5 @@ def test_methods_follow_the_gin_configs_present_and_bad_names_are_named():
   expected = [m for m in ('mipnerf', 'freenerf', 'regnerf')
               if os.path.isfile(os.path.join(device.ROOT, device.METHOD_CONFIGS[m]))]
   assert device.available_methods() == expected and expected[:2] == ['mipnerf', 'freenerf']
-  with pytest.raises(SystemExit, match="--precisions: 'fp16' is not one of"):
+  with pytest.raises(ValueError, match="--precisions 'fp16': expected comma-separated names among"):
     device.main(['--precisions', 'fp16'])

@@ -37,7 +37,7 @@ def test_a_scale_reports_consistent_figures(tmp_path):
 
 
 def test_unknown_scales_are_named():
-  with pytest.raises(SystemExit):
+  with pytest.raises(ValueError, match=r"--scales: unknown \['huge'\]"):
     profile_step.main(['--scales', 'demo,huge'])
 
 

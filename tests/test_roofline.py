@@ -1,6 +1,9 @@
 """bench.roofline: the hand count of the step's matmuls against XLA's count of the traced step, and the floors."""
 
 import json
+import os
+import subprocess
+import sys
 
 import jax
 import pytest
@@ -12,6 +15,8 @@ from internal.models import registry
 from internal.run import flops
 from internal.training import train_step as ts
 from conftest import random_rays
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def test_a_layers_flops_and_bytes_by_hand():
@@ -61,5 +66,8 @@ def test_the_table_covers_every_gpu_and_precision_and_reads_measured_steps(tmp_p
 def test_a_measured_file_from_another_device_is_named(tmp_path):
   cpu = tmp_path / 'cpu.json'
   cpu.write_text(json.dumps({'device': 'cpu', 'batch_size': 64, 'results': {}}))
-  with pytest.raises(SystemExit, match=f'--measured {cpu}: a cpu run; expected a paper-size run'):
+  with pytest.raises(ValueError, match=f'--measured {cpu}: a cpu run; expected a paper-size run'):
     roofline.main(['--measured', str(cpu)])
+  result = subprocess.run([sys.executable, '-m', 'bench.roofline', '--measured', str(cpu)], cwd=ROOT, text=True,
+                          capture_output=True)
+  assert result.returncode == 2 and result.stderr.startswith('error: --measured') and result.stderr.count('\n') == 1
