@@ -4,8 +4,10 @@ explicit view ids for every dataset; the errors of bad captures."""
 
 import dataclasses
 import os
+import re
 
 import numpy as np
+from PIL import Image
 import pytest
 
 from internal.configs import Config
@@ -150,6 +152,56 @@ def test_bad_captures_name_the_file(generated_capture, tmp_path):
     load_dataset('train', _capture_config(tmp_path / 'missing'))
   with pytest.raises(DatasetError, match='no COLMAP sparse model in'):
     load_dataset('train', _capture_config(tmp_path / 'missing', capture_model='sparse/1'))
+
+
+def _edited_capture(data, folder, edit):
+  """A capture of data in folder whose COLMAP model edit(model) changed (in place) before it is written again."""
+  _capture_from(data, folder)
+  model = cm.read_model(str(folder / 'sparse' / '0'))
+  edit(model)
+  cm.write_binary(model, str(folder / 'sparse' / '0'))
+  return folder
+
+
+@pytest.mark.parametrize('index, value', [(0, -20.), (1, 0.), (2, np.nan), (3, np.inf)])
+def test_a_camera_without_positive_focal_lengths_or_finite_values_is_named(generated_capture, tmp_path, index, value):
+  data, _ = generated_capture
+  folder = _edited_capture(data, tmp_path / 'capture', lambda model: model.cameras[3].params.__setitem__(index, value))
+  cameras = str(folder / 'sparse' / '0' / 'cameras.bin')
+  with pytest.raises(DatasetError, match=rf"^{re.escape(repr(cameras))}: camera 3 of image 'view_002.png': "
+                                         r"PINHOLE 32 x 24 with parameters \[.*\]; expected positive focal lengths"):
+    load_dataset('train', _capture_config(folder))
+
+
+@pytest.mark.parametrize('value', [np.nan, -np.inf])
+def test_a_3d_point_that_is_not_finite_is_named_with_points3d(generated_capture, tmp_path, value):
+  data, _ = generated_capture
+  folder = _edited_capture(data, tmp_path / 'capture', lambda model: model.points[5].xyz.__setitem__(1, value))
+  points = str(folder / 'sparse' / '0' / 'points3D.bin')
+  with pytest.raises(DatasetError, match=rf"^{re.escape(repr(points))}: 3D point 5 is at \[.*\]; expected finite"):
+    load_dataset('train', _capture_config(folder))
+
+
+def test_points_behind_a_camera_are_named_with_points3d(generated_capture, tmp_path):
+  data, _ = generated_capture
+  folder = _edited_capture(data, tmp_path / 'capture', lambda model: model.points.update(
+      {j: dataclasses.replace(p, xyz=p.xyz * 1e3) for j, p in model.points.items()}))  # Beyond the cameras.
+  with pytest.raises(DatasetError, match=r"points3D.bin': the 3D points image 'view_000.png' sees give it the "
+                                         r"depth range \[-.*\]; expected 0 < near <= far"):
+    load_dataset('train', _capture_config(folder))
+
+
+def test_a_rotated_photo_is_named_against_its_own_cameras_size(generated_capture, tmp_path):
+  data, _ = generated_capture
+  _capture_from(data, tmp_path / 'capture')
+  rotated = tmp_path / 'capture' / 'images' / 'view_000.png'  # The first image, the size others were judged by.
+  image = np.asarray(Image.open(rotated))
+  rotated.unlink()  # A link to the generated scene's file: replaced, not written through.
+  Image.fromarray(np.rot90(image).copy()).save(rotated)
+  with pytest.raises(DatasetError, match=rf"^{re.escape(repr(str(rotated)))} is 24 x 32 pixels; its COLMAP camera "
+                                         r"is 32 x 24"):
+    load_dataset('test', _capture_config(tmp_path / 'capture', capture_rig='inward', test_view_ids=(0, 1),
+                                 n_input_views=2, train_view_ids=(2, 3)))
 
 
 @needs_cup

@@ -52,20 +52,25 @@ class Capture:
 def scene_path(config) -> str:
   """The capture folder: Config.data_dir, or its sub-folder Config.capture_scene (both checked)."""
   if not config.capture_scene:
-    if not os.path.isdir(config.data_dir):
-      raise base.DatasetNotFoundError(f'Config.data_dir = {config.data_dir!r} does not exist (expected a capture '
-                                      'folder holding the images and the COLMAP model)')
+    base.require_data_folder(config.data_dir, 'a capture: the images and the COLMAP model')
     return config.data_dir
   return base.scene_dir(config.data_dir, config.capture_scene, 'capture_scene')
 
 
 def _camera_params(model: colmap_model.Model, image: colmap_model.Image, path: str) -> np.ndarray:
-  """distortion.opencv_params of an image's camera; the error names the model file and the camera."""
+  """distortion.opencv_params of an image's camera; DatasetError naming the cameras file, the camera and the
+  image for an unsupported model, a focal length that is not positive or a value that is not finite."""
   camera = model.cameras[image.camera_id]
+  where = f'{path!r}: camera {camera.camera_id} of image {image.name!r}'
   try:
-    return distortion.opencv_params(camera.model, camera.params)
+    params = distortion.opencv_params(camera.model, camera.params)
   except distortion.UnsupportedCameraError as err:
-    raise base.DatasetError(f'{path!r}: camera {camera.camera_id} of image {image.name!r}: {err}') from err
+    raise base.DatasetError(f'{where}: {err}') from err
+  if not np.isfinite(params).all() or not (params[:2] > 0).all() or min(camera.width, camera.height) < 1:
+    raise base.DatasetError(f'{where}: {camera.model} {camera.width} x {camera.height} with parameters '
+                            f'{[float(v) for v in camera.params]}; expected positive focal lengths, finite values '
+                            'and a size of at least 1 x 1 pixel')
+  return params
 
 
 def _is_forward(camtoworlds: np.ndarray, rig: str) -> bool:
@@ -83,14 +88,15 @@ def read_capture(config) -> Capture:
   images = sorted(model.images.values(), key=lambda i: i.name)
   if not images:
     raise base.DatasetError(f'the COLMAP model in {model_dir!r} has no registered images')
+  model_file = lambda name: os.path.join(model_dir, name + colmap_model.model_format(model_dir))
   rotations = np.stack([colmap_model.qvec_to_rotmat(i.qvec) for i in images])
   centres = np.stack([colmap_model.camera_center(i) for i in images])
   c2w = np.concatenate([np.transpose(rotations, (0, 2, 1)), centres[..., None]], -1)
-  cameras.check_cameras(c2w, os.path.join(model_dir, 'images' + colmap_model.model_format(model_dir)),
-                        [f'image {i.name!r}' for i in images], 'pose')
-  bounds = colmap_model.depth_bounds(model)
+  cameras.check_cameras(c2w, model_file('images'), [f'image {i.name!r}' for i in images], 'pose')
+  params = [_camera_params(model, i, model_file('cameras')) for i in images]
+  bounds = colmap_model.depth_bounds(model, model_file('points3D'))
   cams = [model.cameras[i.camera_id] for i in images]
-  capture = Capture(folder, [i.name for i in images], np.stack([_camera_params(model, i, model_dir) for i in images]),
+  capture = Capture(folder, [i.name for i in images], np.stack(params),
                     c2w, np.stack([bounds[i.image_id] for i in images]),
                     np.array([(c.height, c.width) for c in cams]), _is_forward(c2w, config.capture_rig))
   return _to_forward_frame(capture) if capture.forward else _to_object_frame(capture)
@@ -206,9 +212,14 @@ def load_scene(split: str, config) -> base.Dataset:
   paths, extra = _image_paths(capture, config, factor)
   ids = base.choose_views(config, split, lambda s: default_views(capture, config.llffhold, config.n_input_views)[s],
                           len(paths), f'the capture {capture.folder!r}')
-  images = image_io.load_stack([paths[i] for i in ids], lambda p: image_io.load_rgb(p, extra, config.downsample_mode))
-  for i, image, in zip(ids, images):
-    check_size(capture, i, image, factor, paths[i])
+  index = {path: i for i, path in enumerate(paths)}
+
+  def load(path):  # Each image against its own camera first (a rotated photo is named, not its neighbour).
+    image = image_io.load_rgb(path, extra, config.downsample_mode)
+    check_size(capture, index[path], image, factor, path)
+    return image
+
+  images = image_io.load_stack([paths[i] for i in ids], load)
   height, width = images.shape[1:3]
   near, far = near_far(capture)
   rays = raygen.stack_rays((_rays(capture, i, height, width, near, far) for i in ids), len(ids))
