@@ -58,10 +58,10 @@ def train_and_report(config, stop_at_step: int = 0) -> int:
   result = loop.train(config, stop_at_step)
   step = int(result.state.step)
   if result.signum is not None:
-    print(f'Stopped by signal {result.signum} at step {step}; checkpoint saved in {result.run_dir!r}. '
-          'Run the same command again to resume.')
+    print(f'Stopped by signal {result.signum} at step {step}; checkpoint saved in '
+          f'{os.path.abspath(result.run_dir)!r}. Run the same command again to resume.')
     return cli.signal_status(result.signum)
-  print(f'Trained to step {step}; run directory {result.run_dir!r}.')
+  print(f'Trained to step {step}; run directory {os.path.abspath(result.run_dir)!r}.')
   if result.skipped:
     print(f'{result.skipped} update(s) were skipped for non-finite values (see the log above and '
           'train/skipped_steps in tensorboard).')
