@@ -13,6 +13,7 @@ import pytest
 from internal.configs import Config
 from internal.datasets import DatasetError, colmap, colmap_model as cm, distortion, load_dataset, loader
 from tests.conftest import SHARED_DATA
+from tools import mesh as mesh_tool
 
 CUP = SHARED_DATA / 'colmap' / 'cup'
 needs_cup = pytest.mark.skipif(not (CUP / 'sparse' / '0').is_dir(),
@@ -97,6 +98,22 @@ def test_distortion_is_inverted_at_every_pixel_of_a_downsampled_image(generated_
   height, width = test.images.shape[1:3]
   np.testing.assert_allclose(params[0] * u + params[2], 2. * (np.arange(width) + .5) + 0. * u, atol=1e-3)
   np.testing.assert_allclose(params[1] * v + params[3], 2. * (np.arange(height)[:, None] + .5) + 0. * v, atol=1e-3)
+
+
+def test_an_inward_capture_meshes_the_box_of_its_points_inside_the_cameras_orbit(generated_capture):
+  """tools.mesh without --bounds: the loader registry's region, the sparse points carried into the loader's frame
+  (by the similarity of the camera centres) that lie within the median camera distance of the centre."""
+  _, folder = generated_capture
+  config = _capture_config(folder, capture_rig='inward')
+  capture = colmap.read_capture(config)
+  model = cm.read_model(str(folder / 'sparse' / '0'))
+  centres = np.stack([cm.camera_center(i) for i in sorted(model.images.values(), key=lambda i: i.name)])
+  scale, rotation, shift = _umeyama(centres, capture.camtoworlds[:, :, 3])
+  points = scale * np.stack([p.xyz for p in model.points.values()]) @ rotation.T + shift
+  np.testing.assert_allclose(capture.points, points, atol=1e-9)
+  inside = points[np.linalg.norm(points, axis=-1) < np.median(np.linalg.norm(capture.camtoworlds[:, :, 3], axis=-1))]
+  assert 0 < len(inside)
+  np.testing.assert_allclose(mesh_tool.scene_bounds(config, None), [inside.min(0), inside.max(0)], atol=1e-9)
 
 
 def test_views_follow_the_documented_rule(generated_capture):
@@ -270,6 +287,13 @@ def test_forward_captures_follow_llffs_pipeline(tmp_path):
   np.save(tmp_path / 'llff' / 'poses_bounds.npy', converted)
   capture = _capture_config(tmp_path / 'capture', llffhold=8, n_input_views=3)
   assert loader.ndc(capture) is True  # 'auto': every camera looks the same way.
+  assert mesh_tool.scene_bounds(capture, None).tolist() == [[-1., -1., -1.], [1., 1., .99]]  # The NDC box.
+  read = colmap.read_capture(capture)  # Its points carried along: their depths scale as LLFF scales the scene.
+  xyz = np.stack([p.xyz for p in points.values()])
+  for k, image in enumerate(images.values()):
+    depths = (xyz @ cm.qvec_to_rotmat(image.qvec).T + image.tvec)[:, 2]
+    loaded = ((read.points - read.camtoworlds[k, :, 3]) @ read.camtoworlds[k, :, :3])[:, 2]
+    np.testing.assert_allclose(loaded, depths / (.75 * converted[:, 15:].min()), rtol=1e-9)
   llff = Config(dataset_loader='llff', data_dir=str(tmp_path), llff_scan='llff', n_input_views=3)
   for split in ('train', 'test'):
     ours, theirs = load_dataset(split, capture), load_dataset(split, llff)

@@ -74,8 +74,8 @@ def require_data_folder(data_dir: str, holding: str) -> None:
   if not os.path.exists(data_dir):
     raise DatasetNotFoundError(f'Config.data_dir = {data_dir!r} does not exist (expected a folder holding {holding})')
   archive = data_dir.lower().endswith(ARCHIVES) or zipfile.is_zipfile(data_dir)
-  raise DatasetError(f'Config.data_dir = {data_dir!r} is a file; expected a folder holding {holding}' +
-                     ('; it is an archive: unpack it and set Config.data_dir to the unpacked folder' if archive else ''))
+  unpack = '; it is an archive: unpack it and set Config.data_dir to the unpacked folder' if archive else ''
+  raise DatasetError(f'Config.data_dir = {data_dir!r} is a file; expected a folder holding {holding}{unpack}')
 
 
 def scene_dir(data_dir: str, scene: str, setting: str) -> str:

@@ -39,7 +39,8 @@ SHAPING_SETTINGS = ('capture_scene', 'capture_images', 'capture_model', 'capture
 @dataclasses.dataclass
 class Capture:
   """A capture in the loader's world frame: per image (name order) its file name, COLMAP camera parameters
-  (distortion.opencv_params [8], at full size), camera-to-world [3,4] (OpenCV axes) and depth bounds [2]."""
+  (distortion.opencv_params [8], at full size), camera-to-world [3,4] (OpenCV axes) and depth bounds [2]; the
+  sparse points in the same frame."""
   folder: str
   names: List[str]
   params: np.ndarray     # [N, 8]
@@ -47,6 +48,7 @@ class Capture:
   bounds: np.ndarray     # [N, 2]
   sizes: np.ndarray      # [N, 2] (height, width) at full size.
   forward: bool
+  points: np.ndarray     # [P, 3] the model's 3D points.
 
 
 def scene_path(config) -> str:
@@ -98,7 +100,8 @@ def read_capture(config) -> Capture:
   cams = [model.cameras[i.camera_id] for i in images]
   capture = Capture(folder, [i.name for i in images], np.stack(params),
                     c2w, np.stack([bounds[i.image_id] for i in images]),
-                    np.array([(c.height, c.width) for c in cams]), _is_forward(c2w, config.capture_rig))
+                    np.array([(c.height, c.width) for c in cams]), _is_forward(c2w, config.capture_rig),
+                    np.array([p.xyz for p in model.points.values()]).reshape(-1, 3))
   return _to_forward_frame(capture) if capture.forward else _to_object_frame(capture)
 
 
@@ -118,7 +121,8 @@ def _to_object_frame(capture: Capture) -> Capture:
   rotation = _up_rotation(cameras.normalize(-capture.camtoworlds[:, :, 1].mean(0)))
   c2w = np.concatenate([rotation @ capture.camtoworlds[:, :, :3],
                         (scale * (capture.camtoworlds[:, :, 3] - centre) @ rotation.T)[..., None]], -1)
-  return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale)
+  return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale,
+                             points=scale * (capture.points - centre) @ rotation.T)
 
 
 def _to_forward_frame(capture: Capture) -> Capture:
@@ -127,8 +131,10 @@ def _to_forward_frame(capture: Capture) -> Capture:
   scale = 1. / (capture.bounds.min() * .75)
   c2w_gl = capture.camtoworlds @ np.diag([1., -1., -1., 1.])
   c2w_gl[:, :, 3] *= scale
-  c2w = cameras.recenter_poses(c2w_gl) @ np.diag([1., -1., -1., 1.])
-  return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale)
+  to_frame = np.linalg.inv(cameras.to_homogeneous(cameras.poses_avg(c2w_gl)))  # What recenter_poses applies.
+  c2w = (to_frame @ cameras.to_homogeneous(c2w_gl))[:, :3, :4] @ np.diag([1., -1., -1., 1.])
+  points = scale * capture.points @ to_frame[:3, :3].T + to_frame[:3, 3]
+  return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale, points=points)
 
 
 def arc_order(capture: Capture) -> List[int]:
@@ -277,6 +283,17 @@ def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator)
   poses = random_poses.llff_random_poses(capture.camtoworlds @ np.diag([1., -1., -1., 1.]), capture.bounds,
                                          config.n_random_poses, rng, keep_last_only=False)
   return poses, cameras.focal_pixtocam(focal, dataset.height, dataset.width), focal
+
+
+def mesh_bounds(config):
+  """[2, 3] the region to mesh of an inward capture: the box around its sparse points inside the sphere of the
+  median camera distance about the centre, which the cameras orbit (None: forward captures, meshed in the NDC box,
+  or no point inside)."""
+  capture = read_capture(config)
+  inside = capture.points[np.linalg.norm(capture.points, axis=-1) < CAMERA_DISTANCE]
+  if capture.forward or not len(inside):
+    return None
+  return np.stack([inside.min(0), inside.max(0)])
 
 
 def scene_render_path(config):

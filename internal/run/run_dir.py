@@ -41,8 +41,8 @@ def _atomic_tmp(name: str) -> str:
 
 
 _OUTPUTS = {pattern: None for pattern in (
-    r'(color|depth|opacity)_\d{3,}\.png', r'depth_\d{3,}\.npz', r'metrics\.(json|csv)', r'.+_(color|depth|opacity)\.mp4',
-    r'render\.json', _atomic_tmp(r'metrics\.(json|csv)'), _atomic_tmp(r'render\.json'))}
+    r'(color|depth|opacity)_\d{3,}\.png', r'depth_\d{3,}\.npz', r'metrics\.(json|csv)', r'render\.json',
+    r'.+_(color|depth|opacity)\.mp4', _atomic_tmp(r'metrics\.(json|csv)'), _atomic_tmp(r'render\.json'))}
 # What this project writes into a run directory, by the exact form of its names (regular expressions): None deletes
 # the entry whole, a dict only the entries of that folder it names (the folder goes when left empty; a link to a
 # folder stays, the entries it names in the folder it points to go). Config.overwrite deletes these alone, in this
