@@ -7,6 +7,9 @@ Training resumes from the newest checkpoint of Config.checkpoint_dir, and refuse
 other settings. SIGINT / SIGTERM save a checkpoint and exit (status 128 + signal); rerun the command to resume.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import os
 import sys
 
