@@ -172,3 +172,18 @@ def test_overwrite_clears_the_steps_of_a_linked_checkpoints_folder_and_keeps_the
   (run / 'checkpoints').symlink_to(disk, target_is_directory=True)
   run_dir_lib.prepare_run_dir(tiny_config('s', run, 'Config.max_steps = 400', 'Config.overwrite = True'))
   assert (run / 'checkpoints').is_symlink() and sorted(os.listdir(disk)) == ['notes.txt']  # No old step resumes.
+
+
+@pytest.mark.parametrize('main', [eval_script.main, render_script.main])
+def test_an_output_dir_inside_another_run_is_refused(tmp_path, monkeypatch, capsys, main):
+  run, other = tmp_path / 'run', tmp_path / 'other'
+  _recorded_run(run)
+  _recorded_run(other)
+  status, errout = _cli(monkeypatch, capsys, main, *TINY, f"Config.checkpoint_dir = '{run}'",
+                        f"Config.output_dir = '{other / 'evals'}'")
+  assert status == cli.USAGE_ERROR_STATUS
+  _one_error_line(errout, f"Config.output_dir {str(other / 'evals')!r} is inside {str(other)!r}, another run of "
+                          'this project', 'choose a folder outside other runs')
+  assert not (other / 'evals').exists()
+  for fine in (run / 'evals', tmp_path / 'evals'):  # Inside its own run, or outside every run.
+    assert run_dir_lib.check_run_dir(tiny_config('s', run, f"Config.output_dir = '{fine}'")) == str(run)

@@ -148,14 +148,18 @@ def _entries(run_dir: str) -> list:
   return [e for e in os.listdir(run_dir) if e not in (LOCK_FILE, MARKER_FILE)] if os.path.isdir(run_dir) else []
 
 
+def is_run(folder: str) -> bool:
+  """True when folder is a run of this project: its marker, or the settings of an earlier version's run."""
+  path = os.path.join(folder, FINGERPRINT_FILE)
+  return is_marked(folder) or (os.path.isfile(path) and _is_legacy_fingerprint(_read_json(path)))
+
+
 def _check_ours(run_dir: str) -> None:
   """RunDirError unless run_dir is new, empty, or a run of this project (its marker, or an earlier version's
   settings): a folder of anything else is never touched, whatever Config.overwrite says."""
-  if not _entries(run_dir) or is_marked(run_dir):
+  if not _entries(run_dir) or is_run(run_dir):
     return
   path = os.path.join(run_dir, FINGERPRINT_FILE)
-  if os.path.isfile(path) and _is_legacy_fingerprint(_read_json(path)):
-    return
   found = (f'its {FINGERPRINT_FILE} is not settings of this project' if os.path.isfile(path) else
            f'it holds {sorted(_entries(run_dir))[:3]}')
   raise RunDirError(f'Config.checkpoint_dir {run_dir!r} is not a run of this project (no {MARKER_FILE}; {found}); '
@@ -378,7 +382,28 @@ def check_run_dir(config) -> str:
   if diff:
     raise RunDirError(f'Config.checkpoint_dir {run_dir!r} was trained with different settings ({diff}); pass '
                       'the gin configs and bindings used for training')
+  _check_output_dir(config)
   return run_dir
+
+
+def _enclosing_run(folder: str):
+  """The run of this project that folder is, or lies inside (real paths), or None."""
+  path = os.path.realpath(folder)
+  while not is_run(path):
+    if os.path.dirname(path) == path:
+      return None
+    path = os.path.dirname(path)
+  return path
+
+
+def _check_output_dir(config) -> None:
+  """RunDirError when Config.output_dir lies in a run other than Config.checkpoint_dir's: its outputs would go
+  where that run's own evaluations and renders go."""
+  other = _enclosing_run(config.output_dir) if config.output_dir else None
+  if other and other != os.path.realpath(config.checkpoint_dir):
+    raise RunDirError(f'Config.output_dir {config.output_dir!r} is inside {other!r}, another run of this project: '
+                      'its test_preds_step_<step>/ and path_renders_step_<step>/ would mix with that run\'s own; '
+                      'choose a folder outside other runs (or leave Config.output_dir empty to write into this run)')
 
 
 def outputs_root(config) -> str:
