@@ -17,7 +17,8 @@ import numpy as np
 from internal.datasets import base, cameras, raygen
 
 VERSION = 1
-COMMON_SETTINGS = ('factor', 'eval_factor', 'n_input_views', 'downsample_mode')
+# The settings that shape every loader's data (each loader adds its own SHAPING_SETTINGS): packs record and check them.
+COMMON_SETTINGS = ('factor', 'eval_factor', 'n_input_views', 'downsample_mode', 'train_view_ids', 'test_view_ids')
 FIELDS = ('images', 'masks', 'depths', 'object_masks')
 
 
