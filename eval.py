@@ -11,6 +11,9 @@ Config.eval_test_ids (positions in the test split) and Config.eval_factor (lower
 recorded as "complete": false. A finished evaluation is never replaced unless Config.overwrite = True.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import json
 import sys
 

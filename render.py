@@ -10,6 +10,9 @@ there. On a CPU use fewer frames and a lower resolution, e.g.
 --gin_bindings="Config.render_path_frames = 30" "Config.render_factor = 8".
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import sys
 
 from internal import cli

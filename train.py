@@ -7,6 +7,9 @@ Training resumes from the newest checkpoint of Config.checkpoint_dir, and refuse
 other settings. SIGINT / SIGTERM save a checkpoint and exit (status 128 + signal); rerun the command to resume.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import os
 import sys
 
@@ -58,10 +61,10 @@ def train_and_report(config, stop_at_step: int = 0) -> int:
   result = loop.train(config, stop_at_step)
   step = int(result.state.step)
   if result.signum is not None:
-    print(f'Stopped by signal {result.signum} at step {step}; checkpoint saved in {result.run_dir!r}. '
-          'Run the same command again to resume.')
+    print(f'Stopped by signal {result.signum} at step {step}; checkpoint saved in '
+          f'{os.path.abspath(result.run_dir)!r}. Run the same command again to resume.')
     return cli.signal_status(result.signum)
-  print(f'Trained to step {step}; run directory {result.run_dir!r}.')
+  print(f'Trained to step {step}; run directory {os.path.abspath(result.run_dir)!r}.')
   if result.skipped:
     print(f'{result.skipped} update(s) were skipped for non-finite values (see the log above and '
           'train/skipped_steps in tensorboard).')

@@ -8,7 +8,8 @@ A checkpoint save that finds the disk full (the earlier checkpoints stay intact)
 prints one line and exits with DISK_FULL_STATUS. Running out of accelerator memory is a user error too: its line
 names Config.batch_size (training, with XLA's estimate of the compiled step) or Config.render_chunk_size
 (rendering); so is running out of host memory drawing the training batch (Config.batch_size). Ctrl-C outside the
-training loop (which saves a checkpoint and stops itself) prints `interrupted: ...` and exits with 128 + SIGINT.
+training loop (which saves a checkpoint and stops itself) prints `interrupted: ...` and exits with 128 + SIGINT
+(before main, while a script imports, internal/interrupt.py prints the same line).
 Anything else is a bug and keeps its traceback (exit status 1). FREENERF_DEBUG=1 in the
 environment shows the traceback of user errors too. Warnings print as one line `warning: <message>`.
 """
@@ -21,6 +22,7 @@ import warnings
 
 from internal import config_loader
 from internal import environment
+from internal import interrupt
 from internal import progress
 from internal.run import checkpoints
 from internal.run import distributed
@@ -90,8 +92,7 @@ def run(main) -> int:
   except KeyboardInterrupt:
     if debug:
       raise
-    print('interrupted: stopped by Ctrl-C (SIGINT) before the command finished; what it wrote is kept, and the '
-          'same command run again finishes the work', file=sys.stderr)
+    print(interrupt.MESSAGE, file=sys.stderr)
     return signal_status(signal.SIGINT)
   finally:
     warnings.formatwarning = python_format

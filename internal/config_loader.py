@@ -77,10 +77,25 @@ def _raise_missing_include(err: OSError) -> None:
 def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> Config:
   """Parses gin and returns a validated Config."""
   parse_gin(gin_configs, gin_bindings)
-  config = _apply_warmup_end(Config())
+  config = _expand_home(_apply_warmup_end(Config()))
   validate(config)
   # Concrete from here on: a run records (and its fingerprint checks) the numerics it trained with.
   return dataclasses.replace(config, precision=precision.resolve(config.precision))
+
+
+# The Config fields that name a file or folder: a leading '~' means a home folder, as in a shell.
+PATH_FIELDS = ('checkpoint_dir', 'output_dir', 'data_dir', 'dtu_mask_path', 'lpips_weights_path',
+               'depth_reference_dir')
+
+
+def _expand_home(config: Config) -> Config:
+  """Config with '~' and '~user' at the start of its PATH_FIELDS expanded; ValueError naming one it cannot."""
+  expanded = {name: os.path.expanduser(getattr(config, name)) for name in PATH_FIELDS}
+  for name, path in expanded.items():
+    if path.startswith('~'):
+      raise ValueError(f'Config.{name} = {path!r}: no home folder of user {path[1:].split(os.sep)[0]!r} to '
+                       "expand '~' with; expected a path without '~' or with a known user's")
+  return dataclasses.replace(config, **expanded)
 
 
 def _apply_warmup_end(config: Config) -> Config:

@@ -4,13 +4,16 @@ explicit view ids for every dataset; the errors of bad captures."""
 
 import dataclasses
 import os
+import re
 
 import numpy as np
+from PIL import Image
 import pytest
 
 from internal.configs import Config
 from internal.datasets import DatasetError, colmap, colmap_model as cm, distortion, load_dataset, loader
 from tests.conftest import SHARED_DATA
+from tools import mesh as mesh_tool
 
 CUP = SHARED_DATA / 'colmap' / 'cup'
 needs_cup = pytest.mark.skipif(not (CUP / 'sparse' / '0').is_dir(),
@@ -97,6 +100,22 @@ def test_distortion_is_inverted_at_every_pixel_of_a_downsampled_image(generated_
   np.testing.assert_allclose(params[1] * v + params[3], 2. * (np.arange(height)[:, None] + .5) + 0. * v, atol=1e-3)
 
 
+def test_an_inward_capture_meshes_the_box_of_its_points_inside_the_cameras_orbit(generated_capture):
+  """tools.mesh without --bounds: the loader registry's region, the sparse points carried into the loader's frame
+  (by the similarity of the camera centres) that lie within the median camera distance of the centre."""
+  _, folder = generated_capture
+  config = _capture_config(folder, capture_rig='inward')
+  capture = colmap.read_capture(config)
+  model = cm.read_model(str(folder / 'sparse' / '0'))
+  centres = np.stack([cm.camera_center(i) for i in sorted(model.images.values(), key=lambda i: i.name)])
+  scale, rotation, shift = _umeyama(centres, capture.camtoworlds[:, :, 3])
+  points = scale * np.stack([p.xyz for p in model.points.values()]) @ rotation.T + shift
+  np.testing.assert_allclose(capture.points, points, atol=1e-9)
+  inside = points[np.linalg.norm(points, axis=-1) < np.median(np.linalg.norm(capture.camtoworlds[:, :, 3], axis=-1))]
+  assert 0 < len(inside)
+  np.testing.assert_allclose(mesh_tool.scene_bounds(config, None), [inside.min(0), inside.max(0)], atol=1e-9)
+
+
 def test_views_follow_the_documented_rule(generated_capture):
   _, folder = generated_capture
   config = _capture_config(folder, capture_rig='inward', n_input_views=3)
@@ -150,6 +169,56 @@ def test_bad_captures_name_the_file(generated_capture, tmp_path):
     load_dataset('train', _capture_config(tmp_path / 'missing'))
   with pytest.raises(DatasetError, match='no COLMAP sparse model in'):
     load_dataset('train', _capture_config(tmp_path / 'missing', capture_model='sparse/1'))
+
+
+def _edited_capture(data, folder, edit):
+  """A capture of data in folder whose COLMAP model edit(model) changed (in place) before it is written again."""
+  _capture_from(data, folder)
+  model = cm.read_model(str(folder / 'sparse' / '0'))
+  edit(model)
+  cm.write_binary(model, str(folder / 'sparse' / '0'))
+  return folder
+
+
+@pytest.mark.parametrize('index, value', [(0, -20.), (1, 0.), (2, np.nan), (3, np.inf)])
+def test_a_camera_without_positive_focal_lengths_or_finite_values_is_named(generated_capture, tmp_path, index, value):
+  data, _ = generated_capture
+  folder = _edited_capture(data, tmp_path / 'capture', lambda model: model.cameras[3].params.__setitem__(index, value))
+  cameras = str(folder / 'sparse' / '0' / 'cameras.bin')
+  with pytest.raises(DatasetError, match=rf"^{re.escape(repr(cameras))}: camera 3 of image 'view_002.png': "
+                                         r"PINHOLE 32 x 24 with parameters \[.*\]; expected positive focal lengths"):
+    load_dataset('train', _capture_config(folder))
+
+
+@pytest.mark.parametrize('value', [np.nan, -np.inf])
+def test_a_3d_point_that_is_not_finite_is_named_with_points3d(generated_capture, tmp_path, value):
+  data, _ = generated_capture
+  folder = _edited_capture(data, tmp_path / 'capture', lambda model: model.points[5].xyz.__setitem__(1, value))
+  points = str(folder / 'sparse' / '0' / 'points3D.bin')
+  with pytest.raises(DatasetError, match=rf"^{re.escape(repr(points))}: 3D point 5 is at \[.*\]; expected finite"):
+    load_dataset('train', _capture_config(folder))
+
+
+def test_points_behind_a_camera_are_named_with_points3d(generated_capture, tmp_path):
+  data, _ = generated_capture
+  folder = _edited_capture(data, tmp_path / 'capture', lambda model: model.points.update(
+      {j: dataclasses.replace(p, xyz=p.xyz * 1e3) for j, p in model.points.items()}))  # Beyond the cameras.
+  with pytest.raises(DatasetError, match=r"points3D.bin': the 3D points image 'view_000.png' sees give it the "
+                                         r"depth range \[-.*\]; expected 0 < near <= far"):
+    load_dataset('train', _capture_config(folder))
+
+
+def test_a_rotated_photo_is_named_against_its_own_cameras_size(generated_capture, tmp_path):
+  data, _ = generated_capture
+  _capture_from(data, tmp_path / 'capture')
+  rotated = tmp_path / 'capture' / 'images' / 'view_000.png'  # The first image, the size others were judged by.
+  image = np.asarray(Image.open(rotated))
+  rotated.unlink()  # A link to the generated scene's file: replaced, not written through.
+  Image.fromarray(np.rot90(image).copy()).save(rotated)
+  with pytest.raises(DatasetError, match=rf"^{re.escape(repr(str(rotated)))} is 24 x 32 pixels; its COLMAP camera "
+                                         r"is 32 x 24"):
+    load_dataset('test', _capture_config(tmp_path / 'capture', capture_rig='inward', test_view_ids=(0, 1),
+                                 n_input_views=2, train_view_ids=(2, 3)))
 
 
 @needs_cup
@@ -218,6 +287,13 @@ def test_forward_captures_follow_llffs_pipeline(tmp_path):
   np.save(tmp_path / 'llff' / 'poses_bounds.npy', converted)
   capture = _capture_config(tmp_path / 'capture', llffhold=8, n_input_views=3)
   assert loader.ndc(capture) is True  # 'auto': every camera looks the same way.
+  assert mesh_tool.scene_bounds(capture, None).tolist() == [[-1., -1., -1.], [1., 1., .99]]  # The NDC box.
+  read = colmap.read_capture(capture)  # Its points carried along: their depths scale as LLFF scales the scene.
+  xyz = np.stack([p.xyz for p in points.values()])
+  for k, image in enumerate(images.values()):
+    depths = (xyz @ cm.qvec_to_rotmat(image.qvec).T + image.tvec)[:, 2]
+    loaded = ((read.points - read.camtoworlds[k, :, 3]) @ read.camtoworlds[k, :, :3])[:, 2]
+    np.testing.assert_allclose(loaded, depths / (.75 * converted[:, 15:].min()), rtol=1e-9)
   llff = Config(dataset_loader='llff', data_dir=str(tmp_path), llff_scan='llff', n_input_views=3)
   for split in ('train', 'test'):
     ours, theirs = load_dataset(split, capture), load_dataset(split, llff)

@@ -3,6 +3,7 @@
 import json
 import os
 import warnings
+import zipfile
 
 import numpy as np
 import pytest
@@ -66,6 +67,34 @@ def test_blender_missing_test_images_and_allow_flag(blender_root):
 def test_data_folder_missing(tmp_path, make):
   with pytest.raises(FileNotFoundError, match=r"Config.data_dir = .*missing.*does not exist"):
     load_dataset('train', make(tmp_path / 'missing'))
+
+
+def _capture(root, **kw):
+  return Config(dataset_loader='colmap', data_dir=str(root), **kw)
+
+
+def _generated(root, **kw):
+  return Config(dataset_loader='generated', data_dir=str(root), **kw)
+
+
+@pytest.mark.parametrize('make', [llff, blender, _capture, _generated])
+@pytest.mark.parametrize('name, archive', [('fern.zip', True), ('notes.txt', False)])
+def test_a_data_dir_that_is_a_file_is_named_a_file(tmp_path, make, name, archive):
+  path = tmp_path / name
+  if archive:
+    with zipfile.ZipFile(path, 'w') as f:
+      f.writestr('fern/poses_bounds.npy', b'')
+  else:
+    path.write_text('text')
+  with pytest.raises(DatasetError, match=rf"^Config.data_dir = '.*{name}' is a file; expected a folder holding") as err:
+    load_dataset('train', make(path))
+  assert ('it is an archive: unpack it' in str(err.value)) == archive and not isinstance(err.value, FileNotFoundError)
+
+
+def test_a_packed_data_dir_that_is_a_folder_is_named_a_folder(tmp_path):
+  with pytest.raises(DatasetError, match=r"Config.data_dir = '.*' is a folder; Config.dataset_loader = 'packed' "
+                                         r"expects the .npz file"):
+    load_dataset('train', Config(dataset_loader='packed', data_dir=str(tmp_path)))
 
 
 def test_scene_not_found_lists_scenes(llff_root, blender_root):

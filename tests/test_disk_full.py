@@ -1,5 +1,6 @@
 """A full disk ends in one line and exit status 4: orbax's late reports of its failed writes print nothing."""
 
+import asyncio
 import errno
 import gc
 import logging
@@ -20,6 +21,7 @@ from internal import atomic
 from internal import cli
 from internal.run import checkpoints
 from internal.pipeline import loop
+from orbax.checkpoint._src.path import async_path
 from test_checkpoints import DEMO, ROOT, TINY, tiny_config
 from test_run_dir_errors import _cli, _one_error_line
 
@@ -40,16 +42,38 @@ def test_orbax_reports_after_a_failed_save_are_dropped_and_others_kept(tmp_path,
       with checkpoints.stop_when_disk_full(str(tmp_path)):
         raise NO_SPACE
     # What orbax's abandoned writes report later: a future never retrieved, callbacks into its closed loop.
-    asyncio_logger.error('Future exception was never retrieved', exc_info=(OSError, NO_SPACE, None))
+    asyncio_logger.error('Future exception was never retrieved', exc_info=_orbax_write_on_a_full_disk())
     asyncio_logger.error('Task exception was never retrieved: something else')
+    asyncio_logger.error('Future exception was never retrieved', exc_info=(OSError, NO_SPACE, None))  # Not orbax's.
     closed = types.SimpleNamespace(exc_value=RuntimeError('Event loop is closed'), object=None)
     other = types.SimpleNamespace(exc_value=RuntimeError('a bug'), object=None)
     sys.unraisablehook(closed)
     sys.unraisablehook(other)
   finally:
     asyncio_logger.removeHandler(handler)
-  assert [r.getMessage() for r in records] == ['Task exception was never retrieved: something else']
+  assert [r.getMessage() for r in records] == ['Task exception was never retrieved: something else',
+                                               'Future exception was never retrieved']
+  assert records[1].exc_info[1] is NO_SPACE
   assert passed_on == [other]
+
+
+class _FullDiskPath:
+  """A path whose writes find the disk full."""
+
+  def unlink(self):
+    pass
+
+  def write_bytes(self, data):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), 'x')
+
+
+def _orbax_write_on_a_full_disk() -> tuple:
+  """exc_info of one of orbax's writes (its write_bytes) that found the disk full."""
+  try:
+    asyncio.run(async_path.write_bytes(_FullDiskPath(), b'x'))
+  except OSError as err:
+    return type(err), err, err.__traceback__
+  raise AssertionError('the write did not fail')
 
 
 def test_the_filters_go_when_training_ends_without_a_full_disk(tmp_path, monkeypatch):
@@ -61,28 +85,31 @@ def test_the_filters_go_when_training_ends_without_a_full_disk(tmp_path, monkeyp
   assert sys.unraisablehook is hook and not logging.getLogger('asyncio').filters
 
 
-async def _a_write():
-  """Stands for one of orbax's write coroutines."""
+async def _not_orbax():
+  """A coroutine of something else than orbax."""
 
 
-def _warnings_of_an_abandoned_write(disk_full: bool) -> list:
-  """The warnings of a coroutine dropped unawaited after a block that raised ENOSPC (or a KeyError)."""
+def _unawaited_warnings(disk_full: bool) -> list:
+  """The 'never awaited' warnings of one of orbax's write coroutines and of another one, both dropped unawaited
+  after a block that raised ENOSPC (or a KeyError)."""
   with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter('always')
     with pytest.raises(checkpoints.DiskFullError if disk_full else KeyError):
       with checkpoints.stop_when_disk_full('run'):
         raise NO_SPACE if disk_full else KeyError('a bug')
-    _a_write()  # Created and dropped, never awaited.
+    async_path.write_bytes('run/checkpoints/3.orbax-checkpoint-tmp/x', b'')  # Created and dropped, never awaited.
+    _not_orbax()
     gc.collect()
-  return [str(w.message) for w in caught]
+  return sorted(str(w.message) for w in caught if 'was never awaited' in str(w.message))
 
 
-def test_unawaited_writes_are_silent_after_a_full_disk_and_reported_otherwise(monkeypatch):
+def test_unawaited_orbax_writes_are_silent_after_a_full_disk_and_others_are_reported(monkeypatch):
   monkeypatch.setattr(sys, 'unraisablehook', sys.unraisablehook)
   monkeypatch.setattr(logging.getLogger('absl'), 'filters', [])
   monkeypatch.setattr(logging.getLogger('asyncio'), 'filters', [])
-  assert not _warnings_of_an_abandoned_write(disk_full=True)
-  assert [m for m in _warnings_of_an_abandoned_write(disk_full=False) if 'was never awaited' in m]
+  both = ["coroutine '_not_orbax' was never awaited", "coroutine 'write_bytes' was never awaited"]
+  assert _unawaited_warnings(disk_full=False) == both
+  assert _unawaited_warnings(disk_full=True) == both[:1]  # Only the failed save's own coroutine is silent.
 
 
 def test_a_full_disk_while_writing_a_settings_file_is_one_line_naming_it(tmp_path, monkeypatch, capsys):

@@ -98,6 +98,30 @@ def test_ipe_matches_monte_carlo_expectation():
     assert abs(ipe[i] - closed) < 2e-6, (i, ipe[i], closed)
 
 
+def _released_pos_enc(x, min_deg, max_deg):
+  """The released pos_enc with XLA's jnp.sin: [x | sin(x 2^d) | sin(x 2^d + pi/2)], degree-major blocks."""
+  scales = jnp.array([2.**i for i in range(min_deg, max_deg)])
+  xb = jnp.reshape(x[..., None, :] * scales[:, None], x.shape[:-1] + (-1,))
+  return jnp.concatenate([x, jnp.sin(jnp.concatenate([xb, xb + 0.5 * jnp.pi], axis=-1))], axis=-1)
+
+
+EXTREME = np.array([[0.3, -2e3, 8191.], [1e4, -3e6, 7.7e11], [3.4e38, -1e30, 1e-30], [2e5, 65537., -1.5e8]],
+                   np.float32)
+
+
+def test_pos_enc_of_extreme_inputs_equals_the_released_encoding_with_jnp_sin():
+  ours = np.asarray(jax.jit(lambda x: encoding.pos_enc(x, 0, 16))(EXTREME))
+  released = np.asarray(jax.jit(lambda x: _released_pos_enc(x, 0, 16))(EXTREME))
+  np.testing.assert_allclose(ours, released, rtol=0, atol=1.5e-7)  # Both within float32 rounding of exact.
+
+
+def test_interleaved_pos_enc_of_extreme_inputs_equals_jnp_sin_and_cos():
+  ours = np.asarray(jax.jit(lambda x: encoding.interleaved_pos_enc(x, 10))(EXTREME))
+  scaled = jnp.asarray(EXTREME)[:, None, :] * 2.**jnp.arange(10.)[:, None]  # [N, degree, coord], some inf.
+  bands = np.stack([jnp.sin(scaled), jnp.cos(scaled)], axis=2).reshape(len(EXTREME), -1)
+  np.testing.assert_allclose(ours, np.concatenate([EXTREME, bands], -1), rtol=0, atol=1.5e-7)
+
+
 def test_safe_sin_large_arguments():
   x = jnp.array([1., 300., 400., -500., 1e4, 3.3e8])
   y = encoding.safe_sin(x)

@@ -12,6 +12,7 @@ import pytest
 
 from conftest import JAX_CACHE
 from internal import cli
+from internal import interrupt
 from internal.evaluation import render_path
 from internal.pipeline import loop
 from test_checkpoints import DEMO, ROOT, TINY, _read_stderr, tiny_config
@@ -98,3 +99,29 @@ def test_a_render_stopped_while_writing_its_videos_is_not_complete(finished_run,
   monkeypatch.setattr(render_path, 'write_video', lambda frames, path: open(path, 'wb').close())
   render_path.render(config)
   assert render_path.existing_renders(config)
+
+
+# Put on PYTHONPATH as sitecustomize.py: the process sends itself SIGINT when it starts importing jax, as Ctrl-C
+# in the first seconds of a script does (its imports take seconds on a loaded machine).
+SIGINT_AT_JAX_IMPORT = '''
+import os, signal, sys
+
+class SigintAtJax:
+  def find_spec(self, name, path=None, target=None):
+    if name == 'jax':
+      os.kill(os.getpid(), signal.SIGINT)
+    return None
+
+sys.meta_path.insert(0, SigintAtJax())
+'''
+
+
+@pytest.mark.parametrize('script', ['eval.py', 'train.py', 'render.py'])
+def test_ctrl_c_while_a_script_imports_is_one_line(script, tmp_path):
+  (tmp_path / 'sitecustomize.py').write_text(SIGINT_AT_JAX_IMPORT)
+  env = dict(os.environ, PYTHONPATH=str(tmp_path))
+  env.pop(cli.DEBUG_ENV, None)
+  result = subprocess.run([sys.executable, script], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120,
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL), check=False)
+  assert result.returncode == -signal.SIGINT, result.stderr  # Stopped by SIGINT: 130 in a shell.
+  assert result.stderr == interrupt.MESSAGE + '\n'

@@ -2,9 +2,13 @@
 empty field, and the mesh of a trained generated scene against its exact surfaces (Chamfer distance)."""
 
 import json
+import math
 import os
+import re
+import tracemalloc
 import types
 
+import jax
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -13,9 +17,12 @@ from conftest import SHARED_DATA
 from internal import cli
 from internal import datasets
 from internal.configs import Config
+from internal.datasets import dtu
 from internal.datasets import generated_scene
 from internal.evaluation import mesh
 from internal.evaluation import ply
+from internal.run import checkpoints
+from internal.run import out_of_memory
 from internal.pipeline import loop
 from test_checkpoints import DEMO, TINY, tiny_config
 from tools import mesh as mesh_tool
@@ -42,10 +49,25 @@ def test_the_ball_is_found_at_its_radius_with_outward_normals_whatever_the_slabs
   assert np.all(counts == 2)
 
 
-def test_a_field_that_never_crosses_the_level_is_empty():
+@pytest.mark.parametrize('level, side', [(5., 'stays below'), (.1, 'stays above')])
+def test_a_field_on_one_side_of_the_level_is_empty_and_the_side_is_named(level, side):
   bounds = np.array([[-1., -1., -1.], [1., 1., 1.]])
-  with pytest.raises(mesh.EmptyFieldError, match='never reaches the level 5'):
-    mesh.march(lambda p: np.full(len(p), .3), bounds, 9, 5., chunk=100)
+  field = lambda p: .3 + .2 * (p[:, 0] > 0)  # 0.3 on one half, 0.5 on the other.
+  with pytest.raises(mesh.EmptyFieldError, match=rf'the density {side} the level {level:g} inside the bounds '
+                                                 r'\(its minimum is 0.3, its maximum 0.5\)'):
+    mesh.march(field, bounds, 9, level, chunk=100)
+
+
+def test_the_host_memory_of_a_mesh_is_one_slab_at_host_bytes_per_point(monkeypatch):
+  bounds = np.array([[-1., -1., -1.], [1., 1., 1.]])
+  ball = lambda p: _ball(p).astype(np.float32)
+  for resolution in (24, 96):  # The smaller grid in one slab; the larger in three.
+    tracemalloc.start()
+    mesh.march(ball, bounds, resolution, 5., chunk=8192)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    # Measured here: 40 to 48 bytes a slab point at 64^3 to 256^3, the surface included.
+    assert .6 * mesh.host_bytes(resolution) < peak <= mesh.host_bytes(resolution), (resolution, peak)
 
 
 def test_ply_header_and_records_by_hand(tmp_path):
@@ -82,6 +104,7 @@ def test_bounds_per_scene_kind_and_a_clear_error_where_there_are_none():
     mesh_tool.scene_bounds(Config(dataset_loader='packed'), None)
   with pytest.raises(ValueError, match='X1 > X0'):
     mesh_tool.scene_bounds(Config(dataset_loader='dtu'), [0, 0, 0, 1, -1, 1])
+  assert mesh_tool.scene_bounds(Config(dataset_loader='packed'), [0, 0, 0, 1, 2, 3]).tolist() == [[0, 0, 0], [1, 2, 3]]
 
 
 def _view(origin, direction, masked):
@@ -97,10 +120,9 @@ def test_the_dtu_region_intersects_the_boxes_of_the_views_mask_rays():
   rays = types.SimpleNamespace(origins=np.stack([v[0] for v in views]), directions=np.stack([v[1] for v in views]),
                                near=np.ones((2, 1, 2, 1)), far=np.full((2, 1, 2, 1), 3.))
   test_set = types.SimpleNamespace(ids=[0, 1], rays=rays, masks=np.stack([v[2] for v in views]))
-  np.testing.assert_allclose(mesh_tool.mask_region(test_set), [[0., 0., 2.], [0., 0., 2.]])
+  np.testing.assert_allclose(dtu.mask_region(test_set), [[0., 0., 2.], [0., 0., 2.]])
   test_set.masks = np.zeros_like(test_set.masks)
-  with pytest.raises(ValueError, match='empty object masks'):
-    mesh_tool.mask_region(test_set)
+  assert dtu.mask_region(test_set) is None  # No region of its own: the tool asks for --bounds.
 
 
 @pytest.mark.skipif(not (SHARED_DATA / 'dtu' / 'dtu_scan24').is_dir(), reason='the shared DTU scan is absent')
@@ -185,12 +207,53 @@ def test_the_mesh_of_a_trained_scene_lies_on_its_exact_surfaces(trained, tmp_pat
   assert chamfer < 0.12, (accuracy, completeness)
 
 
-def test_a_level_the_field_never_reaches_is_one_error_and_writes_nothing(trained, tmp_path, capsys):
+def _mesh_cli(capsys, *argv) -> tuple:
+  """(exit status, stderr) of tools.mesh run as its command line runs it."""
+  status = cli.run(lambda: mesh_tool.main(list(argv)))
+  return status, capsys.readouterr().err
+
+
+def _run_flags(trained, *flags):
   scene_dir, run = trained
+  return ['--gin_configs', DEMO, '--gin_bindings', *_bindings(scene_dir, run), *flags]
+
+
+def test_a_level_the_field_never_reaches_is_one_error_and_writes_nothing(trained, tmp_path, capsys):
   out = tmp_path / 'none.ply'
-  status = cli.run(lambda: mesh_tool.main(['--gin_configs', DEMO, '--gin_bindings',
-                                                    *_bindings(scene_dir, run), '--resolution', '16', '--level',
-                                                    '1e6', '--out', str(out)]))
-  err = capsys.readouterr().err
-  assert status == 2 and err.count('\n') == 1 and err.startswith('error: the density never reaches the level 1e+06')
+  status, err = _mesh_cli(capsys, *_run_flags(trained, '--resolution', '16', '--level', '1e6', '--out', str(out)))
+  assert status == 2 and err.count('\n') == 1, err
+  assert re.match(r'error: the density stays below the level 1e\+06 inside the bounds \(its minimum is \S+, its '
+                  r'maximum \S+\):.* \(--level sets the level', err), err
   assert not os.path.exists(out)
+
+
+@pytest.mark.parametrize('level', ['nan', 'inf', '-1', '0'])
+def test_a_level_that_is_not_a_positive_finite_density_is_refused(level, capsys):
+  status, err = _mesh_cli(capsys, '--level', level)
+  assert status == 2 and err == (f'error: --level {float(level)}: expected a positive finite density (the density '
+                                 'is >= 0)\n')
+
+
+def test_a_resolution_beyond_the_host_memory_is_refused_with_the_largest_that_fits(monkeypatch, capsys):
+  monkeypatch.setattr(out_of_memory, 'host_available_bytes', lambda: 2**30)
+  status, err = _mesh_cli(capsys, '--resolution', '100000')
+  largest = int(math.sqrt(2**30 / (33 * mesh.HOST_BYTES_PER_POINT)))  # 33 z-planes a slab.
+  assert status == 2 and err == (f'error: --resolution 100000 needs {out_of_memory.size_text(mesh.host_bytes(100000))} '
+                                 f'of host memory, 1.00 GiB is available: the largest --resolution that fits is '
+                                 f'{largest}\n')
+  assert mesh.host_bytes(largest) <= 2**30 < mesh.host_bytes(largest + 1)
+
+
+def test_a_chunk_beyond_the_device_memory_is_refused_with_the_largest_that_fits(trained, monkeypatch, capsys):
+  available = 64 * 2**20
+  monkeypatch.setattr(out_of_memory, 'device_available_bytes', lambda device, host: available)
+  status, err = _mesh_cli(capsys, *_run_flags(trained, '--resolution', '64', '--chunk', '200000000'))
+  found = re.fullmatch(r'error: --chunk (\d+) needs (.*) of device memory, 64.0 MiB is available: the largest --chunk '
+                       r'that fits is (\d+)\n', err)
+  assert status == 2 and found, err
+  chunk, largest = int(found[1]), int(found[3])
+  assert chunk == mesh.slab_points(64) and 0 < largest < chunk  # Capped at a slab's points, then measured.
+  config = tiny_config(trained[0], trained[1], *TRAINED)
+  example = datasets.load_dataset('train', config).rays
+  model, state = checkpoints.restore_model(config, str(trained[1]), jax.tree.map(lambda x: x[0, 0, :8], example))
+  assert mesh.field_functions(config, model, state.params, int(state.step), .1, largest)[2] <= available

@@ -150,9 +150,10 @@ def test_records_take_the_loader_files_functions_and_settings():
       'blender': ('blender_scene', 'blender_split', 'near', 'far', 'white_background', 'pixel_offset'),
       'generated': ('generated_rig', 'generated_seed', 'generated_size', 'near', 'far', 'white_background', 'llffhold',
                     'pixel_offset'),
-      'colmap': ('capture_scene', 'capture_images', 'capture_model', 'capture_rig', 'llffhold', 'train_view_ids',
-                 'test_view_ids'),
-      'packed': ()}
+      'colmap': ('capture_scene', 'capture_images', 'capture_model', 'capture_rig', 'llffhold'),
+      'packed': ()}  # Besides packed.COMMON_SETTINGS, the view ids among them.
+  assert [name for name, record in loader.REGISTRY.items() if record.mesh_bounds] == [
+      'dtu', 'blender', 'generated', 'colmap']
   assert loader.SETTING_CHOICES == (
       ('dataset_loader', loader.LOADERS), ('dtu_layout', ('auto', 'regnerf', 'idr')),
       ('blender_split', ('dietnerf', 'first_n')), ('generated_rig', ('object', 'forward')),

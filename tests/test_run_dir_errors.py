@@ -2,6 +2,7 @@
 render refusing a model or data setting other than the run's."""
 
 import errno
+import types
 
 import gin
 import pytest
@@ -11,6 +12,7 @@ import render as render_script
 import train as train_script
 from internal import atomic
 from internal import cli
+from internal.pipeline import loop
 from internal.run import run_dir as run_dir_lib
 from test_checkpoints import DEMO, TINY, tiny_config
 
@@ -91,3 +93,29 @@ def test_eval_and_render_refuse_a_model_or_data_setting_other_than_the_runs(tmp_
 def test_eval_and_render_settings_that_change_neither_model_nor_data_stay_free(tmp_path, binding):
   _recorded_run(tmp_path / 'run')
   assert run_dir_lib.check_run_dir(tiny_config('s', tmp_path / 'run', binding)) == str(tmp_path / 'run')
+
+
+def test_a_leading_tilde_in_a_path_setting_is_the_home_folder(tmp_path, monkeypatch):
+  monkeypatch.setenv('HOME', str(tmp_path))
+  monkeypatch.chdir(tmp_path)
+  config = tiny_config('~/scene', '~/runs/fern', "Config.output_dir = '~'")
+  assert (config.checkpoint_dir, config.data_dir, config.output_dir) == (
+      str(tmp_path / 'runs' / 'fern'), str(tmp_path / 'scene'), str(tmp_path))
+  run_dir_lib.prepare_run_dir(config)
+  assert (tmp_path / 'runs' / 'fern').is_dir() and not (tmp_path / '~').exists()
+
+
+def test_a_tilde_of_an_unknown_user_is_refused_naming_the_setting():
+  with pytest.raises(ValueError, match=r"Config.checkpoint_dir = '~no_such_user_x/runs': no home folder of user "
+                                       r"'no_such_user_x'"):
+    tiny_config('s', '~no_such_user_x/runs')
+
+
+@pytest.mark.parametrize('signum, said', [(None, "Trained to step 5; run directory '{}'."),
+                                          (2, "checkpoint saved in '{}'. Run the same command again")])
+def test_the_final_line_of_training_names_the_absolute_run_directory(tmp_path, monkeypatch, capsys, signum, said):
+  monkeypatch.chdir(tmp_path)
+  monkeypatch.setattr(loop, 'train', lambda config, stop_at_step: loop.TrainResult(
+      None, types.SimpleNamespace(step=5), 'runs/fern', signum))
+  train_script.train_and_report(tiny_config('s', 'runs/fern'))
+  assert said.format(tmp_path / 'runs' / 'fern') in capsys.readouterr().out.strip().splitlines()[-1]

@@ -137,3 +137,53 @@ def test_a_marked_run_without_its_settings_is_not_resumed_with_others(tmp_path):
     run_dir_lib.prepare_run_dir(tiny_config('s', run, 'Config.max_steps = 9'))
   run_dir_lib.prepare_run_dir(tiny_config('s', run, 'Config.max_steps = 9', 'Config.overwrite = True'))
   assert os.listdir(run) == [run_dir_lib.MARKER_FILE]
+
+
+def _recorded_run(run):
+  """A run directory with its marker and settings, as training starts one."""
+  run_dir_lib.record_settings(run_dir_lib.prepare_run_dir(tiny_config('s', run)), tiny_config('s', run))
+
+
+def _make(folder, names):
+  """Creates each name under folder: a folder when it ends with '/', else a file."""
+  for name in names:
+    path = folder / name.rstrip('/')
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.mkdir() if name.endswith('/') else path.write_text('x')
+
+
+def test_overwrite_deletes_names_of_the_exact_forms_this_project_writes(tmp_path):
+  run = tmp_path / 'run'
+  _recorded_run(run)
+  ours = ['checkpoints/8/', 'checkpoints/8.orbax-checkpoint-tmp/', 'checkpoints/damaged_4_20240101-120000/',
+          'test_preds_step_8/color_001.png', 'test_preds_step_8/metrics.json', '.config.gin.a1b2c3d4.tmp']
+  users = ['checkpoints/8_best/meta', 'checkpoints/8 copy/meta', 'checkpoints/damaged_4_mine/',
+           'test_preds_step_8/color_001_edited.png', 'test_preds_step_8_best/metrics.json', 'config.json.bak']
+  _make(run, ours + users)
+  run_dir_lib.prepare_run_dir(tiny_config('s', run, 'Config.max_steps = 400', 'Config.overwrite = True'))
+  left = {str(p.relative_to(run)) + ('/' if p.is_dir() else '') for p in run.rglob('*')}
+  assert set(users) <= left and not left & set(ours), left
+
+
+def test_overwrite_clears_the_steps_of_a_linked_checkpoints_folder_and_keeps_the_link(tmp_path):
+  run, disk = tmp_path / 'run', tmp_path / 'other_disk' / 'checkpoints'
+  _recorded_run(run)
+  _make(disk, ['8/', '12/', 'notes.txt'])
+  (run / 'checkpoints').symlink_to(disk, target_is_directory=True)
+  run_dir_lib.prepare_run_dir(tiny_config('s', run, 'Config.max_steps = 400', 'Config.overwrite = True'))
+  assert (run / 'checkpoints').is_symlink() and sorted(os.listdir(disk)) == ['notes.txt']  # No old step resumes.
+
+
+@pytest.mark.parametrize('main', [eval_script.main, render_script.main])
+def test_an_output_dir_inside_another_run_is_refused(tmp_path, monkeypatch, capsys, main):
+  run, other = tmp_path / 'run', tmp_path / 'other'
+  _recorded_run(run)
+  _recorded_run(other)
+  status, errout = _cli(monkeypatch, capsys, main, *TINY, f"Config.checkpoint_dir = '{run}'",
+                        f"Config.output_dir = '{other / 'evals'}'")
+  assert status == cli.USAGE_ERROR_STATUS
+  _one_error_line(errout, f"Config.output_dir {str(other / 'evals')!r} is inside {str(other)!r}, another run of "
+                          'this project', 'choose a folder outside other runs')
+  assert not (other / 'evals').exists()
+  for fine in (run / 'evals', tmp_path / 'evals'):  # Inside its own run, or outside every run.
+    assert run_dir_lib.check_run_dir(tiny_config('s', run, f"Config.output_dir = '{fine}'")) == str(run)

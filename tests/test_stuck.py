@@ -29,6 +29,17 @@ def test_a_plateau_after_learning_is_not_stuck_but_divergence_is():
   assert stuck.is_stuck(barely, 500)  # Never learned: best above half the first loss.
 
 
+def test_a_run_that_learns_then_dies_flat_above_its_best_is_stuck():
+  # 0.30 -> 0.10 by step 700, then dead: flat at 0.16 (a constant colour's loss), well above the best but below twice.
+  died = [(100, .30), (300, .20), (500, .13), (700, .10)] + [(step, .16) for step in range(800, 1300, 100)]
+  assert not stuck.is_stuck(died[:-1], 500)  # Step 1100: only 400 steps since the best.
+  assert stuck.is_stuck(died, 500)  # Step 1200: 500 steps without a new best, all of them 1.6 x the best.
+  plateau = died[:4] + [(step, .115) for step in range(800, 1300, 100)]  # 15% above the best: a plateau.
+  assert not stuck.is_stuck(plateau, 500)
+  recovering = died[:-1] + [(1200, .11)]  # Falling back towards its best: not dead.
+  assert not stuck.is_stuck(recovering, 500)
+
+
 
 def test_a_huge_learning_rate_warns_once_naming_lr_init(tmp_path, scene_dir, capsys):
   config = tiny_config(scene_dir, tmp_path / 'run', 'Config.lr_init = 1e4', 'Config.lr_final = 1e4',

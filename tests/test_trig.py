@@ -28,6 +28,25 @@ def test_sin_and_cos_are_within_float32_rounding_of_the_exact_values(limit):
   assert np.max(np.abs(cos - np.cos(exact))) < 1.2e-7
 
 
+def test_sin_and_cos_are_within_float32_rounding_in_every_binade_up_to_the_largest_float32():
+  largest = float(np.finfo(np.float32).max)
+  sin_cos = jax.jit(trig.sin_cos)
+  for exponent in range(-20, 128):  # Binade [2^e, 2^(e+1)) of both signs per call, so each is judged on its own.
+    x = np.minimum(RNG.uniform(1., 2., 2000) * 2.**exponent, largest) * RNG.choice([-1., 1.], 2000)
+    x = np.concatenate([x, [2.**exponent, np.minimum(2.**(exponent + 1), largest)]]).astype(np.float32)
+    sin, cos = (np.asarray(v) for v in sin_cos(x))
+    exact = x.astype(np.float64)
+    assert np.max(np.abs(sin - np.sin(exact))) < 1.2e-7, exponent
+    assert np.max(np.abs(cos - np.cos(exact))) < 1.2e-7, exponent
+
+
+def test_one_large_element_does_not_spoil_the_others():
+  x = np.concatenate([_samples(8192.)[:5000], [np.float32(3e38), np.float32(-1e9)]]).astype(np.float32)
+  sin, cos = (np.asarray(v) for v in jax.jit(trig.sin_cos)(x))
+  np.testing.assert_allclose(sin, np.sin(x.astype(np.float64)), rtol=0, atol=1.2e-7)
+  np.testing.assert_allclose(cos, np.cos(x.astype(np.float64)), rtol=0, atol=1.2e-7)
+
+
 def test_sin_and_cos_of_non_finite_values_are_nan_like_xla():
   sin, cos = trig.sin_cos(jnp.array([np.inf, -np.inf, np.nan], jnp.float32))
   assert np.all(np.isnan(sin)) and np.all(np.isnan(cos))

@@ -3,17 +3,20 @@
   python -m tools.mesh --gin_configs=configs/demo.gin --resolution 256 [--level 5] [--bounds X0 Y0 Z0 X1 Y1 Z1]
 
 Pass the gin configs and bindings used for training. The density is evaluated on a resolution^3 grid inside the
-scene's bounds (the generated object scene: the box around its solids, 5% margin; Blender: the cube [-1.5, 1.5]^3
-that holds its objects; NDC scenes (LLFF, the generated forward scene): the NDC box, and the mesh is in NDC
-coordinates; DTU: the region its test views' object masks bound, see mask_region; packed scenes: --bounds,
-in the run's world coordinates), z-slab by z-slab so that memory stays
-bounded (512^3 included), then marching cubes at --level (default: the density that makes one interval of the
-run's own samples half opaque, ln 2 x samples / (far - near), so it follows the scene's scale). Vertex colours
+scene's bounds (its loader's region, internal/datasets/loader.mesh_bounds: the generated object scene: the box
+around its solids, 5% margin; Blender: the cube [-1.5, 1.5]^3 that holds its objects; NDC scenes (LLFF, the
+generated forward scene, forward captures): the NDC box, and the mesh is in NDC coordinates; DTU: the region its
+test views' object masks bound; inward captures: the box around the sparse points inside the cameras' orbit;
+packed scenes: --bounds, in the run's world coordinates), z-slab by z-slab so that host memory grows with
+resolution^2 (internal/evaluation/mesh.py), then marching cubes at --level (default: the density that makes one
+interval of the run's own samples half opaque, ln 2 x samples / (far - near), so it follows the scene's scale).
+The memory --resolution needs on the host and --chunk on the device are checked before any work. Vertex colours
 are the radiance at each vertex seen head-on from outside (view direction = -normal; in NDC scenes the normal is
 an NDC one while the model was trained on world directions, an approximation). Writes
 <run>/mesh_step_<step>_<resolution>.ply (or --out) and never replaces a file unless Config.overwrite = True. A
-field that never reaches the level is an error, and no file is written.
+field that stays on one side of the level is an error naming its minimum and maximum, and no file is written.
 """
+import math
 import os
 import sys
 
@@ -25,51 +28,56 @@ import numpy as np
 from internal import cli
 from internal import datasets
 from internal.datasets import loader
-from internal.datasets import generated_scene
 from internal.evaluation import mesh
 from internal.evaluation import ply
 from internal.run import checkpoints
+from internal.run import out_of_memory
 from internal.run import run_dir as run_dir_lib
-
-BLENDER_BOX = ((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5))  # Holds every object of the Blender scenes.
-NDC_BOX = ((-1., -1., -1.), (1., 1., .99))  # NDC z = 1 is infinitely far.
-MARGIN = .05  # Of the generated scene's box, on each side.
 
 
 def scene_bounds(config, flag_bounds) -> np.ndarray:
-  """[2, 3] region to mesh: --bounds, else the scene's own (see the module docstring); ValueError otherwise."""
+  """[2, 3] region to mesh: --bounds, else the scene's own (its loader's); ValueError when it has none."""
   if flag_bounds:
     bounds = np.array(flag_bounds, np.float64).reshape(2, 3)
     if not np.all(bounds[1] > bounds[0]):
       raise ValueError(f'--bounds {flag_bounds}: expected X0 Y0 Z0 X1 Y1 Z1 with X1 > X0, Y1 > Y0, Z1 > Z0')
     return bounds
-  if loader.ndc(config):
-    return np.array(NDC_BOX)
-  if config.dataset_loader == 'generated':
-    box = generated_scene.scene_bounds(generated_scene.read_scene(config.data_dir))
-    return box + np.array([-1., 1.])[:, None] * MARGIN * (box[1] - box[0])
-  if config.dataset_loader == 'blender':
-    return np.array(BLENDER_BOX)
-  if config.dataset_loader == 'dtu':
-    return mask_region(datasets.load_dataset('test', config))
-  raise ValueError(f'Config.dataset_loader = {config.dataset_loader!r} has no default region to mesh; give it with '
-                   '--bounds X0 Y0 Z0 X1 Y1 Z1 (world coordinates of the run)')
+  bounds = loader.mesh_bounds(config)
+  if bounds is None:
+    raise ValueError(f'the scene of Config.dataset_loader = {config.dataset_loader!r} gives no region of its own to '
+                     'mesh; give it with --bounds X0 Y0 Z0 X1 Y1 Z1 (world coordinates of the run)')
+  return bounds
 
 
-def mask_region(test_set) -> np.ndarray:
-  """[2, 3] the object-mask region of DTU's test views: the intersection over the views of the box around each
-  view's mask rays from near to far (a loose box around the visual hull; it holds the object)."""
-  boxes = []
-  for view in range(len(test_set.ids)):
-    inside = test_set.masks[view, ..., 0] > .5
-    if inside.any():
-      rays = [getattr(test_set.rays, name)[view][inside] for name in ('origins', 'directions', 'near', 'far')]
-      ends = np.concatenate([rays[0] + rays[1] * rays[2], rays[0] + rays[1] * rays[3]])
-      boxes.append([ends.min(0), ends.max(0)])
-  if not boxes:
-    raise ValueError(f'the DTU test views {test_set.ids} have empty object masks: give the region with --bounds')
-  boxes = np.array(boxes)
-  return np.stack([boxes[:, 0].max(0), boxes[:, 1].min(0)])
+def _too_big(flag: str, value: int, needed: int, available: int, where: str, largest: int) -> ValueError:
+  """The one-line error of a flag whose work does not fit in memory, with the largest value that fits."""
+  fits = f'the largest {flag} that fits is {largest}' if largest else f'no {flag} fits'
+  return ValueError(f'{flag} {value} needs {out_of_memory.size_text(needed)} of {where} memory, '
+                    f'{out_of_memory.size_text(available)} is available: {fits}')
+
+
+def check_resolution(resolution: int) -> None:
+  """ValueError naming --resolution when one slab of its grid does not fit in the host's available memory."""
+  available = out_of_memory.host_available_bytes()
+  if available is not None and mesh.host_bytes(resolution) > available:
+    largest = out_of_memory.largest_fitting(lambda r: mesh.host_bytes(max(r, 2)), available)
+    raise _too_big('--resolution', resolution, mesh.host_bytes(resolution), available, 'host',
+                   largest if largest >= 2 else 0)
+
+
+def field_functions(config, model, state, resolution: int, cell: float, chunk: int):
+  """mesh.field_functions for the run's step, compiled for chunk points; ValueError naming --chunk when they do not
+  fit in the device's available memory beside the slab on the host."""
+  chunk = min(chunk, mesh.slab_points(resolution))  # More points than a slab holds would only be padding.
+  compile_for = lambda n: mesh.field_functions(config, model, state.params, int(state.step), cell, n)
+  density_fn, colour_fn, needed = compile_for(chunk)
+  available = out_of_memory.device_available_bytes(jax.local_devices()[0], mesh.host_bytes(resolution))
+  if available is not None and needed > available:
+    at_one = compile_for(1)[2]  # XLA's memory grows linearly with the points, from what the parameters need.
+    largest = out_of_memory.largest_fitting(lambda n: at_one + (needed - at_one) * (n - 1) // max(chunk - 1, 1),
+                                            available)
+    raise _too_big('--chunk', chunk, needed, available, 'device', largest)
+  return density_fn, colour_fn, chunk
 
 
 def camera_axes(elevation: float, azimuth: float):
@@ -115,13 +123,16 @@ def parse_args(argv):
   parser.add_argument('--picture', help='also a PNG of the mesh (matplotlib, two views), e.g. for a README')
   args = parser.parse_args(argv)
   if args.resolution < 2 or args.chunk < 1:
-    parser.error(f'--resolution {args.resolution} and --chunk {args.chunk}: expected >= 2 and >= 1')
+    raise ValueError(f'--resolution {args.resolution} and --chunk {args.chunk}: expected >= 2 and >= 1')
+  if args.level is not None and not (math.isfinite(args.level) and args.level > 0):
+    raise ValueError(f'--level {args.level}: expected a positive finite density (the density is >= 0)')
   return args
 
 
 def main(argv=None) -> int:
   """CLI entry point; returns the exit status."""
   args = parse_args(argv)
+  check_resolution(args.resolution)
   config = cli.config_from_flags(args)
   run_dir = run_dir_lib.check_run_dir(config)
   bounds = scene_bounds(config, args.bounds)
@@ -132,10 +143,14 @@ def main(argv=None) -> int:
   if os.path.exists(out) and not config.overwrite:
     raise FileExistsError(f'{out!r} exists; set Config.overwrite = True to replace it, or choose --out')
   cell = float(np.max((bounds[1] - bounds[0]) / (args.resolution - 1)))
-  density_fn, colour_fn = mesh.field_functions(config, model, state.params, step, cell)
+  density_fn, colour_fn, chunk = field_functions(config, model, state, args.resolution, cell, args.chunk)
   level = mesh.surface_level(config, model) if args.level is None else args.level
-  verts, faces, normals = mesh.march(density_fn, bounds, args.resolution, level, args.chunk)
-  colours = mesh.vertex_colours(colour_fn, verts, normals, args.chunk)
+  with out_of_memory.naming_setting('meshing', '--chunk'), out_of_memory.naming_host_setting('meshing', '--resolution'):
+    try:
+      verts, faces, normals = mesh.march(density_fn, bounds, args.resolution, level, chunk)
+    except mesh.EmptyFieldError as err:
+      raise mesh.EmptyFieldError(f'{err} (--level sets the level, --bounds the region)') from err
+    colours = mesh.vertex_colours(colour_fn, verts, normals, chunk)
   ply.write(out, verts, faces, colours)
   if args.picture:
     save_picture(args.picture, verts, faces, colours, normals)

@@ -31,13 +31,15 @@ def pack(config, out: str) -> dict:
 
 
 def main(argv=None) -> int:
+  """CLI entry point; returns the exit status."""
   parser = cli.flag_parser(__doc__.splitlines()[0])
   parser.add_argument('--out', required=True, metavar='FILE.npz', help='the pack to write')
   args = parser.parse_args(argv)
   if not args.out.endswith('.npz'):
-    parser.error(f'--out {args.out!r}: expected a file name ending in .npz')
+    raise ValueError(f'--out {args.out!r}: expected a file name ending in .npz')
   if os.path.exists(args.out):
-    parser.error(f'--out {args.out!r} exists; delete it or choose another name (a pack never replaces a file)')
+    raise FileExistsError(f'--out {args.out!r} exists; delete it or choose another name (a pack never replaces a '
+                          'file)')
   config = cli.config_from_flags(args)
   datasets = pack(config, args.out)
   views = ', '.join(f'{split} {len(d.ids)} views {d.height}x{d.width}' for split, d in datasets.items())
@@ -46,4 +48,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == '__main__':
-  sys.exit(main())
+  sys.exit(cli.run(main))

@@ -23,6 +23,7 @@ import statistics
 import sys
 from typing import Dict, List, Optional, Sequence, Tuple
 
+from internal import cli
 from internal.datasets import loader
 from internal.evaluation import metric_registry
 from internal.evaluation import results
@@ -322,8 +323,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
   args = parser.parse_args(argv)
   paths = find_metrics_files(args.roots)
   if not paths:
-    print(f'WARNING: no {results.METRICS_FILENAME} under {args.roots}', file=sys.stderr)
-    return 1
+    raise FileNotFoundError(f'no {results.METRICS_FILENAME} under {args.roots}; expected run directories evaluated '
+                            'by eval.py (or their metrics.json files)')
   records, warnings = collect(paths)
   tables, table_warnings = build_tables(records, args.allow_incomplete)
   for warning in warnings + table_warnings:
@@ -334,4 +335,4 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
 
 if __name__ == '__main__':
-  sys.exit(main())
+  sys.exit(cli.run(main))

@@ -2,6 +2,7 @@
 
 import dataclasses
 import os
+import zipfile
 from typing import List, Optional, Sequence
 
 import numpy as np
@@ -63,10 +64,23 @@ def require_file(path: str, what: str) -> str:
   return path
 
 
+ARCHIVES = ('.zip', '.tar', '.tar.gz', '.tgz', '.tar.xz', '.7z', '.rar')
+
+
+def require_data_folder(data_dir: str, holding: str) -> None:
+  """Raises, naming Config.data_dir, unless it is a folder: absent, or a file (an archive: unpack it first)."""
+  if os.path.isdir(data_dir):
+    return
+  if not os.path.exists(data_dir):
+    raise DatasetNotFoundError(f'Config.data_dir = {data_dir!r} does not exist (expected a folder holding {holding})')
+  archive = data_dir.lower().endswith(ARCHIVES) or zipfile.is_zipfile(data_dir)
+  unpack = '; it is an archive: unpack it and set Config.data_dir to the unpacked folder' if archive else ''
+  raise DatasetError(f'Config.data_dir = {data_dir!r} is a file; expected a folder holding {holding}{unpack}')
+
+
 def scene_dir(data_dir: str, scene: str, setting: str) -> str:
   """<data_dir>/<scene> after checking both exist (the error lists the scenes found)."""
-  if not os.path.isdir(data_dir):
-    raise DatasetNotFoundError(f'Config.data_dir = {data_dir!r} does not exist (expected a folder holding scenes)')
+  require_data_folder(data_dir, 'scenes')
   path = os.path.join(data_dir, scene)
   if not os.path.isdir(path):
     found = [e for e in listing(data_dir) if os.path.isdir(os.path.join(data_dir, e))]

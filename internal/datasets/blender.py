@@ -116,6 +116,15 @@ def load_scene(split: str, config) -> base.Dataset:
                       TEST_STRIDE)
 
 
+MESH_BOX = ((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5))  # Holds every object of the Blender scenes.
+
+
+def mesh_bounds(config) -> np.ndarray:
+  """[2, 3] the region to mesh: MESH_BOX, whatever the scene."""
+  del config  # The same for every scene.
+  return np.array(MESH_BOX)
+
+
 def scene_render_path(config):
   """Rays [F,H,W,...] of the orbit path of the Blender scene Config.blender_scene."""
   return render_path_rays(config, scene_path(config))

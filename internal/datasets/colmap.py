@@ -32,14 +32,14 @@ SETTING_CHOICES = (('capture_rig', RIGS),)
 FORWARD_SPREAD = 0.9   # 'auto': forward when the mean of the unit viewing directions is at least this long.
 CAMERA_DISTANCE = 1.   # Inward captures are scaled so that the median camera is this far from the centre.
 OPENCV_TO_OPENGL = np.diag([1., -1., -1.])
-SHAPING_SETTINGS = ('capture_scene', 'capture_images', 'capture_model', 'capture_rig', 'llffhold',
-                    'train_view_ids', 'test_view_ids')
+SHAPING_SETTINGS = ('capture_scene', 'capture_images', 'capture_model', 'capture_rig', 'llffhold')
 
 
 @dataclasses.dataclass
 class Capture:
   """A capture in the loader's world frame: per image (name order) its file name, COLMAP camera parameters
-  (distortion.opencv_params [8], at full size), camera-to-world [3,4] (OpenCV axes) and depth bounds [2]."""
+  (distortion.opencv_params [8], at full size), camera-to-world [3,4] (OpenCV axes) and depth bounds [2]; the
+  sparse points in the same frame."""
   folder: str
   names: List[str]
   params: np.ndarray     # [N, 8]
@@ -47,25 +47,31 @@ class Capture:
   bounds: np.ndarray     # [N, 2]
   sizes: np.ndarray      # [N, 2] (height, width) at full size.
   forward: bool
+  points: np.ndarray     # [P, 3] the model's 3D points.
 
 
 def scene_path(config) -> str:
   """The capture folder: Config.data_dir, or its sub-folder Config.capture_scene (both checked)."""
   if not config.capture_scene:
-    if not os.path.isdir(config.data_dir):
-      raise base.DatasetNotFoundError(f'Config.data_dir = {config.data_dir!r} does not exist (expected a capture '
-                                      'folder holding the images and the COLMAP model)')
+    base.require_data_folder(config.data_dir, 'a capture: the images and the COLMAP model')
     return config.data_dir
   return base.scene_dir(config.data_dir, config.capture_scene, 'capture_scene')
 
 
 def _camera_params(model: colmap_model.Model, image: colmap_model.Image, path: str) -> np.ndarray:
-  """distortion.opencv_params of an image's camera; the error names the model file and the camera."""
+  """distortion.opencv_params of an image's camera; DatasetError naming the cameras file, the camera and the
+  image for an unsupported model, a focal length that is not positive or a value that is not finite."""
   camera = model.cameras[image.camera_id]
+  where = f'{path!r}: camera {camera.camera_id} of image {image.name!r}'
   try:
-    return distortion.opencv_params(camera.model, camera.params)
+    params = distortion.opencv_params(camera.model, camera.params)
   except distortion.UnsupportedCameraError as err:
-    raise base.DatasetError(f'{path!r}: camera {camera.camera_id} of image {image.name!r}: {err}') from err
+    raise base.DatasetError(f'{where}: {err}') from err
+  if not np.isfinite(params).all() or not (params[:2] > 0).all() or min(camera.width, camera.height) < 1:
+    raise base.DatasetError(f'{where}: {camera.model} {camera.width} x {camera.height} with parameters '
+                            f'{[float(v) for v in camera.params]}; expected positive focal lengths, finite values '
+                            'and a size of at least 1 x 1 pixel')
+  return params
 
 
 def _is_forward(camtoworlds: np.ndarray, rig: str) -> bool:
@@ -83,16 +89,18 @@ def read_capture(config) -> Capture:
   images = sorted(model.images.values(), key=lambda i: i.name)
   if not images:
     raise base.DatasetError(f'the COLMAP model in {model_dir!r} has no registered images')
+  model_file = lambda name: os.path.join(model_dir, name + colmap_model.model_format(model_dir))
   rotations = np.stack([colmap_model.qvec_to_rotmat(i.qvec) for i in images])
   centres = np.stack([colmap_model.camera_center(i) for i in images])
   c2w = np.concatenate([np.transpose(rotations, (0, 2, 1)), centres[..., None]], -1)
-  cameras.check_cameras(c2w, os.path.join(model_dir, 'images' + colmap_model.model_format(model_dir)),
-                        [f'image {i.name!r}' for i in images], 'pose')
-  bounds = colmap_model.depth_bounds(model)
+  cameras.check_cameras(c2w, model_file('images'), [f'image {i.name!r}' for i in images], 'pose')
+  params = [_camera_params(model, i, model_file('cameras')) for i in images]
+  bounds = colmap_model.depth_bounds(model, model_file('points3D'))
   cams = [model.cameras[i.camera_id] for i in images]
-  capture = Capture(folder, [i.name for i in images], np.stack([_camera_params(model, i, model_dir) for i in images]),
+  capture = Capture(folder, [i.name for i in images], np.stack(params),
                     c2w, np.stack([bounds[i.image_id] for i in images]),
-                    np.array([(c.height, c.width) for c in cams]), _is_forward(c2w, config.capture_rig))
+                    np.array([(c.height, c.width) for c in cams]), _is_forward(c2w, config.capture_rig),
+                    np.array([p.xyz for p in model.points.values()]).reshape(-1, 3))
   return _to_forward_frame(capture) if capture.forward else _to_object_frame(capture)
 
 
@@ -112,7 +120,8 @@ def _to_object_frame(capture: Capture) -> Capture:
   rotation = _up_rotation(cameras.normalize(-capture.camtoworlds[:, :, 1].mean(0)))
   c2w = np.concatenate([rotation @ capture.camtoworlds[:, :, :3],
                         (scale * (capture.camtoworlds[:, :, 3] - centre) @ rotation.T)[..., None]], -1)
-  return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale)
+  return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale,
+                             points=scale * (capture.points - centre) @ rotation.T)
 
 
 def _to_forward_frame(capture: Capture) -> Capture:
@@ -121,8 +130,10 @@ def _to_forward_frame(capture: Capture) -> Capture:
   scale = 1. / (capture.bounds.min() * .75)
   c2w_gl = capture.camtoworlds @ np.diag([1., -1., -1., 1.])
   c2w_gl[:, :, 3] *= scale
-  c2w = cameras.recenter_poses(c2w_gl) @ np.diag([1., -1., -1., 1.])
-  return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale)
+  to_frame = np.linalg.inv(cameras.to_homogeneous(cameras.poses_avg(c2w_gl)))  # What recenter_poses applies.
+  c2w = (to_frame @ cameras.to_homogeneous(c2w_gl))[:, :3, :4] @ np.diag([1., -1., -1., 1.])
+  points = scale * capture.points @ to_frame[:3, :3].T + to_frame[:3, 3]
+  return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale, points=points)
 
 
 def arc_order(capture: Capture) -> List[int]:
@@ -206,9 +217,14 @@ def load_scene(split: str, config) -> base.Dataset:
   paths, extra = _image_paths(capture, config, factor)
   ids = base.choose_views(config, split, lambda s: default_views(capture, config.llffhold, config.n_input_views)[s],
                           len(paths), f'the capture {capture.folder!r}')
-  images = image_io.load_stack([paths[i] for i in ids], lambda p: image_io.load_rgb(p, extra, config.downsample_mode))
-  for i, image, in zip(ids, images):
-    check_size(capture, i, image, factor, paths[i])
+  index = {path: i for i, path in enumerate(paths)}
+
+  def load(path):  # Each image against its own camera first (a rotated photo is named, not its neighbour).
+    image = image_io.load_rgb(path, extra, config.downsample_mode)
+    check_size(capture, index[path], image, factor, path)
+    return image
+
+  images = image_io.load_stack([paths[i] for i in ids], load)
   height, width = images.shape[1:3]
   near, far = near_far(capture)
   rays = raygen.stack_rays((_rays(capture, i, height, width, near, far) for i in ids), len(ids))
@@ -266,6 +282,17 @@ def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator)
   poses = random_poses.llff_random_poses(capture.camtoworlds @ np.diag([1., -1., -1., 1.]), capture.bounds,
                                          config.n_random_poses, rng, keep_last_only=False)
   return poses, cameras.focal_pixtocam(focal, dataset.height, dataset.width), focal
+
+
+def mesh_bounds(config):
+  """[2, 3] the region to mesh of an inward capture: the box around its sparse points inside the sphere of the
+  median camera distance about the centre, which the cameras orbit (None: forward captures, meshed in the NDC box,
+  or no point inside)."""
+  capture = read_capture(config)
+  inside = capture.points[np.linalg.norm(capture.points, axis=-1) < CAMERA_DISTANCE]
+  if capture.forward or not len(inside):
+    return None
+  return np.stack([inside.min(0), inside.max(0)])
 
 
 def scene_render_path(config):

@@ -90,19 +90,27 @@ def camera_center(image: Image) -> np.ndarray:
   return -qvec_to_rotmat(image.qvec).T @ image.tvec
 
 
-def depth_bounds(model: Model, percentiles=(0.1, 99.9)) -> Dict[int, np.ndarray]:
+def depth_bounds(model: Model, points_file: str = 'points3D', percentiles=(0.1, 99.9)) -> Dict[int, np.ndarray]:
   """{image_id: [near, far]}: percentiles of the camera-space depths of the 3D points whose track holds the
-  image (LLFF's rule for poses_bounds.npy)."""
+  image (LLFF's rule for poses_bounds.npy); ColmapError naming points_file for a point or a range that no ray
+  could use (not finite, or not in front of the camera)."""
   seen: Dict[int, list] = {image_id: [] for image_id in model.images}
   for point in model.points.values():
+    if not np.isfinite(point.xyz).all():
+      raise ColmapError(f'{points_file!r}: 3D point {point.point_id} is at {point.xyz.tolist()}; expected finite '
+                        'coordinates (the depth range of every image is computed from them)')
     for image_id in set(point.track['image_id'].tolist()):
       seen.setdefault(image_id, []).append(point.xyz)
   bounds = {}
   for image_id, image in model.images.items():
     if not seen[image_id]:
-      raise ColmapError(f'image {image.name!r} sees none of the model\'s 3D points; its depth range is unknown')
+      raise ColmapError(f'image {image.name!r} sees none of the 3D points of {points_file!r}; its depth range is '
+                        'unknown')
     depths = (np.array(seen[image_id]) @ qvec_to_rotmat(image.qvec).T + image.tvec)[:, 2]
     bounds[image_id] = np.percentile(depths, percentiles)
+    if not (np.isfinite(bounds[image_id]).all() and 0 < bounds[image_id][0] <= bounds[image_id][1]):
+      raise ColmapError(f'{points_file!r}: the 3D points image {image.name!r} sees give it the depth range '
+                        f'{bounds[image_id].tolist()}; expected 0 < near <= far (points in front of the camera)')
   return bounds
 
 

@@ -222,6 +222,28 @@ def load_scene(split: str, config) -> base.Dataset:
                       name=f'dtu/{config.dtu_scan}')
 
 
+def mask_region(test_set: base.Dataset):
+  """[2, 3] the object-mask region of DTU's test views: the intersection over the views of the box around each
+  view's mask rays from near to far (a loose box around the visual hull; it holds the object); None when every
+  mask is empty."""
+  boxes = []
+  for view in range(len(test_set.ids)):
+    inside = test_set.masks[view, ..., 0] > .5
+    if inside.any():
+      rays = [getattr(test_set.rays, name)[view][inside] for name in ('origins', 'directions', 'near', 'far')]
+      ends = np.concatenate([rays[0] + rays[1] * rays[2], rays[0] + rays[1] * rays[3]])
+      boxes.append([ends.min(0), ends.max(0)])
+  if not boxes:
+    return None
+  boxes = np.array(boxes)
+  return np.stack([boxes[:, 0].max(0), boxes[:, 1].min(0)])
+
+
+def mesh_bounds(config):
+  """[2, 3] the region to mesh: the mask_region of the scan's test views (None: their masks are empty)."""
+  return mask_region(load_scene('test', config))
+
+
 def render_cameras(config) -> tuple:
   """(all normalized poses [N,3,4], mean test pixtocam [3,3], height, width) of the spiral's frames."""
   scan_dir, layout, projections = scan_setup(config)

@@ -36,6 +36,18 @@ def with_ground_truth(data: base.Dataset, config) -> base.Dataset:
   return dataclasses.replace(data, depths=(depths * scale).astype(np.float32), object_masks=masks)
 
 
+MESH_MARGIN = .05  # Of the object rig's box, on each side.
+
+
+def mesh_bounds(config):
+  """[2, 3] the region to mesh of the object rig: the box around its solids with MESH_MARGIN (None: the forward
+  rig's NDC rays, meshed in the NDC box)."""
+  if config.generated_rig != 'object':
+    return None
+  box = generated_scene.scene_bounds(generated_scene.read_scene(scene(config)))
+  return box + np.array([-1., 1.])[:, None] * MESH_MARGIN * (box[1] - box[0])
+
+
 def scene_render_path(config):
   """Rays [F,H,W,...] of the render path: an orbit for the object rig, the LLFF spiral for the forward rig."""
   fn = blender.render_path_rays if config.generated_rig == 'object' else llff.render_path_rays

@@ -328,7 +328,9 @@ def check_same(scene_dir: str, params: dict) -> None:
 def ensure_scene(scene_dir: str, rig: str, seed: int, size, spp: int = 2) -> None:
   """Writes the scene into scene_dir if it is absent or empty; otherwise checks that it is the same scene."""
   params = scene_params(rig, seed, size[0], size[1], spp)
-  if os.path.isdir(scene_dir) and base.listing(scene_dir):
+  if os.path.exists(scene_dir):
+    base.require_data_folder(scene_dir, 'a generated scene (or a new path to write one to)')
+  if base.listing(scene_dir):
     check_same(scene_dir, params)
     return
   parent = os.path.dirname(os.path.abspath(scene_dir))

@@ -8,14 +8,16 @@ dataset: a loader file and one Loader.of line here (see docs/design.md, 'Adding 
 import dataclasses
 from typing import Callable, Dict, Optional, Tuple
 
-from internal.datasets import base, blender, colmap, dtu, generated, llff, packed
+import numpy as np
+
+from internal.datasets import base, blender, colmap, dtu, generated, llff, packed, raygen
 
 
 # Loader fields filled from the loader file's attribute of that name where it has one (see Loader.of).
 MODULE_ATTRIBUTES = (('load', 'load_scene'), ('render_path', 'scene_render_path'),
                      ('protocol_scenes', 'PROTOCOL_SCENES'), ('shaping_settings', 'SHAPING_SETTINGS'),
                      ('choices', 'SETTING_CHOICES'), ('pack_cameras', 'pack_cameras'),
-                     ('random_pose_cameras', 'random_pose_cameras'))
+                     ('random_pose_cameras', 'random_pose_cameras'), ('mesh_bounds', 'mesh_bounds'))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,6 +41,7 @@ class Loader:
   # (Dataset, config, rng) -> (RegNeRF's random poses [n,3,4], pixtocam [3,3], NDC focal or 0: world rays), or
   # None for a scene without them; None: no random poses (depth smoothness is refused).
   random_pose_cameras: Optional[Callable] = None
+  mesh_bounds: Optional[Callable] = None  # config -> [2, 3] region of a world-ray scene to mesh, or None: none.
 
   @classmethod
   def of(cls, module, scene_setting, ndc, **fields) -> 'Loader':
@@ -115,6 +118,14 @@ def pack_arrays(config, datasets: dict) -> dict:
     raise base.DatasetError(f'Config.dataset_loader = {config.dataset_loader!r} scenes cannot be packed; pack a '
                             f'scene from its source loader, one of {packable}')
   return packed.pack_arrays(config, datasets, record.shaping_settings, record.pack_cameras(config, datasets))
+
+
+def mesh_bounds(config) -> Optional[np.ndarray]:
+  """[2, 3] the scene's own region to mesh: the NDC box for NDC rays, else its loader's (None: it has none)."""
+  record = loader_of(config)
+  if record.ndc(config):
+    return np.array(raygen.NDC_BOX)
+  return record.mesh_bounds(config) if record.mesh_bounds else None
 
 
 def random_pose_cameras(dataset: base.Dataset, config, rng) -> tuple:

@@ -17,7 +17,8 @@ import numpy as np
 from internal.datasets import base, cameras, raygen
 
 VERSION = 1
-COMMON_SETTINGS = ('factor', 'eval_factor', 'n_input_views', 'downsample_mode')
+# The settings that shape every loader's data (each loader adds its own SHAPING_SETTINGS): packs record and check them.
+COMMON_SETTINGS = ('factor', 'eval_factor', 'n_input_views', 'downsample_mode', 'train_view_ids', 'test_view_ids')
 FIELDS = ('images', 'masks', 'depths', 'object_masks')
 
 
@@ -106,6 +107,9 @@ def write_pack(path: str, arrays: dict) -> None:
 
 def read_pack(path: str) -> tuple:
   """(meta dict, arrays {name: np.ndarray}) of a pack; clear errors for a missing or foreign file."""
+  if os.path.isdir(path):
+    raise base.DatasetError(f"Config.data_dir = {path!r} is a folder; Config.dataset_loader = 'packed' expects the "
+                            '.npz file written by python -m tools.pack_scene')
   if not os.path.isfile(path):
     raise base.DatasetNotFoundError(f"Config.data_dir = {path!r} does not exist (Config.dataset_loader = 'packed' "
                                     'expects a file written by python -m tools.pack_scene)')

@@ -98,6 +98,7 @@ def dtu_rays(camtoworld, pixtocam, height, width, near, far, near_origin) -> Ray
 
 
 NDC_NEAR_FAR = (0., 1.)  # LLFF's NDC rays span t in [0, 1] whatever Config.near/far say.
+NDC_BOX = ((-1., -1., -1.), (1., 1., .99))  # The space NDC rays cross (z = 1 is infinitely far): its region to mesh.
 
 
 def llff_rays(camtoworld, pixtocam, height, width, focal) -> Rays:

@@ -1,8 +1,9 @@
 """A mesh of a trained density field: density on a grid inside bounds, slab by slab, marching cubes, vertex colours.
 
-Memory stays bounded at any resolution: the grid is evaluated SLAB z-planes at a time (chunks of points through
-the jitted field), marching cubes runs on each slab (one plane shared with the next), and only the surface is
-kept; the vertices that two slabs share are merged. Each grid point is queried as a Gaussian the size of its cell
+Host memory grows with resolution^2, not resolution^3: the grid is evaluated SLAB z-planes at a time (chunks of
+points through the compiled field), marching cubes runs on each slab (one plane shared with the next), and only
+the surface is kept; the vertices that two slabs share are merged. host_bytes and the field's compiled size give
+what a resolution and a chunk need before any work. Each grid point is queried as a Gaussian the size of its cell
 (variance cell^2 / 12 per axis, a uniform cell's) by mip-NeRF, as a point by NeRF, without density noise.
 Vertex colours: the radiance at the vertex seen from outside along its normal (view direction = -normal).
 """
@@ -15,23 +16,42 @@ import numpy as np
 from skimage import measure
 
 from internal.models import freq_schedule
+from internal.run import out_of_memory
 
 SLAB = 32  # z-planes evaluated and meshed at a time.
+# Host bytes per grid point of a slab while it is evaluated and meshed (its coordinates, the points, the density,
+# marching cubes' work); tests/test_mesh.py measures the peak against it.
+HOST_BYTES_PER_POINT = 48
 
 
 class EmptyFieldError(ValueError):
   """The density never crosses the level inside the bounds: there is no surface to write."""
 
 
-def field_functions(config, model, params, step: int, cell: float):
-  """(density(points [N,3]) -> [N], colour(points [N,3], viewdirs [N,3]) -> [N,3]) with the step's masks."""
+def slab_points(resolution: int) -> int:
+  """Grid points of the largest slab of a resolution^3 grid."""
+  return resolution**2 * (min(SLAB, resolution - 1) + 1)
+
+
+def host_bytes(resolution: int) -> int:
+  """Host memory meshing a resolution^3 grid needs besides the surface (one slab at a time)."""
+  return slab_points(resolution) * HOST_BYTES_PER_POINT
+
+
+def field_functions(config, model, params, step: int, cell: float, chunk: int):
+  """(density(points [chunk,3]) -> [chunk], colour(points [chunk,3], viewdirs [chunk,3]) -> [chunk,3], the bytes
+  the larger needs on the device) with the step's masks, compiled for chunk points."""
   masks = freq_schedule.model_masks(config, model, jnp.asarray(step))
   variance = cell**2 / 12.
-  # Parameters and masks are arguments, not constants folded into the compiled programs.
-  density = jax.jit(lambda v, m, p: model.apply(v, p, variance, m[0], method=type(model).density_at))
-  colour = jax.jit(lambda v, m, p, d: model.apply(v, p, d, variance, *m, method=type(model).colour_at))
   variables = {'params': params}
-  return functools.partial(density, variables, masks), functools.partial(colour, variables, masks)
+  points = jax.ShapeDtypeStruct((chunk, 3), jnp.float32)
+  # Parameters and masks are arguments, not constants folded into the compiled programs.
+  density = jax.jit(lambda v, m, p: model.apply(v, p, variance, m[0], method=type(model).density_at)).lower(
+      variables, masks, points).compile()
+  colour = jax.jit(lambda v, m, p, d: model.apply(v, p, d, variance, *m, method=type(model).colour_at)).lower(
+      variables, masks, points, points).compile()
+  needed = max(out_of_memory.compiled_size(density), out_of_memory.compiled_size(colour))
+  return functools.partial(density, variables, masks), functools.partial(colour, variables, masks), needed
 
 
 def grid_axes(bounds, resolution: int) -> list:
@@ -66,10 +86,10 @@ def march(density_fn, bounds, resolution: int, level: float, chunk: int):
   """(vertices [V, 3], faces [F, 3] int, outward normals [V, 3]) of the level set {density = level}."""
   axes = grid_axes(bounds, resolution)
   spacing = tuple(float(a[1] - a[0]) for a in axes)
-  verts, faces, normals, peak, count = [], [], [], 0., 0
+  verts, faces, normals, low, high, count = [], [], [], np.inf, -np.inf, 0
   for z0 in range(0, resolution - 1, SLAB):
     volume = density_slab(density_fn, axes, range(z0, min(z0 + SLAB + 1, resolution)), chunk)
-    peak = max(peak, float(volume.max()))
+    low, high = min(low, float(volume.min())), max(high, float(volume.max()))
     if not volume.min() < level < volume.max():
       continue
     v, f, n, _ = measure.marching_cubes(volume, level, spacing=spacing)
@@ -78,8 +98,10 @@ def march(density_fn, bounds, resolution: int, level: float, chunk: int):
     normals.append(n)  # skimage's normals point down the density: outward.
     count += len(v)
   if not faces:
-    raise EmptyFieldError(f'the density never reaches the level {level:g} inside the bounds (its maximum is '
-                          f'{peak:.3g}): no surface to mesh; lower the level or check the run and the bounds')
+    side = 'stays below' if high <= level else 'stays above' if low >= level else 'never crosses'
+    raise EmptyFieldError(f'the density {side} the level {level:g} inside the bounds (its minimum is {low:.3g}, '
+                          f'its maximum {high:.3g}): no surface to mesh; choose a level between them, or check the '
+                          'run and the bounds')
   return merge_shared(np.concatenate(verts), np.concatenate(faces), np.concatenate(normals), min(spacing))
 
 

@@ -34,6 +34,8 @@ def mean(values: Sequence[Optional[float]]) -> Optional[float]:
 
 def check_record(record: dict, where: str) -> None:
   """Raises ValueError naming `where` and the field when a record does not follow the schema."""
+  if not isinstance(record, dict):
+    raise ValueError(f'{where}: a JSON {type(record).__name__}; expected the object eval.py writes')
   for field, kind in RECORD_FIELDS.items():
     if not isinstance(record.get(field), kind) or (kind is int and isinstance(record[field], bool)):
       raise ValueError(f'{where}: field {field!r} = {record.get(field)!r}; expected {kind.__name__}')
@@ -63,7 +65,11 @@ def write_record(path, record: dict) -> None:
 
 
 def read_record(path) -> dict:
-  """Reads and checks a metrics.json file."""
-  record = json.loads(pathlib.Path(path).read_text())
+  """Reads and checks a metrics.json file; ValueError naming it when it cannot be read or parsed."""
+  try:
+    record = json.loads(pathlib.Path(path).read_text())
+  except (OSError, ValueError) as err:  # ValueError: bad JSON or bytes that are not UTF-8.
+    raise ValueError(f'{str(path)!r} cannot be read as JSON ({err}); expected the metrics.json written by '
+                     'eval.py') from err
   check_record(record, str(path))
   return record

@@ -3,23 +3,25 @@
 XLA's CPU backend calls the scalar C library per element for sin, cos and remainder (about 7 ns each, and
 fmod longer for large quotients): in the small models users train on a CPU these made up a fifth of a training
 step. The versions here give the same results: sin and cos to float32 rounding of the result (Cephes' octant
-reduction and polynomials, within 1e-7 of the exact values for |x| < 8192), the remainder bit for bit.
+reduction and polynomials, within 1e-7 of the exact values for |x| < EXACT_SIN_LIMIT; an array with any larger or
+non-finite element goes to XLA's sin and cos whole), the remainder bit for bit.
 """
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-# pi/4 in three parts (Cody-Waite): octant * part is exact for the octant counts of |x| < 8192, so the reduced
-# argument keeps float32 precision.
+# |x| below which the octant reduction is exact (Cephes' sinf): pi/4 in three parts (Cody-Waite), octant * part
+# exact for the octant counts of these |x|, so the reduced argument keeps float32 precision.
+EXACT_SIN_LIMIT = 8192.
 _PI4 = (0.78515625, 2.4187564849853515625e-4, 3.77489497744594108e-8)
 # Minimax polynomials of sin(r)/r - 1 and cos(r) on [-pi/4, pi/4] (Cephes' sinf and cosf).
 _SIN = (-1.9515295891e-4, 8.3321608736e-3, -1.6666654611e-1)
 _COS = (2.443315711809948e-5, -1.388731625493765e-3, 4.166664568298827e-2)
 
 
-def _sin_cos(x):
-  """(sin(x), cos(x)) [...] of float32 x [...], from one reduction of |x| to [-pi/4, pi/4]."""
+def _reduced_sin_cos(x):
+  """(sin(x), cos(x)) [...] of float32 x [...] with |x| < EXACT_SIN_LIMIT, from one reduction to [-pi/4, pi/4]."""
   octant = jnp.floor(jnp.abs(x) * (4. / np.pi))
   octant = octant + jnp.mod(octant, 2.)  # Even: |x| = octant * pi/4 + r.
   r = ((jnp.abs(x) - octant * _PI4[0]) - octant * _PI4[1]) - octant * _PI4[2]
@@ -31,6 +33,12 @@ def _sin_cos(x):
   sin_abs = jnp.where(swap, cos_r, sin_r) * jnp.where(quadrant >= 2., -1., 1.)
   cos = jnp.where(swap, sin_r, cos_r) * jnp.where((quadrant == 1.) | (quadrant == 2.), -1., 1.)
   return jnp.sign(x) * sin_abs, cos
+
+
+def _sin_cos(x):
+  """(sin(x), cos(x)) [...] of float32 x [...]: the reduction where it is exact for every element, else XLA's."""
+  return jax.lax.cond(jnp.all(jnp.abs(x) < EXACT_SIN_LIMIT), _reduced_sin_cos,
+                      lambda x: (jnp.sin(x), jnp.cos(x)), x)
 
 
 @jax.custom_jvp

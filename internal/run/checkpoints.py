@@ -7,11 +7,14 @@ checkpoints/damaged_<step>_<time> (kept for the user, ignored by orbax) so that 
 
 import contextlib
 import errno
+import inspect
 import json
 import logging
 import os
+import re
 import sys
 import time
+import traceback
 import warnings
 
 import jax
@@ -50,10 +53,30 @@ def is_disk_full(err: BaseException) -> bool:
   return (isinstance(err, OSError) and err.errno == errno.ENOSPC) or _says_disk_full(str(err))
 
 
-def _drops_disk_full_records(record: logging.LogRecord) -> bool:
-  """A logging filter: False for orbax's records of a write that found the disk full (DiskFullError says it)."""
+ORBAX_DIR = os.path.dirname(os.path.dirname(os.path.abspath(ocp.__file__)))  # .../orbax
+
+
+def _in_orbax(filename: str) -> bool:
+  """True for a source file of orbax."""
+  return os.path.abspath(filename).startswith(ORBAX_DIR + os.sep)
+
+
+def _drops_orbax_disk_full_records(record: logging.LogRecord) -> bool:
+  """A logging filter: False for orbax's records of a write that found the disk full (the DiskFullError says it):
+  logged by orbax, or of an error raised in orbax's code; True for every other record."""
   err = record.exc_info[1] if record.exc_info else None
-  return not (_says_disk_full(record.getMessage()) or (err is not None and is_disk_full(err)))
+  frames = [frame.f_code.co_filename for frame, _ in traceback.walk_tb(err.__traceback__)] if err else []
+  from_orbax = _in_orbax(record.pathname) or any(map(_in_orbax, frames))
+  return not (from_orbax and (_says_disk_full(record.getMessage()) or (err is not None and is_disk_full(err))))
+
+
+def _orbax_unawaited_warnings() -> str:
+  """The message pattern of the warning that a coroutine of orbax (a function, method or inner function of its
+  loaded modules, by qualified name) was never awaited; other coroutines' warnings do not match."""
+  names = {name for module_name, module in list(sys.modules.items()) if module_name.split('.')[0] == 'orbax'
+           for name, value in list(vars(module).items()) if getattr(value, '__module__', None) == module_name
+           and (inspect.isfunction(value) or inspect.isclass(value))}
+  return rf"coroutine '(?:{'|'.join(map(re.escape, sorted(names)))})(?:\.[^']*)?' was never awaited"
 
 
 def _is_closed_loop_error(unraisable) -> bool:
@@ -70,7 +93,7 @@ def _drop_failed_save_reports():
   """
   loggers = [logging.getLogger(name) for name in ('absl', 'asyncio')]
   for logger in loggers:
-    logger.addFilter(_drops_disk_full_records)
+    logger.addFilter(_drops_orbax_disk_full_records)
   previous = sys.unraisablehook
 
   def hook(unraisable):
@@ -81,7 +104,7 @@ def _drop_failed_save_reports():
 
   def restore():
     for logger in loggers:
-      logger.removeFilter(_drops_disk_full_records)
+      logger.removeFilter(_drops_orbax_disk_full_records)
     if sys.unraisablehook is hook:
       sys.unraisablehook = previous
   return restore
@@ -93,8 +116,9 @@ def stop_when_disk_full(run_dir: str):
 
   Orbax writes each step into a temporary folder and renames it when complete, so a failed save leaves the
   checkpoints before it as they were (the temporary folder is removed when training next starts). Orbax's own
-  tracebacks of the failed writes, and the warnings that some were never awaited, are dropped for the one line,
-  also after the block: some come when its abandoned writes end or are collected, later.
+  reports of the failed save (its records of writes that found the disk full, the warnings that its coroutines
+  were never awaited) are dropped for the one line, also after the block: some come when its abandoned writes end
+  or are collected, as late as exit. What does not come from orbax is kept, and without a full disk nothing stays.
   """
   restore = _drop_failed_save_reports()
   full = False
@@ -104,8 +128,7 @@ def stop_when_disk_full(run_dir: str):
     full = is_disk_full(err)
     if not full:
       raise
-    # Writes orbax created and abandoned are collected as late as exit, each warning it was never awaited.
-    warnings.filterwarnings('ignore', message="coroutine '.*' was never awaited", category=RuntimeWarning)
+    warnings.filterwarnings('ignore', message=_orbax_unawaited_warnings(), category=RuntimeWarning)
     folder = os.path.join(run_dir, CHECKPOINT_SUBDIR)
     try:
       kept = f'the newest intact checkpoint, step {latest_step(run_dir)}, is kept'

@@ -8,7 +8,6 @@ and render.py (`path_renders_step_<step>/`) unless Config.output_dir sends them 
 
 import contextlib
 import dataclasses
-import fnmatch
 import json
 import os
 import re
@@ -34,21 +33,28 @@ MARKER = {'run_of': 'FreeNeRF-JAX', 'note': 'A run directory of FreeNeRF-JAX (tr
 # every key of the form <gin class>.<field>, these among them.
 LEGACY_KEY = re.compile(r'(Config|MLP|MipNerfModel|NerfMLP|NerfModel)\.\w+')
 LEGACY_KEYS = {'Config.batch_size', 'Config.max_steps', 'Config.lr_init', 'Config.n_input_views'}
-_ATOMIC_TMP = '.{}.*.tmp'  # The temporary file of atomic.write_text(<name>) left by a crash.
+
+
+def _atomic_tmp(name: str) -> str:
+  """The name pattern of atomic.write_text(<name>)'s temporary file, left by a crash (name: a pattern itself)."""
+  return rf'\.{name}\.\w+\.tmp'
+
+
 _OUTPUTS = {pattern: None for pattern in (
-    'color_[0-9]*.png', 'depth_[0-9]*.png', 'depth_[0-9]*.npz', 'opacity_[0-9]*.png', 'metrics.json',
-    'metrics.csv', '*_color.mp4', '*_depth.mp4', '*_opacity.mp4', 'render.json', _ATOMIC_TMP.format('metrics.*'),
-    _ATOMIC_TMP.format('render.json'))}
-# What this project writes into a run directory, by name pattern: None deletes the entry whole, a dict only the
-# entries of that folder it names (the folder goes when left empty). Config.overwrite deletes these alone, in this
+    r'(color|depth|opacity)_\d{3,}\.png', r'depth_\d{3,}\.npz', r'metrics\.(json|csv)', r'render\.json',
+    r'.+_(color|depth|opacity)\.mp4', _atomic_tmp(r'metrics\.(json|csv)'), _atomic_tmp(r'render\.json'))}
+# What this project writes into a run directory, by the exact form of its names (regular expressions): None deletes
+# the entry whole, a dict only the entries of that folder it names (the folder goes when left empty; a link to a
+# folder stays, the entries it names in the folder it points to go). Config.overwrite deletes these alone, in this
 # order (the settings last, so that an interrupted overwrite still refuses other settings).
 WRITTEN = {
-    'checkpoints': {'[0-9]*': None, 'damaged_[0-9]*': None},  # orbax's step folders (and their temporaries).
-    'tensorboard': {'events.out.tfevents.*': None},
-    'test_preds_step_[0-9]*': _OUTPUTS, 'path_renders_step_[0-9]*': _OUTPUTS,
-    'learning_curve.csv': None, GIN_FILE: None,
-    **{_ATOMIC_TMP.format(name): None for name in ('learning_curve.csv', GIN_FILE, FINGERPRINT_FILE)},
-    FINGERPRINT_FILE: None}
+    'checkpoints': {r'\d+': None, r'\d+\.orbax-checkpoint-tmp(-\d+)?': None,  # orbax's steps, their temporaries,
+                    r'damaged_\d+_\d{8}-\d{6}': None},  # and the damaged ones set aside (checkpoints.py).
+    'tensorboard': {r'events\.out\.tfevents\..+': None},
+    r'test_preds_step_\d+': _OUTPUTS, r'path_renders_step_\d+': _OUTPUTS,
+    r'learning_curve\.csv': None, re.escape(GIN_FILE): None,
+    **{_atomic_tmp(re.escape(name)): None for name in ('learning_curve.csv', GIN_FILE, FINGERPRINT_FILE)},
+    re.escape(FINGERPRINT_FILE): None}
 # Config fields that do not change what training computes: they may differ between a run and its resumption.
 NOT_FINGERPRINTED = (
     'expname', 'project', 'checkpoint_dir', 'overwrite', 'output_dir', 'checkpoint_every', 'checkpoint_keep',
@@ -142,14 +148,18 @@ def _entries(run_dir: str) -> list:
   return [e for e in os.listdir(run_dir) if e not in (LOCK_FILE, MARKER_FILE)] if os.path.isdir(run_dir) else []
 
 
+def is_run(folder: str) -> bool:
+  """True when folder is a run of this project: its marker, or the settings of an earlier version's run."""
+  path = os.path.join(folder, FINGERPRINT_FILE)
+  return is_marked(folder) or (os.path.isfile(path) and _is_legacy_fingerprint(_read_json(path)))
+
+
 def _check_ours(run_dir: str) -> None:
   """RunDirError unless run_dir is new, empty, or a run of this project (its marker, or an earlier version's
   settings): a folder of anything else is never touched, whatever Config.overwrite says."""
-  if not _entries(run_dir) or is_marked(run_dir):
+  if not _entries(run_dir) or is_run(run_dir):
     return
   path = os.path.join(run_dir, FINGERPRINT_FILE)
-  if os.path.isfile(path) and _is_legacy_fingerprint(_read_json(path)):
-    return
   found = (f'its {FINGERPRINT_FILE} is not settings of this project' if os.path.isfile(path) else
            f'it holds {sorted(_entries(run_dir))[:3]}')
   raise RunDirError(f'Config.checkpoint_dir {run_dir!r} is not a run of this project (no {MARKER_FILE}; {found}); '
@@ -173,19 +183,24 @@ def _delete(path: str, is_folder: bool) -> None:
     raise OSError(err.errno, err.strerror, path) from err
 
 
+def _written(entries, pattern: str) -> list:
+  """The entries whose whole name has the form of pattern (a WRITTEN key)."""
+  return [entry for entry in entries if re.fullmatch(pattern, entry)]
+
+
 def _delete_written(folder: str, patterns: dict) -> None:
   """Deletes the entries of folder that patterns name, pattern by pattern (see WRITTEN); keeps every other one."""
   entries = os.listdir(folder)
   for pattern, inner in patterns.items():
-    for entry in fnmatch.filter(entries, pattern):
+    for entry in _written(entries, pattern):
       path = os.path.join(folder, entry)
-      is_folder = os.path.isdir(path) and not os.path.islink(path)
       if inner is None:
-        _delete(path, is_folder)
-      elif is_folder:
+        _delete(path, os.path.isdir(path) and not os.path.islink(path))
+      elif os.path.isdir(path):  # Also through a link (checkpoints/ on another disk): else its steps would resume.
         _delete_written(path, inner)
-        with contextlib.suppress(OSError):
-          os.rmdir(path)  # Stays when it holds files this project did not write.
+        if not os.path.islink(path):
+          with contextlib.suppress(OSError):
+            os.rmdir(path)  # Stays when it holds files this project did not write.
 
 
 def _clear(run_dir: str) -> None:
@@ -200,7 +215,7 @@ def _settings_diff(run_dir: str, config) -> str:
   stored = read_fingerprint(run_dir)
   if stored is not None:
     return differences(stored, config)
-  written = [e for e in _entries(run_dir) if any(fnmatch.fnmatch(e, p) for p in WRITTEN)]
+  written = [e for p in WRITTEN for e in _written(_entries(run_dir), p)]
   if written:
     raise RunDirError(f'Config.checkpoint_dir {run_dir!r} holds files of a run ({sorted(written)[:3]}) but not its '
                       f'settings ({FINGERPRINT_FILE} is missing); set Config.overwrite = True to delete that run and '
@@ -367,7 +382,28 @@ def check_run_dir(config) -> str:
   if diff:
     raise RunDirError(f'Config.checkpoint_dir {run_dir!r} was trained with different settings ({diff}); pass '
                       'the gin configs and bindings used for training')
+  _check_output_dir(config)
   return run_dir
+
+
+def _enclosing_run(folder: str):
+  """The run of this project that folder is, or lies inside (real paths), or None."""
+  path = os.path.realpath(folder)
+  while not is_run(path):
+    if os.path.dirname(path) == path:
+      return None
+    path = os.path.dirname(path)
+  return path
+
+
+def _check_output_dir(config) -> None:
+  """RunDirError when Config.output_dir lies in a run other than Config.checkpoint_dir's: its outputs would go
+  where that run's own evaluations and renders go."""
+  other = _enclosing_run(config.output_dir) if config.output_dir else None
+  if other and other != os.path.realpath(config.checkpoint_dir):
+    raise RunDirError(f'Config.output_dir {config.output_dir!r} is inside {other!r}, another run of this project: '
+                      'its test_preds_step_<step>/ and path_renders_step_<step>/ would mix with that run\'s own; '
+                      'choose a folder outside other runs (or leave Config.output_dir empty to write into this run)')
 
 
 def outputs_root(config) -> str:

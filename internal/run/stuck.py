@@ -1,6 +1,7 @@
 """Stuck training: a loss that sets no new best for a while early in a run and either never learned (e.g. a learning
-rate so large that the network died and renders one colour) or has since diverged, which would otherwise train to
-the end without a word. A plateau after the loss fell (normal while FreeNeRF's frequency band opens) is not stuck."""
+rate so large that the network died and renders one colour), or learned and then died (flat well above its best),
+or has since diverged, which would otherwise train to the end without a word. A plateau after the loss fell
+(normal while FreeNeRF's frequency band opens: within a few percent of its best) is not stuck."""
 
 import math
 
@@ -8,7 +9,8 @@ RELATIVE_IMPROVEMENT = 1e-3  # A window improves on the best loss when it is low
 EARLY_FACTOR = 4  # Only the first EARLY_FACTOR * patience steps are watched: later plateaus are normal.
 MIN_WINDOWS = 4  # A patience scaled to a short run spans at least this many logged windows (noise of one window).
 LEARNED_FRACTION = 0.5  # A run whose best loss is below this fraction of its first window's has learned something,
-DIVERGED_FACTOR = 2.  # and is stuck only once its loss rose above this multiple of the best (or is not finite).
+DIVERGED_FACTOR = 2.  # and is stuck only once its loss rose above this multiple of the best (or is not finite),
+RISEN_FACTOR = 1.25  # or stayed above this multiple of it for the last patience steps (died after learning).
 
 
 def patience(config) -> int:
@@ -26,7 +28,8 @@ def is_stuck(windows, patience: int) -> bool:
 
   The best is the lowest loss so far (non-finite means never improve); patience 0 turns the check off, and a last
   window past step EARLY_FACTOR * patience is no longer early, so never stuck. A run that learned (best below
-  LEARNED_FRACTION of the first finite loss) is stuck only when its last loss is DIVERGED_FACTOR above the best.
+  LEARNED_FRACTION of the first finite loss) is stuck only when its last loss is DIVERGED_FACTOR above the best,
+  or every loss of its last patience steps RISEN_FACTOR above it.
   """
   if patience <= 0 or not windows or windows[-1][0] > EARLY_FACTOR * patience:
     return False
@@ -38,8 +41,10 @@ def is_stuck(windows, patience: int) -> bool:
     return False
   first = next((loss for _, loss in windows if math.isfinite(loss)), math.inf)
   last = windows[-1][1]
+  recent = [loss for step, loss in windows if step > windows[-1][0] - patience]  # All after the best.
   learned = best < LEARNED_FRACTION * first
-  return not learned or not math.isfinite(last) or last > DIVERGED_FACTOR * best
+  died = all(not loss <= RISEN_FACTOR * best for loss in recent)  # NaN counts as above.
+  return not learned or not math.isfinite(last) or last > DIVERGED_FACTOR * best or died
 
 
 def warning(config, windows) -> str:
