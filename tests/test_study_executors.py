@@ -16,40 +16,27 @@ import time
 import pytest
 
 from conftest import JAX_CACHE
+from test_study import STEPS
+from test_study import TINY_STUDY
 from tools import study_claim
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
-STEPS = 12
-STUDY = f'''
-name = "tiny"
-bindings = ["MLP.net_depth = 2", "MLP.net_width = 16", "MLP.net_width_viewdirs = 16",
-            "MipNerfModel.num_samples = 8", "Config.batch_size = 64", "Config.max_steps = {{steps}}",
-            "Config.freq_reg_end = 10", "Config.print_every = 100", "Config.train_render_every = 0",
-            "Config.checkpoint_every = {{every}}", "Config.compute_lpips = False", "Config.render_chunk_size = 192",
-            "Config.eval_test_ids = [0, 1]", "Config.generated_size = (12, 16)",
-            "Config.data_dir = '{{{{out}}}}/scenes/{{{{scene}}}}'"]
-[methods.freenerf]
-configs = ["{REPO}/configs/demo.gin"]
-[methods.mipnerf]
-configs = ["{REPO}/configs/demo.gin"]
-bindings = ["Config.freq_reg = False", "Config.freq_reg_end = 0", "Config.occ_reg_loss_mult = 0."]
-[scenes.object]
-bindings = ["Config.generated_rig = 'object'"]
-[scenes.forward]
-bindings = ["Config.generated_rig = 'forward'"]
-'''
+STUDY = TINY_STUDY.replace('"Config.curve_every = 10", "Config.curve_factor = 1",', '"Config.eval_test_ids = [0, 1]",')
 COMPARED = ('cell', 'method', 'scene', 'status', 'step', 'complete', 'psnr', 'ssim', 'depth_mae',
             'depth_within_1pct', 'depth_within_5pct', 'steps_trained')
-ENV = {**os.environ, 'JAX_COMPILATION_CACHE_DIR': JAX_CACHE, 'JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS': '0'}
+NO_RAY = 'the cluster extra is not installed (pip install -r requirements-cluster.txt)'
+# Ray's token authentication off for the clusters here, whatever token the machine's ~/.ray holds.
+ENV = {**os.environ, 'JAX_COMPILATION_CACHE_DIR': JAX_CACHE, 'JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS': '0',
+       'RAY_AUTH_MODE': 'disabled'}
 
 
-def _study(tmp_path, name='tiny.toml', steps=STEPS, every=6, methods=None):
-  """A study file under tmp_path (with methods, only those) -> its path."""
-  text = STUDY.format(steps=steps, every=every)
-  if methods:
-    text = text.split('[methods.freenerf]')[0] + f'[methods.{methods}]\nconfigs = ["{REPO}/configs/demo.gin"]\n' + (
-        '[scenes.object]\nbindings = ["Config.generated_rig = \'object\'"]\n')
-  path = tmp_path / name
+def _study(tmp_path, steps=STEPS, every=10, one_cell=False):
+  """The tiny study (one_cell: FreeNeRF on the object scene only) with its steps and checkpoint interval -> path."""
+  text = STUDY.replace(f'Config.max_steps = {STEPS}', f'Config.max_steps = {steps}').replace(
+      'Config.checkpoint_every = 10', f'Config.checkpoint_every = {every}')
+  if one_cell:
+    text = text.split('[methods.mipnerf]')[0] + '[scenes.object]\nbindings = ["Config.generated_rig = \'object\'"]\n'
+  path = tmp_path / 'mini.toml'
   path.write_text(text)
   return path
 
@@ -59,13 +46,13 @@ def _study_command(path, out, *flags):
 
 
 def _results(out):
-  with open(pathlib.Path(out) / 'tiny' / 'results.csv', newline='') as f:
+  with open(pathlib.Path(out) / 'mini' / 'results.csv', newline='') as f:
     return [{k: row[k] for k in COMPARED} for row in csv.DictReader(f)]
 
 
 def _trained_once(out):
   """Each cell's log holds exactly one cell record: no cell was trained (or written) twice."""
-  for log in pathlib.Path(out, 'tiny').glob('*/log.txt'):
+  for log in pathlib.Path(out, 'mini').glob('*/log.txt'):
     assert log.read_text().count('"steps_trained"') == 1, log.read_text()[-2000:]
 
 
@@ -90,16 +77,32 @@ def test_two_processes_on_one_folder_train_each_cell_once(reference, tmp_path):
   assert [r.returncode for r in runners] == [0, 0], outputs
   assert _results(out) == rows
   _trained_once(out)
-  assert not list(out.glob(f'tiny/*/{study_claim.CLAIM_FILE}*'))             # Every claim released.
+  assert not list(out.glob(f'mini/*/{study_claim.CLAIM_FILE}*'))             # Every claim released.
+
+
+def _free_port() -> int:
+  with socket.socket() as s:
+    s.bind(('127.0.0.1', 0))
+    return s.getsockname()[1]
+
+
+def _processes_mentioning(text: str) -> list:
+  """Ids of the processes whose command line contains text."""
+  found = []
+  for proc in pathlib.Path('/proc').glob('[0-9]*'):
+    try:
+      if text in proc.joinpath('cmdline').read_bytes().decode(errors='replace'):
+        found.append(int(proc.name))
+    except OSError:
+      pass
+  return found
 
 
 @pytest.fixture(scope='module', name='cluster')
 def fixture_cluster():
   """The address of a local Ray cluster started as on a head node, `ray start --head`, in its own process."""
-  pytest.importorskip('ray', reason='the cluster extra is not installed (pip install -r requirements-cluster.txt)')
-  with socket.socket() as s:
-    s.bind(('127.0.0.1', 0))
-    port = s.getsockname()[1]
+  pytest.importorskip('ray', reason=NO_RAY)
+  port = _free_port()
   temp = tempfile.mkdtemp(prefix='ray')  # Short: Ray's socket paths live under it.
   head = subprocess.Popen([os.path.join(os.path.dirname(sys.executable), 'ray'), 'start', '--head', '--block',
                            f'--port={port}', '--num-cpus=2', '--include-dashboard=false', '--disable-usage-stats',
@@ -138,8 +141,8 @@ def _latest_step(run_dir):
 
 
 def test_a_killed_worker_is_retried_from_its_checkpoint_and_ctrl_c_stops_cleanly(cluster, tmp_path):
-  path = _study(tmp_path, steps=4000, every=200, methods='freenerf')
-  out, cell = tmp_path / 'out', tmp_path / 'out' / 'tiny' / 'freenerf__object'
+  path = _study(tmp_path, steps=4000, every=200, one_cell=True)
+  out, cell = tmp_path / 'out', tmp_path / 'out' / 'mini' / 'freenerf__object'
   command = _study_command(path, out, '--executor', 'ray', '--address', cluster)
   driver = subprocess.Popen(command, cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
   _wait_for(lambda: (_latest_step(cell / 'run') or 0) >= 400, 'the first checkpoints')
@@ -160,3 +163,35 @@ def test_a_killed_worker_is_retried_from_its_checkpoint_and_ctrl_c_stops_cleanly
   record = json.loads((cell / 'cell.json').read_text())
   assert record['step'] == 4000 and record['steps_trained'] == 4000 - stopped_at
   assert record['resumed_from_step'] == stopped_at > killed_at, (record['resumed_from_step'], stopped_at, killed_at)
+
+
+def test_the_sbatch_script_runs_a_study_on_a_one_node_allocation(tmp_path):
+  pytest.importorskip('ray', reason=NO_RAY)
+  path, out, temp = _study(tmp_path, steps=4, every=2, one_cell=True), tmp_path / 'out', tempfile.mkdtemp(prefix='ray')
+  host = socket.gethostname()
+  slurm = {'SLURM_JOB_ID': '7', 'SLURM_JOB_NUM_NODES': '1', 'SLURM_NNODES': '1', 'SLURM_JOB_NODELIST': host,
+           'SLURMD_NODENAME': host, 'SLURM_CPUS_ON_NODE': '2', 'SLURM_SUBMIT_DIR': str(REPO)}
+  result = subprocess.run(['bash', str(REPO / 'tools' / 'slurm' / 'study_ray.sbatch'), str(path), '--out', str(out)],
+                          cwd=tmp_path, env={**ENV, **slurm, 'FREENERF_VENV': sys.prefix, 'RAY_PORT': str(_free_port()),
+                                             'RAY_TEMP_DIR': temp}, capture_output=True, text=True, timeout=600)
+  assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+  assert 'Ray head on' in result.stdout and (out / 'mini' / 'results.csv').is_file()
+  assert json.loads((out / 'mini' / 'freenerf__object' / 'cell.json').read_text())['step'] == 4
+  assert _processes_mentioning(temp) == []                               # The cluster stopped with the script.
+
+
+@pytest.mark.parametrize('env, home_token, mode', [
+    ({}, False, None), ({}, True, 'token'), ({'RAY_AUTH_TOKEN': 'x'}, False, 'token'),
+    ({'RAY_AUTH_MODE': 'disabled'}, True, 'disabled')])
+def test_a_driver_uses_token_authentication_where_ray_start_would(monkeypatch, tmp_path, env, home_token, mode):
+  from tools import study_ray  # pylint: disable=import-outside-toplevel
+  for name in ('RAY_AUTH_MODE', 'RAY_AUTH_TOKEN', 'RAY_AUTH_TOKEN_PATH'):
+    monkeypatch.delenv(name, raising=False)
+  monkeypatch.setenv('HOME', str(tmp_path))
+  for name, value in env.items():
+    monkeypatch.setenv(name, value)
+  if home_token:
+    (tmp_path / '.ray').mkdir()
+    (tmp_path / '.ray' / 'auth_token').write_text('secret')
+  study_ray._token_auth_if_token()  # pylint: disable=protected-access
+  assert os.environ.get('RAY_AUTH_MODE') == mode

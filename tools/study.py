@@ -1,25 +1,29 @@
 """Runs a study or a paper table: every cell (method x scene x axis points) trained and evaluated in its own run.
 
 Usage: python -m tools.study STUDY.toml [--out out/studies] [--data_root data] [--jobs N] [--gpus 0,1,...]
-                             [--shard K/N] [--list [--estimate]] [--plots-only] [--gin_bindings B ...]
-                             [--export DIR] [--reuse DIR]
+                             [--shard K/N] [--executor local|ray [--address A] [--num-gpus G] [--num-cpus C]
+                             [--max-retries R]] [--list [--estimate [--cluster-gpus N]]] [--plots-only]
+                             [--gin_bindings B ...] [--export DIR] [--reuse DIR]
 
 Each cell runs `train(config)` then eval's `evaluate(config)` in a subprocess (`python -m tools.study
 --run-cell <cell dir>`: gin state stays per process and cells can run in parallel) in the run directory
 <out>/<study>/<cell id>/run/, and writes <out>/<study>/<cell id>/cell.json: the evaluation means, wall times (train, eval; they
 include data loading and compilation), steps/s, XLA's flop count of one train step, the process's peak RSS
 and, on accelerators, the device's peak bytes. Its output goes to <cell>/log.txt.
-Resumable: a cell with cell.json is skipped; a half-trained one resumes from its newest checkpoint. --reuse DIR
+Resumable: a cell with cell.json is skipped; a half-trained one resumes from its newest checkpoint. A cell process
+claims its cell first (tools/study_claim.py), so any number of runners may share a study folder. --reuse DIR
 takes the finished cells of an earlier export (another machine's, say) instead of running them again.
 --jobs N runs N cells at a time; --gpus gives one GPU per worker (CUDA_VISIBLE_DEVICES), --shard K/N takes
-every N-th cell from K (one command per host on a shared folder). At the end (also after failures) the
+every N-th cell from K (one command per host on a shared folder); --executor ray runs the cells as Ray tasks
+(tools/study_ray.py, docs/cluster.md). At the end (also after failures) the
 results of all finished cells are gathered into <out>/<study>/results.csv and <metric>_vs_<x>.png plots, and
 the cells' learning curves (Config.curve_every > 0) into psnr_vs_step.png (and psnr_masked_vs_step.png on DTU).
 `python -m tools.tables <out>/<study>` gathers the same runs into the paper's tables.
 With seeds (a `seeds` key or an axis named seed) results also give per cell the mean, spread and n over seeds and
 the paired comparisons with their 95% intervals (tools/study_stats.py). `--list --estimate` measures each distinct
 setting of the pending cells on this machine (about a minute each) and prints the expected wall time before any
-cell runs (tools/study_cost.py).
+cell runs (tools/study_cost.py); with --cluster-gpus N, the GPU-hours and the wall time on N GPUs from the step
+times measured on a GPU (results/gpu). Bad input is one line (exit status 2, internal/cli.py).
 """
 
 import argparse

@@ -151,8 +151,8 @@ def cluster_lines(cells: List[Tuple[str, str, object]], bench_path: str, bench: 
   """The cluster estimate of cells (cell id, method, Config): a line per cell, then per precision the GPU-hours
   and the wall time on gpus GPUs (the cells' own precisions first)."""
   lines = [f'GPU estimate from {os.path.relpath(bench_path, REPO)} ({bench.get("device")}, jax '
-           f'{bench.get("jax_version")}): training steps only, no compilation, checkpoints, learning curves or '
-           'evaluation; one GPU per cell']
+           f'{bench.get("jax_version")}) at commit {study_export.git_commit(REPO)}: training steps only, no '
+           'compilation, checkpoints, learning curves or evaluation; one GPU per cell']
   own = []
   for cell_id, method, config in cells:
     step, note = gpu_step_seconds(bench, config.precision, method, config.batch_size)

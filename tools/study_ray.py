@@ -27,6 +27,15 @@ def _cell_task(path: str, job: str, cwd: str):
   return study_schedule.run_cell_process(path, job, {}, cwd=cwd)
 
 
+def _token_auth_if_token() -> None:
+  """RAY_AUTH_MODE=token when it is unset and a token is there (RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or
+  ~/.ray/auth_token), as `ray start` decides: a driver must use the mode its cluster uses."""
+  token_files = [os.environ.get('RAY_AUTH_TOKEN_PATH'), os.path.expanduser(os.path.join('~', '.ray', 'auth_token'))]
+  if 'RAY_AUTH_MODE' not in os.environ and (os.environ.get('RAY_AUTH_TOKEN') or any(
+      f and os.path.isfile(f) for f in token_files)):
+    os.environ['RAY_AUTH_MODE'] = 'token'
+
+
 def _import_ray():
   try:
     import ray  # pylint: disable=import-outside-toplevel  (an optional extra)
@@ -60,6 +69,8 @@ class RayExecutor:
 
   def __init__(self, address, resources: study_spec.Resources, job: str):
     self.ray, self.job, self.submitted = _import_ray(), job, {}
+    if address is not None:
+      _token_auth_if_token()
     try:
       self.ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False,
                     runtime_env={'env_vars': {'PYTHONPATH': study_schedule.python_path()}})
