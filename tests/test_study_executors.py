@@ -68,13 +68,19 @@ def fixture_reference(tmp_path_factory):
   return path, rows
 
 
+def _run_together(*commands) -> list:
+  """Runs the commands at once; their outputs (stdout and stderr), asserting that each exits 0."""
+  runners = [subprocess.Popen(c, cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+             for c in commands]
+  outputs = [r.communicate(timeout=600)[0] for r in runners]
+  assert [r.returncode for r in runners] == [0] * len(runners), [o[-3000:] for o in outputs]
+  return outputs
+
+
 def test_two_processes_on_one_folder_train_each_cell_once(reference, tmp_path):
   path, rows = reference
   out = tmp_path / 'two'
-  runners = [subprocess.Popen(_study_command(path, out), cwd=REPO, env=ENV, stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, text=True) for _ in range(2)]
-  outputs = [r.communicate(timeout=600)[0] for r in runners]
-  assert [r.returncode for r in runners] == [0, 0], outputs
+  _run_together(_study_command(path, out), _study_command(path, out, '--shard', '1/2'))
   assert _results(out) == rows
   _trained_once(out)
   assert not list(out.glob(f'mini/*/{study_claim.CLAIM_FILE}*'))             # Every claim released.
@@ -116,15 +122,28 @@ def fixture_cluster():
   head.wait(60)
 
 
-def test_ray_gives_the_local_executors_results(reference, cluster, tmp_path):
+def test_ray_beside_a_local_shard_gives_the_local_executors_results(reference, cluster, tmp_path):
   path, rows = reference
   out = tmp_path / 'ray'
-  result = subprocess.run(_study_command(path, out, '--executor', 'ray', '--address', cluster, '--num-cpus', '1'),
-                          cwd=REPO, env=ENV, capture_output=True, text=True, timeout=600, check=False)
-  assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+  ray_output, _ = _run_together(_study_command(path, out, '--executor', 'ray', '--address', cluster, '--num-cpus', '1'),
+                                _study_command(path, out, '--shard', '0/2'))
   assert _results(out) == rows
   _trained_once(out)
-  assert 'cells: 100%' in result.stderr and 'failed 0' in result.stderr
+  assert 'cells: 100%' in ray_output and 'failed 0' in ray_output
+
+
+def test_the_overhead_benchmark_records_both_executors(cluster, tmp_path):
+  out = tmp_path / 'overhead.json'
+  result = subprocess.run([sys.executable, '-m', 'tools.study_overhead', '--cells', '2', '--address', cluster,
+                           '--out', str(out)], cwd=REPO, env=ENV, capture_output=True, text=True, timeout=600,
+                          check=False)
+  assert result.returncode == 0, result.stderr[-3000:]
+  record = json.loads(out.read_text())
+  assert record['command'].startswith('python -m tools.study_overhead --cells 2') and record['cluster'] == cluster
+  for name, cells in (('local', 2), ('ray', 1)):  # Ray's first cell (its worker starting) is recorded apart.
+    assert record[name]['cells'] == cells and record[name]['cell_startup_median_s'] > 0.
+  for times in record['per_cell']['local'] + record['per_cell']['ray']:
+    assert times['outer'] >= times['inner'] > 0.
 
 
 def _wait_for(predicate, what, timeout=300.):
