@@ -214,3 +214,24 @@ def test_a_driver_uses_token_authentication_where_ray_start_would(monkeypatch, t
     (tmp_path / '.ray' / 'auth_token').write_text('secret')
   study_ray._token_auth_if_token()  # pylint: disable=protected-access
   assert os.environ.get('RAY_AUTH_MODE') == mode
+
+
+def test_resources_no_node_offers_are_an_error_here_and_a_warning_on_a_cluster(capsys):
+  from tools import study_ray  # pylint: disable=import-outside-toplevel
+  from tools import study_spec  # pylint: disable=import-outside-toplevel
+  nodes = [{'Alive': True, 'Resources': {'CPU': 8.}}, {'Alive': False, 'Resources': {'CPU': 8., 'GPU': 4.}}]
+  study_ray.check_fits(study_spec.Resources(num_gpus=0, num_cpus=8), nodes, None)
+  with pytest.raises(ValueError, match=r'asks for 1 GPU and 1 CPU .* \(nodes: 0 GPU and 8 CPU\); expected'):
+    study_ray.check_fits(study_spec.Resources(num_gpus=1), nodes, None)   # The GPU node is dead.
+  study_ray.check_fits(study_spec.Resources(num_gpus=1), nodes, '10.0.0.1:6379')
+  assert 'warning: a cell asks for 1 GPU' in capsys.readouterr().err
+
+
+def test_ray_missing_is_one_line_naming_the_extra(capsys, monkeypatch, tmp_path):
+  from internal import cli  # pylint: disable=import-outside-toplevel
+  from tools import study as study_lib  # pylint: disable=import-outside-toplevel
+  monkeypatch.setitem(sys.modules, 'ray', None)  # As if not installed.
+  path = _study(tmp_path)
+  assert cli.run(lambda: study_lib.main([str(path), '--out', str(tmp_path), '--executor', 'ray'])) == 2
+  assert capsys.readouterr().err == ('error: --executor ray needs Ray, which is not installed; expected the cluster '
+                                     'extra: pip install -r requirements-cluster.txt\n')

@@ -121,26 +121,41 @@ def _outcome(future: concurrent.futures.Future) -> Tuple[Optional[int], str]:
 
 def run(paths: List[str], executor, is_done: Callable[[str], bool]) -> Dict[str, str]:
   """Runs the cells of paths on executor (submit, cancel, slots); returns {path: error} of the failed cells."""
-  pending, running, failed = list(paths), {}, {}
+  pending, running, failed, shown = list(paths), {}, {}, time.monotonic()
   with tqdm.tqdm(total=len(paths), desc='cells', unit='cell', **progress.progress_kwargs()) as bar:
     try:
       while pending or running:
-        for path in list(pending):
-          if is_done(path):
-            pending.remove(path)
-            bar.update(1)
-          elif len(running) < executor.slots and study_claim.live_holder(path) is None:
-            pending.remove(path)
-            tqdm.tqdm.write(f'running {path}', file=sys.stdout)
-            running[executor.submit(path)] = path
+        _submit(pending, running, executor, is_done, bar)
         _collect(running, pending, failed, bar)
-        claimed = sum(study_claim.live_holder(p) is not None for p in running.values())
-        bar.set_postfix_str(f'running {claimed}, queued {len(running) - claimed}, elsewhere {len(pending)}, '
-                            f'failed {len(failed)}')
+        bar.set_postfix_str(_states(running, pending, failed, is_done), refresh=False)
+        if time.monotonic() - shown >= bar.mininterval:  # Elapsed time and states move while cells run.
+          bar.refresh()
+          shown = time.monotonic()
     except KeyboardInterrupt:
       executor.cancel(list(running))
       raise
   return failed
+
+
+def _submit(pending: list, running: dict, executor, is_done: Callable[[str], bool], bar) -> None:
+  """Counts the pending cells that finished meanwhile and submits those that no runner holds, while slots last."""
+  for path in list(pending):
+    if is_done(path):
+      pending.remove(path)
+      bar.update(1)
+    elif len(running) < executor.slots and study_claim.live_holder(path) is None:
+      pending.remove(path)
+      tqdm.tqdm.write(f'running {path}', file=sys.stdout)
+      running[executor.submit(path)] = path
+
+
+def _states(running: dict, pending: list, failed: dict, is_done: Callable[[str], bool]) -> str:
+  """'running R, queued Q, elsewhere E, failed F': cells working (claimed, or finished and ending), waiting for a
+  worker or a slot, held by other runners, failed."""
+  claimed = sum(study_claim.live_holder(p) is not None or is_done(p) for p in running.values())
+  elsewhere = sum(study_claim.live_holder(p) is not None for p in pending)
+  queued = len(running) - claimed + len(pending) - elsewhere
+  return f'running {claimed}, queued {queued}, elsewhere {elsewhere}, failed {len(failed)}'
 
 
 def _collect(running: dict, pending: list, failed: dict, bar) -> None:
