@@ -42,6 +42,7 @@ def test_a_bad_study_file_is_one_line(capsys, tmp_path, text, expected):
     (['--shard', 'a'], "--shard 'a'"),
     (['--num-gpus', '1'], '--num-gpus: only with --executor ray'),
     (['--executor', 'ray', '--num-cpus', '-1'], 'must be >= 0'),
+    (['--executor', 'ray', '--gpus', '0,1'], "--jobs and --gpus are the local executor's"),
     (['--list', '--cluster-gpus', '4'], '--cluster-gpus goes with --list --estimate'),
     (['--list', '--estimate', '--cluster-gpus', '0'], '--cluster-gpus 0; expected >= 1'),
 ])

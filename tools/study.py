@@ -390,6 +390,8 @@ def _check_flags(args) -> None:
       (not args.study, 'a study file is required'),
       (args.jobs < 1, f'--jobs {args.jobs}; expected >= 1'),
       (args.executor != 'ray' and ray_only, f'{", ".join(ray_only)}: only with --executor ray'),
+      (args.executor == 'ray' and (args.jobs != 1 or args.gpus), '--jobs and --gpus are the local executor\'s; with '
+       '--executor ray each cell asks for [resources] (or --num-gpus / --num-cpus) and Ray places it'),
       (any(v is not None and not 0 <= v < float('inf') for v in (args.num_gpus, args.num_cpus, args.max_retries)),
        '--num-gpus, --num-cpus and --max-retries must be >= 0'),
       (args.estimate and not args.list, '--estimate goes with --list'),
