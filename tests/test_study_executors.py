@@ -6,6 +6,7 @@ import csv
 import json
 import os
 import pathlib
+import shutil
 import signal
 import socket
 import subprocess
@@ -120,6 +121,7 @@ def fixture_cluster():
   yield f'127.0.0.1:{port}'
   head.send_signal(signal.SIGTERM)  # Stops the cluster it started.
   head.wait(60)
+  shutil.rmtree(temp, ignore_errors=True)
 
 
 def test_ray_beside_a_local_shard_gives_the_local_executors_results(reference, cluster, tmp_path):
@@ -197,6 +199,7 @@ def test_the_sbatch_script_runs_a_study_on_a_one_node_allocation(tmp_path):
   assert 'Ray head on' in result.stdout and (out / 'mini' / 'results.csv').is_file()
   assert json.loads((out / 'mini' / 'freenerf__object' / 'cell.json').read_text())['step'] == 4
   assert _processes_mentioning(temp) == []                               # The cluster stopped with the script.
+  shutil.rmtree(temp, ignore_errors=True)
 
 
 @pytest.mark.parametrize('env, home_token, mode', [
