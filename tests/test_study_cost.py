@@ -1,5 +1,6 @@
 """tools.study_cost and `tools.study --list --estimate`: a study's expected wall time before it runs."""
 
+import json
 import pathlib
 import subprocess
 import sys
@@ -8,6 +9,7 @@ import pytest
 
 from internal import configs
 from tools import study_cost
+from tools import study_spec
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 TINY = f'''
@@ -65,3 +67,41 @@ def test_estimate_needs_list(tmp_path):
   result = subprocess.run([sys.executable, '-m', 'tools.study', str(path), '--estimate'], cwd=REPO,
                           capture_output=True, text=True, check=False)
   assert result.returncode == 2 and '--estimate goes with --list' in result.stderr
+
+
+BENCH = {'device': 'GPU X', 'jax_version': '0', 'batch_size': 4096,
+         'results': {'float32': {'methods': {'mipnerf': {'step_seconds': 0.1}, 'freenerf': {'step_seconds': 0.3}}},
+                     'bfloat16': {'methods': {'mipnerf': {'step_seconds': 0.02}}}}}
+
+
+def test_gpu_step_seconds_per_precision_method_and_batch():
+  assert study_cost.gpu_step_seconds(BENCH, 'float32', 'freenerf', 4096) == (0.3, '')
+  seconds, note = study_cost.gpu_step_seconds(BENCH, 'float32', 'regnerf', 4096)
+  assert seconds == pytest.approx(0.2) and note == 'regnerf not benchmarked: the mean of freenerf, mipnerf'
+  seconds, note = study_cost.gpu_step_seconds(BENCH, 'bfloat16', 'mipnerf', 1024)
+  assert seconds == pytest.approx(0.005) and note == 'batch 1024 scaled from 4096'
+  with pytest.raises(ValueError, match=r"Config.precision 'default' has no GPU step time.*\['bfloat16', 'float32'\]"):
+    study_cost.gpu_step_seconds(BENCH, 'default', 'mipnerf', 4096)
+
+
+def test_wall_seconds_packs_the_longest_cells_first():
+  assert study_cost.wall_seconds([3., 3., 2., 2., 2.], 2) == 7.   # 3+2+2 | 3+2, as longest-first packs them.
+  assert study_cost.wall_seconds([3., 1., 2.], 1) == 6. and study_cost.wall_seconds([3., 1., 2.], 10) == 3.
+  assert study_cost.wall_seconds([], 4) == 0.
+
+
+def test_cluster_estimate_of_the_dtu_table_from_the_committed_gpu_record():
+  assert study_spec.load(REPO / 'studies' / 'table_dtu.toml').resources == study_spec.Resources(1, 4, 3)
+  bench = json.loads(next((REPO / 'results' / 'gpu').glob('bench_device_*.json')).read_text())
+  out = subprocess.run([sys.executable, '-m', 'tools.study', 'studies/table_dtu.toml', '--list', '--estimate',
+                        '--cluster-gpus', '8'], cwd=REPO, capture_output=True, text=True, check=True).stdout
+  lines = out.splitlines()
+  assert lines[0] == 'studies/table_dtu.toml: 135 pending cell(s) estimated, 0 done not counted'
+  step = bench['results']['float32']['methods']['freenerf']['step_seconds']
+  assert f'{43945 * step / 3600:8.2f} GPU-h  43945 steps x {step * 1e3:.1f} ms (float32)  freenerf__scan8__views=3' in lines
+  per_view = {3: 43945, 6: 87891, 9: 131836}
+  steps = {m: bench['results']['bfloat16']['methods'][m] for m in ('freenerf', 'mipnerf')}
+  mean = sum(s['step_seconds'] for s in steps.values()) / 2
+  total = 15 * sum(n * (steps['freenerf']['step_seconds'] + steps['mipnerf']['step_seconds'] + mean)
+                   for n in per_view.values()) / 3600
+  assert f"total all at Config.precision = 'bfloat16': 135 cell(s), {total:.1f} GPU-hours; on 8 GPU(s)" in out

@@ -1,57 +1,64 @@
 """Runs a study or a paper table: every cell (method x scene x axis points) trained and evaluated in its own run.
 
 Usage: python -m tools.study STUDY.toml [--out out/studies] [--data_root data] [--jobs N] [--gpus 0,1,...]
-                             [--shard K/N] [--list [--estimate]] [--plots-only] [--gin_bindings B ...]
-                             [--export DIR] [--reuse DIR]
+                             [--shard K/N] [--executor local|ray [--address A] [--num-gpus G] [--num-cpus C]
+                             [--max-retries R]] [--list [--estimate [--cluster-gpus N]]] [--plots-only]
+                             [--gin_bindings B ...] [--export DIR] [--reuse DIR]
 
 Each cell runs `train(config)` then eval's `evaluate(config)` in a subprocess (`python -m tools.study
 --run-cell <cell dir>`: gin state stays per process and cells can run in parallel) in the run directory
 <out>/<study>/<cell id>/run/, and writes <out>/<study>/<cell id>/cell.json: the evaluation means, wall times (train, eval; they
 include data loading and compilation), steps/s, XLA's flop count of one train step, the process's peak RSS
 and, on accelerators, the device's peak bytes. Its output goes to <cell>/log.txt.
-Resumable: a cell with cell.json is skipped; a half-trained one resumes from its newest checkpoint. --reuse DIR
+Resumable: a cell with cell.json is skipped; a half-trained one resumes from its newest checkpoint. A cell process
+claims its cell first (tools/study_claim.py), so any number of runners may share a study folder. --reuse DIR
 takes the finished cells of an earlier export (another machine's, say) instead of running them again.
 --jobs N runs N cells at a time; --gpus gives one GPU per worker (CUDA_VISIBLE_DEVICES), --shard K/N takes
-every N-th cell from K (one command per host on a shared folder). At the end (also after failures) the
+every N-th cell from K (one command per host on a shared folder); --executor ray runs the cells as Ray tasks
+(tools/study_ray.py, docs/cluster.md). At the end (also after failures) the
 results of all finished cells are gathered into <out>/<study>/results.csv and <metric>_vs_<x>.png plots, and
 the cells' learning curves (Config.curve_every > 0) into psnr_vs_step.png (and psnr_masked_vs_step.png on DTU).
 `python -m tools.tables <out>/<study>` gathers the same runs into the paper's tables.
 With seeds (a `seeds` key or an axis named seed) results also give per cell the mean, spread and n over seeds and
 the paired comparisons with their 95% intervals (tools/study_stats.py). `--list --estimate` measures each distinct
 setting of the pending cells on this machine (about a minute each) and prints the expected wall time before any
-cell runs (tools/study_cost.py).
+cell runs (tools/study_cost.py); with --cluster-gpus N, the GPU-hours and the wall time on N GPUs from the step
+times measured on a GPU (results/gpu). Bad input is one line (exit status 2, internal/cli.py).
 """
 
 import argparse
-import concurrent.futures
 import csv
+import dataclasses
+import io
 import json
 import os
-import queue
 import resource
 import subprocess
 import sys
 import time
 from typing import Dict, List, Optional
 
+from internal import atomic
 from internal import cli
 from tools import study_budget
+from tools import study_claim
 from tools import study_cost
 from tools import study_export
 from tools import study_plots
 from tools import study_reuse
+from tools import study_schedule
 from tools import study_spec
 from tools import study_stats
 
 CELL_FILE = 'cell.json'
 SPEC_FILE = 'cell_spec.json'
-LOG_FILE = 'log.txt'
+LOG_FILE = study_schedule.LOG_FILE
 RUN_SUBDIR = study_export.RUN_SUBDIR  # The cell's run directory (Config.checkpoint_dir) inside its folder.
 RESULTS_FILE = 'results.csv'
 SUMMARY_FILE = 'summary.csv'          # Per cell pooled over seeds: mean, std, n of each plotted metric.
 COMPARISONS_FILE = 'comparisons.csv'  # The paired comparisons with their intervals and verdicts.
 COMPARISONS_MD = 'comparisons.md'
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+REPO = study_schedule.REPO
 
 
 def study_dir(study: study_spec.Study, out: str) -> str:
@@ -63,26 +70,42 @@ def cell_dir(study: study_spec.Study, cell: study_spec.Cell, out: str) -> str:
 
 
 def read_cell(path: str) -> Optional[dict]:
-  """The cell.json of a cell folder, or None when the cell has not finished."""
+  """The cell.json of a cell folder, or None when the cell has not finished; ValueError naming a malformed one."""
   path = os.path.join(path, CELL_FILE)
-  if not os.path.isfile(path):
-    return None
-  with open(path) as f:
-    return json.load(f)
+  return study_export.read_json(path) if os.path.isfile(path) else None
 
 
 def write_spec(study: study_spec.Study, cell: study_spec.Cell, out: str, data_root: str,
                extra_bindings=()) -> str:
-  """Writes <cell>/cell_spec.json (the cell's gin configs and bindings, labels); returns the cell folder."""
+  """Writes <cell>/cell_spec.json (the cell's gin configs and bindings, labels), atomically and never for a
+  finished cell (its spec records what ran); returns the cell folder."""
   path = cell_dir(study, cell, out)
   configs, bindings = study_spec.cell_gin(study, cell, out, data_root, os.path.join(path, RUN_SUBDIR),
                                           extra_bindings)
   os.makedirs(path, exist_ok=True)
   spec = {'study': study.name, 'cell': cell.cell_id, 'method': cell.method, 'scene': cell.scene,
           'labels': cell.labels(), 'gin_configs': configs, 'gin_bindings': bindings}
-  with open(os.path.join(path, SPEC_FILE), 'w') as f:
-    json.dump(spec, f, indent=1)
+  if not os.path.isfile(os.path.join(path, CELL_FILE)):
+    atomic.write_text(os.path.join(path, SPEC_FILE), json.dumps(spec, indent=1))
   return path
+
+
+def _publish(path: str, record: dict) -> None:
+  """Writes <path>/cell.json, complete when it appears; FileExistsError instead of replacing a finished cell's."""
+  tmp = os.path.join(path, f'{CELL_FILE}.{os.getpid()}.tmp')
+  atomic.write_text(tmp, json.dumps(record, indent=1))
+  try:
+    os.link(tmp, os.path.join(path, CELL_FILE))
+  finally:
+    os.remove(tmp)
+
+
+class CellStopped(Exception):
+  """A signal stopped the cell's training (its checkpoint saved); the study run again resumes it."""
+
+  def __init__(self, signum: int):
+    super().__init__(f'stopped by signal {signum} with a checkpoint saved; the study run again resumes it')
+    self.signum = signum
 
 
 def _peak_memory() -> dict:
@@ -93,7 +116,14 @@ def _peak_memory() -> dict:
           'device_peak_bytes': stats.get('peak_bytes_in_use')}
 
 
-def run_cell(path: str) -> dict:
+def run_cell(path: str, job: str) -> Optional[dict]:
+  """Claims the cell in folder path for job (study_claim.Held if another job holds it), then trains (resuming) and
+  evaluates it from its cell_spec.json and writes cell.json; None when another runner had finished it."""
+  with study_claim.claimed(path, job):
+    return None if read_cell(path) else _train_and_evaluate(path)
+
+
+def _train_and_evaluate(path: str) -> dict:
   """Trains (resuming) and evaluates the cell in folder path from its cell_spec.json; writes cell.json."""
   import gin  # pylint: disable=import-outside-toplevel
   # pylint: disable=import-outside-toplevel
@@ -114,7 +144,7 @@ def run_cell(path: str) -> dict:
   result = loop.train(config)
   train_seconds = time.perf_counter() - tic
   if result.signum is not None:
-    raise RuntimeError(f'training of {path!r} stopped by signal {result.signum}; rerun to resume')
+    raise CellStopped(result.signum)
   tic = time.perf_counter()
   record = evaluate.existing_record(config) or evaluate.evaluate(config)
   eval_seconds = time.perf_counter() - tic
@@ -127,9 +157,7 @@ def run_cell(path: str) -> dict:
           'steps_per_sec': steps / train_seconds if steps else None,
           'gflops_per_step': flops.train_step_flops(config) / 1e9, **_peak_memory(),
           'commit': commit, 'machine': study_export.machine()}
-  with open(os.path.join(path, CELL_FILE + '.tmp'), 'w') as f:
-    json.dump(cell, f, indent=1)
-  os.replace(os.path.join(path, CELL_FILE + '.tmp'), os.path.join(path, CELL_FILE))
+  _publish(path, cell)
   gin.clear_config()
   return cell
 
@@ -153,9 +181,9 @@ def estimate(paths: List[str]) -> List[tuple]:
       key = study_cost.signature(json.load(f))
     if key not in known:
       print(f'measuring {path} ...', flush=True)
-      python_path = os.pathsep.join([REPO] + [p for p in [os.environ.get('PYTHONPATH')] if p])
       result = subprocess.run([sys.executable, '-m', 'tools.study', '--measure-cell', path], capture_output=True,
-                              text=True, env={**os.environ, 'PYTHONPATH': python_path}, check=False)
+                              text=True, env={**os.environ, 'PYTHONPATH': study_schedule.python_path()},
+                              check=False)
       if result.returncode:
         raise RuntimeError(f'measuring {path} failed: {result.stderr.strip().splitlines()[-1:]}')
       known[key] = json.loads(result.stdout.strip().splitlines()[-1])
@@ -164,28 +192,35 @@ def estimate(paths: List[str]) -> List[tuple]:
 
 
 def _list(study: study_spec.Study, args) -> None:
-  """--list: each cell's state (and measured times when done); with --estimate the pending cells' expected times."""
-  pending = []
+  """--list: each cell's state (and measured times when done); with --estimate the pending cells' expected times
+  (with --cluster-gpus on GPUs, from results/gpu, instead of the state lines)."""
+  pending, lines = [], []
   for cell in study_spec.cells(study):
     path, record = cell_dir(study, cell, args.out), read_cell(cell_dir(study, cell, args.out))
     if record:
-      took = study_cost.format_duration(record['train_seconds'] + record['eval_seconds'])
-      print(f'done    {path}  (took {took})')
+      lines.append(f'done    {path}  (took {study_cost.format_duration(record["train_seconds"] + record["eval_seconds"])})')
     else:
-      print(f'pending {path}')
+      lines.append(f'pending {path}')
       pending.append(cell)
+  if args.cluster_gpus:
+    print(f'{study.path}: {len(pending)} pending cell(s) estimated, {len(lines) - len(pending)} done not counted')
+    print('\n'.join(study_cost.cluster_lines([(c.cell_id, c.method, _config(study, c, args)) for c in pending],
+                                            *study_cost.device_bench(args.device_bench), args.cluster_gpus)))
+    return
+  print('\n'.join(lines))
   if args.estimate and pending:
     paths = [write_spec(study, c, args.out, args.data_root, tuple(args.gin_bindings)) for c in pending]
     print('\n'.join(study_cost.summary_lines(estimate(paths), args.jobs)))
 
 
-def _subprocess_cell(path: str, env: Dict[str, str]) -> int:
-  """Runs one cell in a fresh python process (same working directory: relative paths of the study file
-  resolve as in-process), output to <cell>/log.txt; returns its exit status."""
-  with open(os.path.join(path, LOG_FILE), 'a') as log:
-    python_path = os.pathsep.join([REPO] + [p for p in [os.environ.get('PYTHONPATH')] if p])
-    return subprocess.call([sys.executable, '-m', 'tools.study', '--run-cell', path], stdout=log,
-                           stderr=subprocess.STDOUT, env={**os.environ, 'PYTHONPATH': python_path, **env})
+def _config(study: study_spec.Study, cell: study_spec.Cell, args):
+  """The validated Config of a cell (nothing is written)."""
+  import gin  # pylint: disable=import-outside-toplevel
+  from internal import config_loader  # pylint: disable=import-outside-toplevel
+  run_dir = os.path.join(cell_dir(study, cell, args.out), RUN_SUBDIR)
+  gin.clear_config()
+  return config_loader.load_config(*study_spec.cell_gin(study, cell, args.out, args.data_root, run_dir,
+                                                        tuple(args.gin_bindings)))
 
 
 def _worker_envs(jobs: int, gpus: Optional[str]) -> List[Dict[str, str]]:
@@ -195,31 +230,15 @@ def _worker_envs(jobs: int, gpus: Optional[str]) -> List[Dict[str, str]]:
   return [{} for _ in range(jobs)]
 
 
-def run_cells(paths: List[str], envs: List[Dict[str, str]], in_process: bool = False) -> Dict[str, str]:
-  """Runs the cells of paths over the workers (a queue); returns {path: error} of the failed cells."""
-  if in_process:
-    failed = {}
-    for path in paths:
-      try:
-        run_cell(path)
-      except Exception as e:  # pylint: disable=broad-except  (one failed cell must not stop the study)
-        failed[path] = f'{type(e).__name__}: {e}'
-    return failed
-  free = queue.Queue()
-  for env in envs:
-    free.put(env)
-
-  def work(path):
-    env = free.get()
+def _run_in_process(paths: List[str], job: str) -> Dict[str, str]:
+  """Runs the cells of paths one after another in this process (tests); returns {path: error} of failed cells."""
+  failed = {}
+  for path in paths:
     try:
-      print(f'running {path} {env or ""}', flush=True)
-      status = _subprocess_cell(path, env)
-      return None if status == 0 else f'exit status {status}; see {os.path.join(path, LOG_FILE)}'
-    finally:
-      free.put(env)
-  with concurrent.futures.ThreadPoolExecutor(len(envs)) as pool:
-    errors = dict(zip(paths, pool.map(work, paths)))
-  return {p: e for p, e in errors.items() if e is not None}
+      run_cell(path, job)
+    except Exception as e:  # pylint: disable=broad-except  (one failed cell must not stop the study)
+      failed[path] = f'{type(e).__name__}: {e}'
+  return failed
 
 
 def _shard(cells: list, shard: Optional[str]) -> list:
@@ -264,11 +283,12 @@ def gather_curves(study: study_spec.Study, out: str) -> List[dict]:
 def _write_csv(path: str, rows: List[dict]) -> str:
   """Writes rows (dicts; None as empty) to path as CSV with the union of their keys; returns path."""
   fields = list(dict.fromkeys(k for row in rows for k in row))
+  text = io.StringIO()
+  writer = csv.DictWriter(text, fieldnames=fields)
+  writer.writeheader()
+  writer.writerows({k: ('' if row.get(k) is None else row.get(k)) for k in fields} for row in rows)
   os.makedirs(os.path.dirname(path), exist_ok=True)
-  with open(path, 'w', newline='') as f:
-    writer = csv.DictWriter(f, fieldnames=fields)
-    writer.writeheader()
-    writer.writerows({k: ('' if row.get(k) is None else row.get(k)) for k in fields} for row in rows)
+  atomic.write_text(path, text.getvalue())
   return path
 
 
@@ -310,20 +330,24 @@ def write_results(study: study_spec.Study, out: str) -> List[str]:
           + study_budget.write_budget_results(study, curve_rows, out_dir, study_plots.CURVE_METRICS))
 
 
-def run_study(study: study_spec.Study, out: str, data_root: str = 'data', jobs: int = 1,
-              gpus: Optional[str] = None, shard: Optional[str] = None, in_process: bool = False,
-              extra_bindings=()) -> Dict[str, str]:
-  """Runs the unfinished cells (of the shard), then writes results and plots; returns {cell dir: error}."""
+def run_study(study: study_spec.Study, out: str, data_root: str = 'data', shard: Optional[str] = None,
+              executor=None, job: Optional[str] = None, extra_bindings=()) -> Dict[str, str]:
+  """Runs the unfinished cells (of the shard) on executor (None: in this process), each claimed for job, then
+  writes results and plots; returns {cell dir: error}."""
   todo = [write_spec(study, c, out, data_root, extra_bindings) for c in _shard(study_spec.cells(study), shard)]
   todo = [p for p in todo if read_cell(p) is None]
-  failed = run_cells(todo, _worker_envs(jobs, gpus), in_process) if todo else {}
-  for path in write_results(study, out):
-    print(path)
+  job = job or study_schedule.new_job()
+  if executor is None:
+    failed = _run_in_process(todo, job)
+  else:
+    failed = study_schedule.run(todo, executor, lambda path: read_cell(path) is not None) if todo else {}
+  with study_claim.claimed(study_dir(study, out), job, wait=True):  # One runner at a time writes the results.
+    for path in write_results(study, out):
+      print(path)
   return failed
 
 
-def main(argv=None) -> int:
-  """CLI entry point; returns the exit status (1 when a cell failed)."""
+def _parser() -> argparse.ArgumentParser:
   parser = cli.FlagParser(description=__doc__.split('\n')[0])
   parser.add_argument('study', nargs='?', help='study file (TOML)')
   parser.add_argument('--out', default='out/studies', help='root of the study folders')
@@ -331,9 +355,20 @@ def main(argv=None) -> int:
   parser.add_argument('--jobs', type=int, default=1, help='cells run at a time')
   parser.add_argument('--gpus', help='comma-separated GPU ids, one worker each (overrides --jobs)')
   parser.add_argument('--shard', help='K/N: run every N-th cell starting at K (one command per host)')
+  parser.add_argument('--executor', choices=('local', 'ray'), default='local',
+                      help='where cells run: processes on this machine, or Ray tasks (docs/cluster.md)')
+  parser.add_argument('--address', help='with --executor ray: the Ray cluster (default: start a local one)')
+  parser.add_argument('--num-gpus', type=float, help='with --executor ray: GPUs per cell ([resources] num_gpus)')
+  parser.add_argument('--num-cpus', type=float, help='with --executor ray: CPUs per cell ([resources] num_cpus)')
+  parser.add_argument('--max-retries', type=int, help='with --executor ray: retries of a cell whose worker or '
+                      'node was lost ([resources] max_retries)')
   parser.add_argument('--list', action='store_true', help='list the cells and their state, run nothing')
   parser.add_argument('--estimate', action='store_true', help='with --list: measure each distinct setting of '
                       'the pending cells here (about a minute each) and print the expected wall time')
+  parser.add_argument('--cluster-gpus', type=int, metavar='N', help='with --estimate: instead of measuring, the '
+                      'GPU-hours and the wall time on N GPUs from the measured GPU step times (results/gpu)')
+  parser.add_argument('--device-bench', metavar='FILE', help='with --cluster-gpus: the bench.device JSON to read '
+                      '(default: the one results/gpu/bench_device_*.json)')
   parser.add_argument('--plots-only', action='store_true', help='only gather results.csv and the plots')
   parser.add_argument('--gin_bindings', action='extend', nargs='+', default=[], metavar='BINDING',
                       help='gin bindings appended to every cell (after the study file\'s own)')
@@ -342,26 +377,77 @@ def main(argv=None) -> int:
   parser.add_argument('--reuse', metavar='DIR', help='first take the finished cells of an earlier --export DIR '
                       'that this study lacks and runs with the same settings (tools/study_reuse.py)')
   parser.add_argument('--run-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
+  parser.add_argument('--job', help=argparse.SUPPRESS)
   parser.add_argument('--measure-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
-  args = parser.parse_args(argv)
+  return parser
+
+
+def _check_flags(args) -> None:
+  """ValueError naming the first flag that is out of range or does not go with the others."""
+  ray_only = [f for f, v in (('--address', args.address), ('--num-gpus', args.num_gpus),
+                             ('--num-cpus', args.num_cpus), ('--max-retries', args.max_retries)) if v is not None]
+  checks = [
+      (not args.study, 'a study file is required'),
+      (args.jobs < 1, f'--jobs {args.jobs}; expected >= 1'),
+      (args.executor != 'ray' and ray_only, f'{", ".join(ray_only)}: only with --executor ray'),
+      (args.executor == 'ray' and (args.jobs != 1 or args.gpus), '--jobs and --gpus are the local executor\'s; with '
+       '--executor ray each cell asks for [resources] (or --num-gpus / --num-cpus) and Ray places it'),
+      (any(v is not None and not 0 <= v < float('inf') for v in (args.num_gpus, args.num_cpus, args.max_retries)),
+       '--num-gpus, --num-cpus and --max-retries must be >= 0'),
+      (args.estimate and not args.list, '--estimate goes with --list'),
+      (args.cluster_gpus is not None and not args.estimate, '--cluster-gpus goes with --list --estimate'),
+      (args.cluster_gpus is not None and args.cluster_gpus < 1, f'--cluster-gpus {args.cluster_gpus}; expected >= 1'),
+      (args.device_bench and args.cluster_gpus is None, '--device-bench goes with --cluster-gpus'),
+      (args.export and os.path.isdir(args.export) and os.listdir(args.export),
+       f'--export {args.export}: the folder exists and is not empty; export into a new folder (or delete that one) '
+       'so that earlier results are not overwritten'),
+      (args.reuse and args.gin_bindings, '--reuse matches cells by the study file\'s settings, and an export does '
+       'not record --gin_bindings: put those bindings in the study file'),
+  ]
+  for failed, message in checks:
+    if failed:
+      raise ValueError(message)
+  _shard([], args.shard)
+
+
+def _resources(study: study_spec.Study, args) -> study_spec.Resources:
+  """The study file's [resources], with the flags that override them."""
+  flags = {'num_gpus': args.num_gpus, 'num_cpus': args.num_cpus, 'max_retries': args.max_retries}
+  return dataclasses.replace(study.resources, **{k: v for k, v in flags.items() if v is not None})
+
+
+def _executor(study: study_spec.Study, args, job: str):
+  """The executor of --executor: processes here (--jobs / --gpus), or Ray tasks with the cells' resources."""
+  if args.executor == 'ray':
+    from tools import study_ray  # pylint: disable=import-outside-toplevel  (Ray is an optional extra)
+    return study_ray.RayExecutor(args.address, _resources(study, args), job)
+  return study_schedule.LocalExecutor(_worker_envs(args.jobs, args.gpus), job)
+
+
+def _run_one_cell(path: str, job: Optional[str]) -> int:
+  """--run-cell: the cell process; CLAIMED_STATUS when a runner of another job holds the cell."""
+  study_schedule.stop_with_runner()
+  try:
+    record = run_cell(path, job or study_schedule.new_job())
+  except study_claim.Held as e:
+    print(f'not run: {e}')
+    return study_schedule.CLAIMED_STATUS
+  except CellStopped as e:
+    print(f'{path}: {e}')
+    return cli.signal_status(e.signum)
+  print(json.dumps(record, indent=1) if record else f'{path} was finished by another runner; not run again')
+  return 0
+
+
+def main(argv=None) -> int:
+  """CLI entry point; returns the exit status (1 when a cell failed)."""
+  args = _parser().parse_args(argv)
   if args.run_cell:
-    print(json.dumps(run_cell(args.run_cell), indent=1))
-    return 0
+    return _run_one_cell(args.run_cell, args.job)
   if args.measure_cell:
     print(json.dumps(measure_cell(args.measure_cell)))
     return 0
-  if not args.study:
-    parser.error('a study file is required')
-  if args.jobs < 1:
-    parser.error(f'--jobs {args.jobs}; expected >= 1')
-  if args.export and os.path.isdir(args.export) and os.listdir(args.export):
-    parser.error(f'--export {args.export}: the folder exists and is not empty; export into a new folder (or '
-                 'delete that one) so that earlier results are not overwritten')
-  if args.estimate and not args.list:
-    parser.error('--estimate goes with --list')
-  if args.reuse and args.gin_bindings:
-    parser.error('--reuse matches cells by the study file\'s settings, and an export does not record '
-                 '--gin_bindings: put those bindings in the study file')
+  _check_flags(args)
   study = study_spec.load(args.study)
   if args.reuse:
     study_reuse.reuse(study, args.reuse, study_dir(study, args.out), args.data_root)
@@ -373,8 +459,12 @@ def main(argv=None) -> int:
       print(path)
     _export(study, args, argv)
     return 0
-  failed = run_study(study, args.out, args.data_root, args.jobs, args.gpus, args.shard,
-                     extra_bindings=tuple(args.gin_bindings))
+  job = study_schedule.new_job()
+  executor = _executor(study, args, job)
+  try:
+    failed = run_study(study, args.out, args.data_root, args.shard, executor, job, tuple(args.gin_bindings))
+  finally:
+    executor.close()
   for path, error in failed.items():
     print(f'FAILED {path}: {error}', file=sys.stderr)
   _export(study, args, argv)
@@ -390,4 +480,4 @@ def _export(study: study_spec.Study, args, argv) -> None:
 
 
 if __name__ == '__main__':
-  sys.exit(main())
+  sys.exit(cli.run(main))

@@ -1,19 +1,31 @@
-"""A study's cost before it runs: each distinct cell setting is measured on this machine (data loading and
-compilation, the median of a few train steps, one test view rendered) and scaled to the cell's steps, learning
-curve and evaluation.
+"""A study's cost before it runs, two ways.
 
-The estimate counts training steps, the learning curve's renders and the evaluation's renders; it leaves out
-checkpoint writes and the metrics themselves (LPIPS), so expect the real time to be somewhat longer.
+Here: each distinct cell setting is measured on this machine (data loading and compilation, the median of a few
+train steps, one test view rendered) and scaled to the cell's steps, learning curve and evaluation. The estimate
+counts training steps, the learning curve's renders and the evaluation's renders; it leaves out checkpoint writes
+and the metrics themselves (LPIPS), so expect the real time to be somewhat longer.
+
+On a cluster (`--cluster-gpus N`): nothing is measured; each cell's steps are multiplied by the train step time
+that bench.device measured on a GPU at the cell's precision (results/gpu/bench_device_*.json), for the cell's
+method (the mean of the measured methods for another) and scaled to its rays per step. The benchmark ran the
+paper's model, so the estimate holds for cells of that model; it counts training steps only (no compilation,
+checkpoints, learning curves or evaluation), one GPU per cell, and packs the cells longest first onto N GPUs.
 """
 
+import glob
+import heapq
 import json
+import os
 import statistics
 import time
-from typing import Dict, List
+from typing import Dict, List, Optional, Tuple
 
+from tools import study_export
 from tools import study_spec
 
 PROBE_STEPS = 6  # Timed train steps after the first (compiling) one.
+BENCH_GLOB = os.path.join('results', 'gpu', 'bench_device_*.json')  # bench.device's GPU records, in the repository.
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def signature(spec: dict) -> str:
@@ -89,3 +101,71 @@ def summary_lines(estimates: List[tuple], jobs: int) -> List[str]:
                + (f'; with --jobs {jobs} at best {format_duration(total / jobs)} if the cores are free'
                   if jobs > 1 else ''))
   return lines
+
+
+def device_bench(path: Optional[str] = None) -> Tuple[str, dict]:
+  """(path, record) of the bench.device JSON to estimate from: path, or the one file of BENCH_GLOB."""
+  if path is None:
+    found = sorted(glob.glob(os.path.join(REPO, BENCH_GLOB)))
+    if len(found) != 1:
+      raise ValueError(f'--cluster-gpus reads the GPU step times of {BENCH_GLOB}: found {len(found)} files '
+                       f'{[os.path.basename(f) for f in found]}; expected one, or name it with --device-bench FILE')
+    path = found[0]
+  if not os.path.isfile(path):
+    raise ValueError(f'--device-bench {path}: no such file; expected a JSON written by python -m bench.device')
+  record = study_export.read_json(path)
+  if not isinstance(record.get('results'), dict) or not isinstance(record.get('batch_size'), int):
+    raise ValueError(f'--device-bench {path}: no results per precision or batch_size; expected a JSON written by '
+                     'python -m bench.device')
+  return path, record
+
+
+def gpu_step_seconds(bench: dict, precision: str, method: str, batch_size: int) -> Tuple[float, str]:
+  """(seconds of a train step of method at precision on the benchmarked GPU for batch_size rays, a note saying
+  what was not measured as such: another method, another batch)."""
+  measured = bench['results'].get(precision)
+  if not measured:
+    raise ValueError(f'Config.precision {precision!r} has no GPU step time in the benchmark; it measured '
+                     f'{sorted(bench["results"])}')
+  methods = measured['methods']
+  if method in methods:
+    seconds, notes = methods[method]['step_seconds'], []
+  else:
+    seconds = statistics.mean(m['step_seconds'] for m in methods.values())
+    notes = [f'{method} not benchmarked: the mean of {", ".join(sorted(methods))}']
+  if batch_size != bench['batch_size']:
+    seconds *= batch_size / bench['batch_size']
+    notes.append(f'batch {batch_size} scaled from {bench["batch_size"]}')
+  return seconds, '; '.join(notes)
+
+
+def wall_seconds(durations: List[float], gpus: int) -> float:
+  """The wall time of cells of these durations on gpus GPUs, one cell each, the longest started first."""
+  loads = [0.] * gpus
+  for duration in sorted(durations, reverse=True):
+    heapq.heappush(loads, heapq.heappop(loads) + duration)
+  return max(loads, default=0.)
+
+
+def cluster_lines(cells: List[Tuple[str, str, object]], bench_path: str, bench: dict, gpus: int) -> List[str]:
+  """The cluster estimate of cells (cell id, method, Config): a line per cell, then per precision the GPU-hours
+  and the wall time on gpus GPUs (the cells' own precisions first)."""
+  lines = [f'GPU estimate from {os.path.relpath(bench_path, REPO)} ({bench.get("device")}, jax '
+           f'{bench.get("jax_version")}) at commit {study_export.git_commit(REPO)}: training steps only, no '
+           'compilation, checkpoints, learning curves or evaluation; one GPU per cell']
+  own = []
+  for cell_id, method, config in cells:
+    step, note = gpu_step_seconds(bench, config.precision, method, config.batch_size)
+    own.append(config.max_steps * step)
+    lines.append(f'{own[-1] / 3600:8.2f} GPU-h  {config.max_steps} steps x {step * 1e3:.1f} ms '
+                 f'({config.precision})  {cell_id}' + (f'  [{note}]' if note else ''))
+  lines.append(_total_line('as configured', own, gpus))
+  for precision in bench['results']:
+    seconds = [c.max_steps * gpu_step_seconds(bench, precision, m, c.batch_size)[0] for _, m, c in cells]
+    lines.append(_total_line(f'all at Config.precision = {precision!r}', seconds, gpus))
+  return lines
+
+
+def _total_line(label: str, seconds: List[float], gpus: int) -> str:
+  return (f'total {label}: {len(seconds)} cell(s), {sum(seconds) / 3600:.1f} GPU-hours; on {gpus} GPU(s) '
+          f'{format_duration(wall_seconds(seconds, gpus))} wall')

@@ -53,6 +53,19 @@ def machine() -> Dict[str, object]:
           'devices': f'{len(devices)} x {devices[0].device_kind}'}
 
 
+def read_json(path: str) -> dict:
+  """A study's JSON record (cell.json, metrics.json) as a dict; ValueError naming the file when it is not one."""
+  try:
+    with open(path) as f:
+      record = json.load(f)
+  except (UnicodeDecodeError, json.JSONDecodeError) as e:
+    raise ValueError(f'{path}: not valid JSON ({e}); expected the record tools.study wrote (a merge conflict? '
+                     'keep one side, or delete the cell\'s folder to run it again)') from None
+  if not isinstance(record, dict):
+    raise ValueError(f'{path}: a JSON {type(record).__name__}; expected the record (an object) tools.study wrote')
+  return record
+
+
 def eval_dir(cell_path: str, step: int) -> str:
   """The evaluation folder of a finished cell's run (<cell>/run/test_preds_step_<step>)."""
   from internal.evaluation import evaluate  # pylint: disable=import-outside-toplevel  (jax: only when exporting)

@@ -2,7 +2,9 @@
 or whose run folders are gone, runs only the cells it lacks.
 
 A cell of the export is reused when the cell has not finished here and the export's copy of the study file gives it
-the same gin configs and bindings as this study file does. Its cell.json, the evaluation's metrics.json and
+the same gin configs and bindings as this study file does. Its numbers are the evaluation's: the export's cell.json
+must agree with the metrics.json beside it (step, completeness and every mean), else the command stops with one line
+naming both files; a cell exported without metrics.json is not reused (it runs here). Its cell.json, the evaluation's metrics.json and
 metrics.csv and its learning curve go where a run here would have written them; its checkpoints and renders are not
 in an export, so a reused cell cannot resume training and appears in no side-by-side picture.
 """
@@ -11,7 +13,7 @@ import glob
 import json
 import os
 import shutil
-from typing import List
+from typing import List, Optional
 
 from tools import study_export
 from tools import study_spec
@@ -47,13 +49,39 @@ def _copy_cell(source: str, target: str, step: int) -> None:
   shutil.copy2(os.path.join(source, 'cell.json'), target)  # Last: cell.json marks the cell finished.
 
 
+def checked_record(source: str) -> Optional[dict]:
+  """The exported cell.json of folder source once checked against its metrics.json; None without metrics.json.
+  ValueError naming both files when they disagree."""
+  record = study_export.read_json(os.path.join(source, 'cell.json'))
+  metrics_path = os.path.join(source, 'metrics.json')
+  if not os.path.isfile(metrics_path):
+    return None
+  metrics = study_export.read_json(metrics_path)
+  for key in ('step', 'complete', 'means'):
+    if json.dumps(record.get(key), sort_keys=True) != json.dumps(metrics.get(key), sort_keys=True):
+      differ = _first_difference(record.get(key), metrics.get(key))
+      raise ValueError(f'--reuse: {os.path.join(source, "cell.json")} says {key} {differ[0]} but the evaluation\'s '
+                       f'{metrics_path} says {differ[1]}; expected the numbers the evaluation wrote (restore the '
+                       'export from git, or delete that cell\'s folder from the export to run it here)')
+  return record
+
+
+def _first_difference(a, b) -> tuple:
+  """('psnr 42.0', 'psnr 10.48') for the first mean that differs between two dicts of means; else (a, b)."""
+  if isinstance(a, dict) and isinstance(b, dict):
+    for name in sorted(set(a) | set(b)):
+      if json.dumps(a.get(name)) != json.dumps(b.get(name)):
+        return f'{name} {a.get(name)}', f'{name} {b.get(name)}'
+  return a, b
+
+
 def reuse(study: study_spec.Study, export_dir: str, study_folder: str, data_root: str) -> List[str]:
   """Copies the export's finished cells that this study lacks and has with the same settings; prints a line per
   cell reused or passed over; returns the reused cell ids."""
   exported = exported_study(export_dir)
   exported_ids = {c.cell_id for c in study_spec.cells(exported)}
   out = os.path.dirname(study_folder)
-  reused = []
+  chosen = []
   for cell in study_spec.cells(study):
     source, target = os.path.join(export_dir, cell.cell_id), os.path.join(study_folder, cell.cell_id)
     if not os.path.isfile(os.path.join(source, 'cell.json')) or os.path.isfile(os.path.join(target, 'cell.json')):
@@ -61,8 +89,13 @@ def reuse(study: study_spec.Study, export_dir: str, study_folder: str, data_root
     if cell.cell_id not in exported_ids or not _same_settings(study, exported, cell, out, data_root):
       print(f'warning: {cell.cell_id} not reused: {export_dir} ran it with other settings')
       continue
-    with open(os.path.join(source, 'cell.json')) as f:
-      record = json.load(f)
+    record = checked_record(source)
+    if record is None:
+      print(f'warning: {cell.cell_id} not reused: {source} has no metrics.json to check its cell.json against')
+      continue
+    chosen.append((cell, source, target, record))
+  reused = []
+  for cell, source, target, record in chosen:  # Copied once every cell is checked: a bad export copies nothing.
     _copy_cell(source, target, record['step'])
     reused.append(cell.cell_id)
     print(f'reused {cell.cell_id} from {export_dir} (commit {(record.get("commit") or "unknown")[:8]})')

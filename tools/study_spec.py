@@ -11,6 +11,7 @@ A study file (see studies/*.toml):
   seeds = 3  (or [0, 1, 2])                 # replicates: the seed axis, last; binds both of a cell's seeds
   [[compare]]  a = "freenerf"  b = "mipnerf"  axis = "method"   # paired a - b over seeds and scenes (95% CI)
   [plot]  x = ["T"]  metrics = ["psnr"]  pareto = false  budgets = [60, 300]  # budgets: training seconds
+  [resources]  num_gpus = 1  num_cpus = 4  max_retries = 3   # per cell on a Ray cluster (--executor ray)
   [[paper]]  method = "mipnerf"  metric = "psnr"  x = "ratio"  points = [[0.1, 17.62], [1.0, 9.01]]
 
 Cells are the product methods x scenes x axis points. A cell's gin input, in order: the method's configs, the
@@ -100,6 +101,14 @@ class Compare:
 
 
 @dataclasses.dataclass(frozen=True)
+class Resources:
+  """What a cell asks of a Ray cluster: GPUs and CPUs (fractions allowed), and retries after a lost worker."""
+  num_gpus: float = 0.
+  num_cpus: float = 1.
+  max_retries: int = 3
+
+
+@dataclasses.dataclass(frozen=True)
 class Study:
   """A parsed study file: its cells are the product methods x scenes x axis points."""
   name: str
@@ -111,6 +120,7 @@ class Study:
   plot: Plot
   paper: Tuple[PaperCurve, ...]
   compare: Tuple[Compare, ...] = ()
+  resources: Resources = Resources()
 
   @property
   def has_seeds(self) -> bool:
@@ -310,6 +320,19 @@ def _comparisons(r: _Reader, data: dict, study: Study) -> Tuple[Compare, ...]:
   return tuple(comparisons)
 
 
+def _resources(r: _Reader, data: dict) -> Resources:
+  """The [resources] table: num_gpus and num_cpus >= 0 (numbers), max_retries >= 0 (an integer)."""
+  table = r.get(data, 'resources', '', dict, {})
+  r.unknown(table, ('num_gpus', 'num_cpus', 'max_retries'), 'resources')
+  values = {}
+  for key, kind in (('num_gpus', (int, float)), ('num_cpus', (int, float)), ('max_retries', int)):
+    value = table.get(key, getattr(Resources, key))
+    if not isinstance(value, kind) or isinstance(value, bool) or not 0 <= value < float('inf'):
+      r.fail(f'resources.{key}', f"{value!r}; expected {'an integer' if kind is int else 'a number'} >= 0")
+    values[key] = value
+  return Resources(**values)
+
+
 def parse(text: str, path: str) -> Study:
   """The Study of a TOML text (path names it in errors)."""
   r = _Reader(path)
@@ -318,7 +341,7 @@ def parse(text: str, path: str) -> Study:
   except tomllib.TOMLDecodeError as e:
     raise StudyError(f'{path}: not valid TOML: {e}') from e
   r.unknown(data, ('name', 'description', 'bindings', 'methods', 'scenes', 'axis', 'seeds', 'compare', 'plot',
-                   'paper'), '')
+                   'paper', 'resources'), '')
   name = r.get(data, 'name', '', str)
   if not name or '/' in name or name.startswith('.'):
     r.fail('name', f'{name!r}; expected a folder name')
@@ -348,7 +371,7 @@ def parse(text: str, path: str) -> Study:
     if x not in axis_names and x not in RECORDED_X:
       r.fail('plot.x', f'{x!r} is neither an axis {axis_names} nor a recorded value {list(RECORDED_X)}')
   study = Study(name, path, r.strings(data, 'bindings', ''), tuple(methods), tuple(scenes), axes, plot,
-                _paper(r, r.get(data, 'paper', '', list, []), axis_names))
+                _paper(r, r.get(data, 'paper', '', list, []), axis_names), resources=_resources(r, data))
   study = dataclasses.replace(study, compare=_comparisons(r, data, study))
   _check_templates(study, r)
   return study

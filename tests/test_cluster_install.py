@@ -1,0 +1,36 @@
+"""requirements-cluster.txt (the Ray extra) is pinned: every package it installs beyond requirements.txt has its exact
+version in constraints.txt, and an installed Ray is that version."""
+
+import importlib.metadata
+import json
+import subprocess
+
+import pytest
+
+from test_gpu_install import NETWORK
+from test_gpu_install import PIP
+from test_gpu_install import ROOT
+from test_gpu_install import _skip_unless_resolvable
+from test_gpu_install import constraints
+from test_gpu_install import normalized
+
+
+def test_the_cluster_extra_resolves_to_constrained_versions_only(tmp_path):
+  _skip_unless_resolvable()
+  report = tmp_path / 'report.json'
+  proc = subprocess.run(PIP + ['install', '--dry-run', '--ignore-installed', '--quiet', '--report', str(report), '-r',
+                               'requirements-cluster.txt'] + NETWORK, cwd=ROOT, capture_output=True, text=True,
+                        timeout=600, check=False)
+  assert proc.returncode == 0, proc.stderr[-3000:]
+  resolved = {normalized(item['metadata']['name']): item['metadata']['version']
+              for item in json.loads(report.read_text())['install']}
+  pins = constraints()
+  assert 'ray' in resolved and {n: v for n, v in resolved.items() if pins.get(n) != v} == {}
+
+
+def test_an_installed_ray_is_the_pinned_one():
+  try:
+    installed = importlib.metadata.version('ray')
+  except importlib.metadata.PackageNotFoundError:
+    pytest.skip('the cluster extra is not installed (pip install -r requirements-cluster.txt)')
+  assert installed == constraints()['ray']

@@ -1,0 +1,240 @@
+"""tools.study's executors on one tiny 4-cell study: one process, two processes sharing the folder, and Ray (a real
+cluster started with `ray start --head`; skipped without the cluster extra); each cell trained once and the same
+results.csv to the last digit (training is deterministic). Also a Ray worker killed mid-cell, then Ctrl-C."""
+
+import csv
+import json
+import os
+import pathlib
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+import pytest
+
+from conftest import JAX_CACHE
+from test_study import STEPS
+from test_study import TINY_STUDY
+from tools import study_claim
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+STUDY = TINY_STUDY.replace('"Config.curve_every = 10", "Config.curve_factor = 1",', '"Config.eval_test_ids = [0, 1]",')
+COMPARED = ('cell', 'method', 'scene', 'status', 'step', 'complete', 'psnr', 'ssim', 'depth_mae',
+            'depth_within_1pct', 'depth_within_5pct', 'steps_trained')
+NO_RAY = 'the cluster extra is not installed (pip install -r requirements-cluster.txt)'
+# Ray's token authentication off for the clusters here, whatever token the machine's ~/.ray holds.
+ENV = {**os.environ, 'JAX_COMPILATION_CACHE_DIR': JAX_CACHE, 'JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS': '0',
+       'RAY_AUTH_MODE': 'disabled'}
+
+
+def _study(tmp_path, steps=STEPS, every=10, one_cell=False):
+  """The tiny study (one_cell: FreeNeRF on the object scene only) with its steps and checkpoint interval -> path."""
+  text = STUDY.replace(f'Config.max_steps = {STEPS}', f'Config.max_steps = {steps}').replace(
+      'Config.checkpoint_every = 10', f'Config.checkpoint_every = {every}')
+  if one_cell:
+    text = text.split('[methods.mipnerf]')[0] + '[scenes.object]\nbindings = ["Config.generated_rig = \'object\'"]\n'
+  path = tmp_path / 'mini.toml'
+  path.write_text(text)
+  return path
+
+
+def _study_command(path, out, *flags):
+  return [sys.executable, '-m', 'tools.study', str(path), '--out', str(out), *flags]
+
+
+def _results(out):
+  with open(pathlib.Path(out) / 'mini' / 'results.csv', newline='') as f:
+    return [{k: row[k] for k in COMPARED} for row in csv.DictReader(f)]
+
+
+def _trained_once(out):
+  """Each cell's log holds exactly one cell record: no cell was trained (or written) twice."""
+  for log in pathlib.Path(out, 'mini').glob('*/log.txt'):
+    assert log.read_text().count('"steps_trained"') == 1, log.read_text()[-2000:]
+
+
+@pytest.fixture(scope='module', name='reference')
+def fixture_reference(tmp_path_factory):
+  """(study file, results rows) of the study run by one process, two cells at a time."""
+  root = tmp_path_factory.mktemp('executors')
+  path = _study(root)
+  subprocess.run(_study_command(path, root / 'one', '--jobs', '2'), cwd=REPO, env=ENV, check=True,
+                 capture_output=True, text=True)
+  rows = _results(root / 'one')
+  assert len(rows) == 4 and all(r['status'] == 'done' and r['steps_trained'] == str(STEPS) for r in rows)
+  return path, rows
+
+
+def _run_together(*commands) -> list:
+  """Runs the commands at once; their outputs (stdout and stderr), asserting that each exits 0."""
+  runners = [subprocess.Popen(c, cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+             for c in commands]
+  outputs = [r.communicate(timeout=600)[0] for r in runners]
+  assert [r.returncode for r in runners] == [0] * len(runners), [o[-3000:] for o in outputs]
+  return outputs
+
+
+def test_two_processes_on_one_folder_train_each_cell_once(reference, tmp_path):
+  path, rows = reference
+  out = tmp_path / 'two'
+  _run_together(_study_command(path, out), _study_command(path, out, '--shard', '1/2'))
+  assert _results(out) == rows
+  _trained_once(out)
+  assert not list(out.glob(f'mini/*/{study_claim.CLAIM_FILE}*'))             # Every claim released.
+
+
+def _free_port() -> int:
+  with socket.socket() as s:
+    s.bind(('127.0.0.1', 0))
+    return s.getsockname()[1]
+
+
+def _processes_mentioning(text: str) -> list:
+  """Ids of the processes whose command line contains text."""
+  found = []
+  for proc in pathlib.Path('/proc').glob('[0-9]*'):
+    try:
+      if text in proc.joinpath('cmdline').read_bytes().decode(errors='replace'):
+        found.append(int(proc.name))
+    except OSError:
+      pass
+  return found
+
+
+@pytest.fixture(scope='module', name='cluster')
+def fixture_cluster():
+  """The address of a local Ray cluster started as on a head node, `ray start --head`, in its own process."""
+  pytest.importorskip('ray', reason=NO_RAY)
+  port = _free_port()
+  temp = tempfile.mkdtemp(prefix='ray')  # Short: Ray's socket paths live under it.
+  head = subprocess.Popen([os.path.join(os.path.dirname(sys.executable), 'ray'), 'start', '--head', '--block',
+                           f'--port={port}', '--num-cpus=2', '--include-dashboard=false', '--disable-usage-stats',
+                           f'--temp-dir={temp}'], env={**ENV, 'PYTHONPATH': str(REPO)}, stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, text=True)
+  for line in head.stdout:
+    if 'Ray runtime started' in line:
+      break
+  yield f'127.0.0.1:{port}'
+  head.send_signal(signal.SIGTERM)  # Stops the cluster it started.
+  head.wait(60)
+  shutil.rmtree(temp, ignore_errors=True)
+
+
+def test_ray_beside_a_local_shard_gives_the_local_executors_results(reference, cluster, tmp_path):
+  path, rows = reference
+  out = tmp_path / 'ray'
+  ray_output, _ = _run_together(_study_command(path, out, '--executor', 'ray', '--address', cluster, '--num-cpus', '1'),
+                                _study_command(path, out, '--shard', '0/2'))
+  assert _results(out) == rows
+  _trained_once(out)
+  assert 'cells: 100%' in ray_output and 'failed 0' in ray_output
+
+
+def test_the_overhead_benchmark_records_both_executors(cluster, tmp_path):
+  out = tmp_path / 'overhead.json'
+  result = subprocess.run([sys.executable, '-m', 'tools.study_overhead', '--cells', '2', '--address', cluster,
+                           '--out', str(out)], cwd=REPO, env=ENV, capture_output=True, text=True, timeout=600,
+                          check=False)
+  assert result.returncode == 0, result.stderr[-3000:]
+  record = json.loads(out.read_text())
+  assert record['command'].startswith('python -m tools.study_overhead --cells 2') and record['cluster'] == cluster
+  for name, cells in (('local', 2), ('ray', 1)):  # Ray's first cell (its worker starting) is recorded apart.
+    assert record[name]['cells'] == cells and record[name]['cell_startup_median_s'] > 0.
+  for times in record['per_cell']['local'] + record['per_cell']['ray']:
+    assert times['outer'] >= times['inner'] > 0.
+
+
+def _wait_for(predicate, what, timeout=300.):
+  deadline = time.time() + timeout
+  while not predicate():
+    assert time.time() < deadline, f'timed out waiting for {what}'
+    time.sleep(0.2)
+
+
+def _latest_step(run_dir):
+  """The newest step folder of the run's checkpoints (orbax writes it under a temporary name first), or None."""
+  folder = run_dir / 'checkpoints'
+  return max((int(n) for n in os.listdir(folder) if n.isdigit()), default=None) if folder.is_dir() else None
+
+
+def test_a_killed_worker_is_retried_from_its_checkpoint_and_ctrl_c_stops_cleanly(cluster, tmp_path):
+  path = _study(tmp_path, steps=4000, every=200, one_cell=True)
+  out, cell = tmp_path / 'out', tmp_path / 'out' / 'mini' / 'freenerf__object'
+  command = _study_command(path, out, '--executor', 'ray', '--address', cluster)
+  driver = subprocess.Popen(command, cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+  _wait_for(lambda: (_latest_step(cell / 'run') or 0) >= 400, 'the first checkpoints')
+  first = json.loads((cell / study_claim.CLAIM_FILE).read_text())
+  worker = int(pathlib.Path(f'/proc/{first["pid"]}/stat').read_text().split(')')[1].split()[1])
+  os.kill(worker, signal.SIGKILL)                                  # Its node's worker dies in the middle of the cell.
+  _wait_for(lambda: (cell / study_claim.CLAIM_FILE).exists() and json.loads(
+      (cell / study_claim.CLAIM_FILE).read_text())['pid'] != first['pid'], 'the retry')
+  killed_at = _latest_step(cell / 'run')
+  _wait_for(lambda: (_latest_step(cell / 'run') or 0) > killed_at, 'the retry to train on')
+  driver.send_signal(signal.SIGINT)                                 # Ctrl-C: the cell stops, its checkpoint saved.
+  output = driver.communicate(timeout=300)[0]
+  assert driver.returncode == 128 + signal.SIGINT and 'interrupted:' in output, output[-3000:]
+  assert not (cell / study_claim.CLAIM_FILE).exists() and not (cell / 'cell.json').exists()
+  stopped_at = _latest_step(cell / 'run')
+  rerun = subprocess.run(command, cwd=REPO, env=ENV, capture_output=True, text=True, timeout=600, check=False)
+  assert rerun.returncode == 0, rerun.stdout[-3000:] + rerun.stderr[-3000:]
+  record = json.loads((cell / 'cell.json').read_text())
+  assert record['step'] == 4000 and record['steps_trained'] == 4000 - stopped_at
+  assert record['resumed_from_step'] == stopped_at > killed_at, (record['resumed_from_step'], stopped_at, killed_at)
+
+
+def test_the_sbatch_script_runs_a_study_on_a_one_node_allocation(tmp_path):
+  pytest.importorskip('ray', reason=NO_RAY)
+  path, out, temp = _study(tmp_path, steps=4, every=2, one_cell=True), tmp_path / 'out', tempfile.mkdtemp(prefix='ray')
+  host = socket.gethostname()
+  slurm = {'SLURM_JOB_ID': '7', 'SLURM_JOB_NUM_NODES': '1', 'SLURM_NNODES': '1', 'SLURM_JOB_NODELIST': host,
+           'SLURMD_NODENAME': host, 'SLURM_CPUS_ON_NODE': '2', 'SLURM_SUBMIT_DIR': str(REPO)}
+  result = subprocess.run(['bash', str(REPO / 'tools' / 'slurm' / 'study_ray.sbatch'), str(path), '--out', str(out)],
+                          cwd=tmp_path, env={**ENV, **slurm, 'FREENERF_VENV': sys.prefix, 'RAY_PORT': str(_free_port()),
+                                             'RAY_TEMP_DIR': temp}, capture_output=True, text=True, timeout=600)
+  assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+  assert 'Ray head on' in result.stdout and (out / 'mini' / 'results.csv').is_file()
+  assert json.loads((out / 'mini' / 'freenerf__object' / 'cell.json').read_text())['step'] == 4
+  assert _processes_mentioning(temp) == []                               # The cluster stopped with the script.
+  shutil.rmtree(temp, ignore_errors=True)
+
+
+@pytest.mark.parametrize('env, home_token, mode', [
+    ({}, False, None), ({}, True, 'token'), ({'RAY_AUTH_TOKEN': 'x'}, False, 'token'),
+    ({'RAY_AUTH_MODE': 'disabled'}, True, 'disabled')])
+def test_a_driver_uses_token_authentication_where_ray_start_would(monkeypatch, tmp_path, env, home_token, mode):
+  from tools import study_ray  # pylint: disable=import-outside-toplevel
+  for name in ('RAY_AUTH_MODE', 'RAY_AUTH_TOKEN', 'RAY_AUTH_TOKEN_PATH'):
+    monkeypatch.delenv(name, raising=False)
+  monkeypatch.setenv('HOME', str(tmp_path))
+  for name, value in env.items():
+    monkeypatch.setenv(name, value)
+  if home_token:
+    (tmp_path / '.ray').mkdir()
+    (tmp_path / '.ray' / 'auth_token').write_text('secret')
+  study_ray._token_auth_if_token()  # pylint: disable=protected-access
+  assert os.environ.get('RAY_AUTH_MODE') == mode
+
+
+def test_resources_no_node_offers_are_an_error_here_and_a_warning_on_a_cluster(capsys):
+  from tools import study_ray  # pylint: disable=import-outside-toplevel
+  from tools import study_spec  # pylint: disable=import-outside-toplevel
+  nodes = [{'Alive': True, 'Resources': {'CPU': 8.}}, {'Alive': False, 'Resources': {'CPU': 8., 'GPU': 4.}}]
+  study_ray.check_fits(study_spec.Resources(num_gpus=0, num_cpus=8), nodes, None)
+  with pytest.raises(ValueError, match=r'asks for 1 GPU and 1 CPU .* \(nodes: 0 GPU and 8 CPU\); expected'):
+    study_ray.check_fits(study_spec.Resources(num_gpus=1), nodes, None)   # The GPU node is dead.
+  study_ray.check_fits(study_spec.Resources(num_gpus=1), nodes, '10.0.0.1:6379')
+  assert 'warning: a cell asks for 1 GPU' in capsys.readouterr().err
+
+
+def test_ray_missing_is_one_line_naming_the_extra(capsys, monkeypatch, tmp_path):
+  from internal import cli  # pylint: disable=import-outside-toplevel
+  from tools import study as study_lib  # pylint: disable=import-outside-toplevel
+  monkeypatch.setitem(sys.modules, 'ray', None)  # As if not installed.
+  path = _study(tmp_path)
+  assert cli.run(lambda: study_lib.main([str(path), '--out', str(tmp_path), '--executor', 'ray'])) == 2
+  assert capsys.readouterr().err == ('error: --executor ray needs Ray, which is not installed; expected the cluster '
+                                     'extra: pip install -r requirements-cluster.txt\n')

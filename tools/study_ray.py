@@ -1,0 +1,108 @@
+"""Cells as Ray tasks (`python -m tools.study STUDY --executor ray [--address ADDRESS]`, docs/cluster.md).
+
+Each cell becomes a task asking for the cell's resources (study_spec.Resources: num_gpus, num_cpus, max_retries)
+that runs the cell process the local executor runs, in the driver's working directory: the study folder, the
+repository and the data must be at the same paths on every node (a shared file system). Ray gives a task its GPUs
+through CUDA_VISIBLE_DEVICES, which the cell process inherits. A task whose worker or node dies is retried up to
+max_retries times; the cell's process dies with its worker (after saving a checkpoint where it can), and the retry
+resumes from the cell's newest checkpoint. Without an address, a local Ray cluster is started on this machine and
+stopped at the end. Ray is an optional extra: requirements-cluster.txt.
+"""
+
+import contextlib
+import logging
+import os
+import sys
+import time
+
+from tools import study_claim
+from tools import study_schedule
+from tools import study_spec
+
+CANCEL_WAIT_SECONDS = 120.  # Ctrl-C: how long the cancelled cells get to save a checkpoint and stop.
+
+
+def _cell_task(path: str, job: str, cwd: str):
+  """The Ray task: runs the cell's process in the driver's working directory; (exit status, seconds)."""
+  return study_schedule.run_cell_process(path, job, {}, cwd=cwd)
+
+
+def _token_auth_if_token() -> None:
+  """RAY_AUTH_MODE=token when it is unset and a token is there (RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or
+  ~/.ray/auth_token), as `ray start` decides: a driver must use the mode its cluster uses."""
+  token_files = [os.environ.get('RAY_AUTH_TOKEN_PATH'), os.path.expanduser(os.path.join('~', '.ray', 'auth_token'))]
+  if 'RAY_AUTH_MODE' not in os.environ and (os.environ.get('RAY_AUTH_TOKEN') or any(
+      f and os.path.isfile(f) for f in token_files)):
+    os.environ['RAY_AUTH_MODE'] = 'token'
+
+
+def _import_ray():
+  try:
+    import ray  # pylint: disable=import-outside-toplevel  (an optional extra)
+  except ImportError:
+    raise ValueError('--executor ray needs Ray, which is not installed; expected the cluster extra: pip install '
+                     '-r requirements-cluster.txt') from None
+  return ray
+
+
+def _node_fits(resources: study_spec.Resources, node: dict) -> bool:
+  return node.get('GPU', 0) >= resources.num_gpus and node.get('CPU', 0) >= resources.num_cpus
+
+
+def check_fits(resources: study_spec.Resources, nodes: list, address) -> None:
+  """ValueError (no address: a local cluster) or a warning (a cluster that may grow) when no node offers what a
+  cell asks."""
+  alive = [n['Resources'] for n in nodes if n.get('Alive')]
+  if any(_node_fits(resources, n) for n in alive):
+    return
+  offers = ', '.join(sorted({f"{n.get('GPU', 0):g} GPU and {n.get('CPU', 0):g} CPU" for n in alive})) or 'none'
+  message = (f'a cell asks for {resources.num_gpus:g} GPU and {resources.num_cpus:g} CPU (the study file\'s '
+             f'[resources] or --num-gpus / --num-cpus), but no node of the Ray cluster offers that (nodes: {offers})')
+  if address is None:
+    raise ValueError(message + '; expected resources that this machine has')
+  print(f'warning: {message}; the cells wait until such a node joins (Ctrl-C stops)', file=sys.stderr, flush=True)
+
+
+class RayExecutor:
+  """Submits cells as Ray tasks with the given resources; every cell is submitted at once (Ray queues them)."""
+  slots = sys.maxsize
+
+  def __init__(self, address, resources: study_spec.Resources, job: str):
+    self.ray, self.job, self.submitted = _import_ray(), job, {}
+    if address is not None:
+      _token_auth_if_token()
+    try:
+      self.ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False,
+                    runtime_env={'env_vars': {'PYTHONPATH': study_schedule.python_path()}})
+    except ConnectionError as e:
+      raise ValueError(f'--address {address}: no Ray cluster answered ({e}); expected the address that `ray start '
+                       '--head` printed, e.g. 10.0.0.1:6379') from None
+    check_fits(resources, self.ray.nodes(), address)
+    self.task = self.ray.remote(_cell_task).options(num_gpus=resources.num_gpus, num_cpus=resources.num_cpus,
+                                                    max_retries=resources.max_retries)
+
+  def submit(self, path: str):
+    ref = self.task.remote(path, self.job, os.getcwd())
+    future = ref.future()
+    self.submitted[future] = (ref, path)
+    return future
+
+  def cancel(self, futures) -> None:
+    """Cancels the cells: queued ones never start; running ones are asked to stop (each saves a checkpoint and
+    releases its claim, waited for), then their tasks are ended."""
+    cancelled = [self.submitted[f] for f in futures]
+    for ref, path in cancelled:
+      self.ray.cancel(ref)
+      if (study_claim.live_holder(path) or {}).get('job') == self.job:
+        study_claim.request_stop(path, self.job)
+    deadline = time.monotonic() + CANCEL_WAIT_SECONDS
+    while time.monotonic() < deadline and any(
+        (study_claim.live_holder(path) or {}).get('job') == self.job for _, path in cancelled):
+      time.sleep(0.2)
+    for ref, path in cancelled:
+      self.ray.cancel(ref, force=True)
+      with contextlib.suppress(FileNotFoundError):
+        os.remove(os.path.join(path, study_claim.STOP_FILE))
+
+  def close(self) -> None:
+    self.ray.shutdown()
