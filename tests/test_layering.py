@@ -49,7 +49,7 @@ def test_internal_does_not_import_tools(path):
 STAGES = ('records', 'datasets', 'models', 'losses', 'training', 'run', 'evaluation', 'pipeline', 'entry')
 # The modules directly under internal/: plain data and utilities that import nothing of internal/, and the entry
 # points of the scripts (the command line, the demo, config loading that validates every stage's settings).
-RECORDS = {'rays', 'configs', 'atomic', 'progress', 'environment', 'interrupt'}
+RECORDS = {'rays', 'configs', 'atomic', 'progress', 'environment', 'interrupt', 'lock_holders'}
 ENTRY_POINTS = {'cli', 'demo', 'config_loader'}
 
 

@@ -29,6 +29,7 @@ import uuid
 from typing import Iterator, Optional, Tuple
 
 from internal import atomic
+from internal import lock_holders
 
 CLAIM_FILE = 'claim.json'
 STOP_FILE = 'claim.stop'  # A runner's request that its job's cell process stop (its Ctrl-C, on any host).
@@ -61,22 +62,9 @@ def _read(path: str) -> Tuple[Optional[dict], float]:
   return (holder if isinstance(holder, dict) else {}), mtime
 
 
-def _process_gone(holder: dict) -> bool:
-  """True when the holder ran on this host and its process no longer exists."""
-  if holder.get('host') != socket.gethostname() or not isinstance(holder.get('pid'), int):
-    return False
-  try:
-    os.kill(holder['pid'], 0)
-  except ProcessLookupError:
-    return True
-  except PermissionError:  # Alive, under another user.
-    return False
-  return False
-
-
 def is_stale(holder: dict, mtime: float, now: float) -> bool:
   """Whether a claim (its holder record and file mtime) may be taken over at time now."""
-  return _process_gone(holder) or now - mtime > STALE_SECONDS
+  return lock_holders.process_gone(holder) or now - mtime > STALE_SECONDS
 
 
 def live_holder(cell_path: str) -> Optional[dict]:

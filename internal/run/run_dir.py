@@ -19,6 +19,7 @@ import time
 import gin
 
 from internal import atomic
+from internal import lock_holders
 from internal.models import registry
 
 FINGERPRINT_FILE = 'config.json'
@@ -296,19 +297,6 @@ def _read_lock(path: str):
   return holder if isinstance(holder, dict) else {}
 
 
-def _is_stale(holder: dict) -> bool:
-  """True when the holder ran on this host and its process is gone."""
-  if holder.get('host') != socket.gethostname() or not isinstance(holder.get('pid'), int):
-    return False
-  try:
-    os.kill(holder['pid'], 0)
-  except ProcessLookupError:
-    return True
-  except PermissionError:  # Alive, under another user.
-    return False
-  return False
-
-
 def _acquire(path: str, holder: dict) -> None:
   """Creates the lock file holding holder (complete before it appears); takes over a stale one once."""
   for attempt in range(2):
@@ -321,7 +309,7 @@ def _acquire(path: str, holder: dict) -> None:
       current = _read_lock(path)
     finally:
       os.unlink(tmp)
-    if current is None or (attempt == 0 and _is_stale(current)):
+    if current is None or (attempt == 0 and lock_holders.process_gone(current)):
       with contextlib.suppress(FileNotFoundError):
         os.remove(path)
       continue
