@@ -4,7 +4,7 @@
 
 Pass the gin configs and bindings used for training (none: the demo's FreeNeRF, configs/demo.gin then
 configs/demo_forward.gin). Outputs go to <Config.checkpoint_dir>/test_preds_step_<step>/ (or into
-Config.output_dir, when set): metrics.json (internal/results.py's schema), metrics.csv, and per view
+Config.output_dir, when set): metrics.json (internal/evaluation/results.py's schema), metrics.csv, and per view
 color_<id>.png, depth_<id>.png (turbo map of -log depth, normalized by its 0.5 / 99.5 percentiles) and
 opacity_<id>.png. Metrics use the unclipped renderings.
 Config.eval_test_ids (positions in the test split) and Config.eval_factor (lower resolution) give quick looks,

@@ -1,4 +1,4 @@
-"""Tests of internal/encoding.py: lengths, the released index map, IPE expectations, stability."""
+"""Tests of internal/models/encoding.py: lengths, the released index map, IPE expectations, stability."""
 
 import jax
 import jax.numpy as jnp

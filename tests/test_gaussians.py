@@ -1,4 +1,4 @@
-"""Tests of internal/gaussians.py against Monte-Carlo frustums and closed-form moments."""
+"""Tests of internal/models/gaussians.py against Monte-Carlo frustums and closed-form moments."""
 
 import jax
 import jax.numpy as jnp

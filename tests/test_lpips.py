@@ -1,4 +1,4 @@
-"""Tests of internal/lpips.py: parity with the official LPIPS values, loading, architecture conventions."""
+"""Tests of internal/evaluation/lpips.py: parity with the official LPIPS values, loading, architecture conventions."""
 
 import collections
 import importlib.util

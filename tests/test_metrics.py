@@ -1,4 +1,4 @@
-"""Tests of internal/metrics.py against hand computations and a direct SSIM implementation."""
+"""Tests of internal/evaluation/metrics.py against hand computations and a direct SSIM implementation."""
 
 import numpy as np
 import pytest

@@ -13,7 +13,9 @@ import pytest
 from internal.configs import Config
 from internal.datasets import DatasetError, loader
 from internal.evaluation import depth_metrics, metric_registry, metrics, results
-from tools import study_export, study_spec, tables
+from tools import tables
+from tools.study import export as study_export
+from tools.study import spec as study_spec
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 

@@ -1,4 +1,4 @@
-"""Tests of internal/sampling.py: stratified endpoints, blur, inverse-CDF resampling."""
+"""Tests of internal/models/sampling.py: stratified endpoints, blur, inverse-CDF resampling."""
 
 import jax
 import jax.numpy as jnp

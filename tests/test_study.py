@@ -2,6 +2,7 @@
 and the study file's errors."""
 
 import csv
+import hashlib
 import json
 import os
 import pathlib
@@ -17,9 +18,9 @@ import pytest
 from internal import config_loader
 from internal import demo
 from internal.pipeline import loop
-from tools import study as study_lib
-from tools import study_plots
-from tools import study_spec
+from tools.study import runner as study_lib
+from tools.study import plots as study_plots
+from tools.study import spec as study_spec
 from tools import tables
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -133,14 +134,16 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   dest = tmp_path / 'export'
   assert study_lib.main([str(path), '--out', out, '--plots-only', '--export', str(dest)]) == 0
   assert (dest / 'results.csv').read_text() == pathlib.Path(out, 'mini', 'results.csv').read_text()
-  assert (dest / 'mini.toml').read_text() == path.read_text() and (dest / 'psnr_vs_views.png').is_file()
+  assert not (dest / 'mini.toml').exists() and (dest / 'psnr_vs_views.png').is_file()
   assert not list(dest.rglob('checkpoints'))
   provenance = json.loads((dest / 'provenance.json').read_text())
+  assert provenance['study_file']['sha256'] == hashlib.sha256(path.read_bytes()).hexdigest()
   assert provenance['command'].startswith('python -m tools.study ') and '--export' in provenance['command']
   for cell in provenance['cells']:
     record = json.loads((dest / cell / 'metrics.json').read_text())
     assert json.loads((dest / cell / 'cell.json').read_text())['means']['psnr'] == record['means']['psnr']
     assert provenance['cells'][cell]['commit'] == study_lib.study_export.git_commit(str(REPO))
+    assert provenance['cells'][cell]['changed_files'] == study_lib.study_export.changed_files(str(REPO))
     curve = pathlib.Path(out, 'mini', cell, study_lib.RUN_SUBDIR, 'learning_curve.csv')
     assert (dest / cell / 'learning_curve.csv').read_text() == curve.read_text()
   assert (dest / 'psnr_vs_step.png').is_file()
@@ -275,3 +278,19 @@ def test_reuse_takes_the_exported_cells_with_the_same_settings(ran, tmp_path, ca
   assert listing.count('reused ') == 2 and listing.count('not reused') == 2 and listing.count('pending') == 2
   with pytest.raises(study_spec.StudyError, match='expected one exported study file'):
     study_lib.main([str(path), '--out', str(tmp_path / 'none'), '--reuse', str(tmp_path), '--list'])
+
+
+def test_a_dirty_commit_names_the_files_that_differ(tmp_path):
+  git = lambda *args: subprocess.run(['git', '-C', str(tmp_path), *args], check=True, capture_output=True)
+  git('init', '-q')
+  for name in ('a.py', 'b.py'):
+    (tmp_path / name).write_text('x = 1\n')
+  git('add', '.')
+  git('-c', 'user.name=t', '-c', 'user.email=t@t', 'commit', '-qm', 'c')
+  assert study_lib.study_export.changed_files(str(tmp_path)) == []
+  assert not study_lib.study_export.git_commit(str(tmp_path)).endswith('+dirty')
+  (tmp_path / 'b.py').write_text('x = 2\n')
+  (tmp_path / 'untracked.py').write_text('')
+  assert study_lib.study_export.changed_files(str(tmp_path)) == ['b.py']
+  assert study_lib.study_export.git_commit(str(tmp_path)).endswith('+dirty')
+  assert study_lib.study_export.changed_files(str(tmp_path / 'nowhere')) == []

@@ -1,4 +1,4 @@
-"""tools.study_budget: a metric at training-time budgets from learning curves, on constructed curves."""
+"""tools.study.budget: a metric at training-time budgets from learning curves, on constructed curves."""
 
 import re
 
@@ -6,9 +6,9 @@ import numpy as np
 from PIL import Image
 import pytest
 
-from tools import study_budget
-from tools import study_spec
-from tools import study_stats
+from tools.study import budget as study_budget
+from tools.study import spec as study_spec
+from tools.study import stats as study_stats
 
 STUDY = '''
 name = "budget"

@@ -1,4 +1,4 @@
-"""Cell claims (tools/study_claim.py): atomic, exclusive across processes, stale ones taken over by the documented rule,
+"""Cell claims (tools/study/claim.py): atomic, exclusive across processes, stale ones taken over by the documented rule,
 and a finished cell never trained or written again."""
 
 import json
@@ -11,8 +11,8 @@ import time
 
 import pytest
 
-from tools import study as study_lib
-from tools import study_claim
+from tools.study import runner as study_lib
+from tools.study import claim as study_claim
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -85,7 +85,7 @@ def test_the_same_job_waits_for_its_earlier_attempt(tmp_path):
 
 RACER = """
 import sys, time
-from tools import study_claim
+from tools.study import claim as study_claim
 cell, job, start, done = sys.argv[1:]
 judge = study_claim.is_stale
 def slow_judge(*args):  # Every racer judges the claim stale before any takes it over, then acts in turn.

@@ -1,4 +1,4 @@
-"""tools.study_cost and `tools.study --list --estimate`: a study's expected wall time before it runs."""
+"""tools.study.cost and `tools.study --list --estimate`: a study's expected wall time before it runs."""
 
 import json
 import pathlib
@@ -8,8 +8,8 @@ import sys
 import pytest
 
 from internal import configs
-from tools import study_cost
-from tools import study_spec
+from tools.study import cost as study_cost
+from tools.study import spec as study_spec
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 TINY = f'''

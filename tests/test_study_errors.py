@@ -7,8 +7,8 @@ import pytest
 
 from internal import cli
 from test_study import TINY_STUDY
-from tools import study as study_lib
-from tools import study_spec
+from tools.study import runner as study_lib
+from tools.study import spec as study_spec
 
 CELL = 'freenerf__object__views=3'
 

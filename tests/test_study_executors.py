@@ -19,7 +19,7 @@ import pytest
 from conftest import JAX_CACHE
 from test_study import STEPS
 from test_study import TINY_STUDY
-from tools import study_claim
+from tools.study import claim as study_claim
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 STUDY = TINY_STUDY.replace('"Config.curve_every = 10", "Config.curve_factor = 1",', '"Config.eval_test_ids = [0, 1]",')
@@ -136,12 +136,12 @@ def test_ray_beside_a_local_shard_gives_the_local_executors_results(reference, c
 
 def test_the_overhead_benchmark_records_both_executors(cluster, tmp_path):
   out = tmp_path / 'overhead.json'
-  result = subprocess.run([sys.executable, '-m', 'tools.study_overhead', '--cells', '2', '--address', cluster,
+  result = subprocess.run([sys.executable, '-m', 'tools.study.overhead', '--cells', '2', '--address', cluster,
                            '--out', str(out)], cwd=REPO, env=ENV, capture_output=True, text=True, timeout=600,
                           check=False)
   assert result.returncode == 0, result.stderr[-3000:]
   record = json.loads(out.read_text())
-  assert record['command'].startswith('python -m tools.study_overhead --cells 2') and record['cluster'] == cluster
+  assert record['command'].startswith('python -m tools.study.overhead --cells 2') and record['cluster'] == cluster
   for name, cells in (('local', 2), ('ray', 1)):  # Ray's first cell (its worker starting) is recorded apart.
     assert record[name]['cells'] == cells and record[name]['cell_startup_median_s'] > 0.
   for times in record['per_cell']['local'] + record['per_cell']['ray']:
@@ -206,7 +206,7 @@ def test_the_sbatch_script_runs_a_study_on_a_one_node_allocation(tmp_path):
     ({}, False, None), ({}, True, 'token'), ({'RAY_AUTH_TOKEN': 'x'}, False, 'token'),
     ({'RAY_AUTH_MODE': 'disabled'}, True, 'disabled')])
 def test_a_driver_uses_token_authentication_where_ray_start_would(monkeypatch, tmp_path, env, home_token, mode):
-  from tools import study_ray  # pylint: disable=import-outside-toplevel
+  from tools.study import ray_executor as study_ray  # pylint: disable=import-outside-toplevel
   for name in ('RAY_AUTH_MODE', 'RAY_AUTH_TOKEN', 'RAY_AUTH_TOKEN_PATH'):
     monkeypatch.delenv(name, raising=False)
   monkeypatch.setenv('HOME', str(tmp_path))
@@ -220,8 +220,8 @@ def test_a_driver_uses_token_authentication_where_ray_start_would(monkeypatch, t
 
 
 def test_resources_no_node_offers_are_an_error_here_and_a_warning_on_a_cluster(capsys):
-  from tools import study_ray  # pylint: disable=import-outside-toplevel
-  from tools import study_spec  # pylint: disable=import-outside-toplevel
+  from tools.study import ray_executor as study_ray  # pylint: disable=import-outside-toplevel
+  from tools.study import spec as study_spec  # pylint: disable=import-outside-toplevel
   nodes = [{'Alive': True, 'Resources': {'CPU': 8.}}, {'Alive': False, 'Resources': {'CPU': 8., 'GPU': 4.}}]
   study_ray.check_fits(study_spec.Resources(num_gpus=0, num_cpus=8), nodes, None)
   with pytest.raises(ValueError, match=r'asks for 1 GPU and 1 CPU .* \(nodes: 0 GPU and 8 CPU\); expected'):
@@ -232,7 +232,7 @@ def test_resources_no_node_offers_are_an_error_here_and_a_warning_on_a_cluster(c
 
 def test_ray_missing_is_one_line_naming_the_extra(capsys, monkeypatch, tmp_path):
   from internal import cli  # pylint: disable=import-outside-toplevel
-  from tools import study as study_lib  # pylint: disable=import-outside-toplevel
+  from tools.study import runner as study_lib  # pylint: disable=import-outside-toplevel
   monkeypatch.setitem(sys.modules, 'ray', None)  # As if not installed.
   path = _study(tmp_path)
   assert cli.run(lambda: study_lib.main([str(path), '--out', str(tmp_path), '--executor', 'ray'])) == 2

@@ -1,4 +1,4 @@
-"""tools/study_schedule.run with a stand-in executor: finished cells counted, cells held by another runner waited for
+"""schedule.run (tools/study/schedule.py) with a stand-in executor: finished cells counted, cells held by another runner waited for
 (not submitted), a cell whose process lost the claim race looked at again, failures reported, Ctrl-C cancels."""
 
 import concurrent.futures
@@ -9,8 +9,8 @@ import threading
 
 import pytest
 
-from tools import study_claim
-from tools import study_schedule
+from tools.study import claim as study_claim
+from tools.study import schedule as study_schedule
 
 
 class FakeExecutor:

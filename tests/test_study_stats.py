@@ -1,4 +1,4 @@
-"""tools.study_stats and the seed axis of study files: statistics checked on constructed results with known values."""
+"""tools.study.stats and the seed axis of study files: statistics checked on constructed results with known values."""
 
 import math
 import re
@@ -7,10 +7,10 @@ import numpy as np
 from PIL import Image
 import pytest
 
-from tools import study as study_lib
-from tools import study_plots
-from tools import study_spec
-from tools import study_stats
+from tools.study import runner as study_lib
+from tools.study import plots as study_plots
+from tools.study import spec as study_spec
+from tools.study import stats as study_stats
 
 SEEDED = '''
 name = "seeded"

@@ -1,4 +1,4 @@
-"""Tests of internal/volume_render.py against a brute-force loop and closed forms."""
+"""Tests of internal/models/volume_render.py against a brute-force loop and closed forms."""
 
 import jax
 import jax.numpy as jnp

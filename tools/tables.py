@@ -2,7 +2,7 @@
 
 Usage: python -m tools.tables RUN_ROOT... --out DIR [--allow-incomplete]
 
-metrics.json: the record of internal/results.py (written by eval.py; see results.RECORD_FIELDS).
+metrics.json: the record of internal/evaluation/results.py (written by eval.py; see results.RECORD_FIELDS).
 
 A table's mean over scenes is the mean of the per-scene means, each the mean over test views (the paper's
 convention, also for the 'Avg' column: the mean of per-image avg_error). A mean is only given over the full

@@ -1,6 +1,6 @@
 """What running a cell through an executor costs beyond the cell's own process (docs/benchmarks.md).
 
-  python -m tools.study_overhead [--cells 8] [--address ADDRESS] [--out results/cluster/overhead.json]
+  python -m tools.study.overhead [--cells 8] [--address ADDRESS] [--out results/cluster/overhead.json]
 
 Makes a study of --cells finished cells (each with a cell.json, so that its cell process starts, imports, claims
 the cell, finds it done and exits: the cell's own start-up) and runs each one after another through the local
@@ -20,9 +20,9 @@ import time
 
 from internal import atomic
 from internal import cli
-from tools import study_export
-from tools import study_schedule
-from tools import study_spec
+from tools.study import export as study_export
+from tools.study import schedule as study_schedule
+from tools.study import spec as study_spec
 
 STUDY = 'name = "overhead"\n[methods.m]\n[scenes.s]\n[[axis]]\nname = "i"\nbinding = "Config.jax_rng_seed"\n'
 
@@ -55,14 +55,14 @@ def summary(times: list) -> dict:
 
 
 def main(argv=None) -> int:
-  parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+  parser = argparse.ArgumentParser(prog='python -m tools.study.overhead', description=__doc__.split('\n')[0])
   parser.add_argument('--cells', type=int, default=8, help='cells per executor')
   parser.add_argument('--address', help='a Ray cluster (default: a local one started here)')
   parser.add_argument('--out', default='results/cluster/overhead.json', help='the JSON to write')
   args = parser.parse_args(argv)
   if args.cells < 2:
     raise ValueError(f'--cells {args.cells}; expected >= 2 (the first Ray cell starts a worker)')
-  from tools import study_ray  # pylint: disable=import-outside-toplevel  (Ray is an optional extra)
+  from tools.study import ray_executor as study_ray  # pylint: disable=import-outside-toplevel  (Ray is an optional extra)
   job = study_schedule.new_job()
   local = study_schedule.LocalExecutor([{}], job)
   ray_executor = study_ray.RayExecutor(args.address, study_spec.Resources(), job)
@@ -73,7 +73,7 @@ def main(argv=None) -> int:
       times['ray'].append(timed(ray_executor, path))
   local.close()
   ray_executor.close()
-  record = {'command': ' '.join(['python -m tools.study_overhead'] + list(sys.argv[1:] if argv is None else argv)),
+  record = {'command': ' '.join(['python -m tools.study.overhead'] + list(sys.argv[1:] if argv is None else argv)),
             'commit': study_export.git_commit(study_schedule.REPO), 'date': time.strftime('%Y-%m-%d %H:%M %z'),
             'machine': {'platform': platform.platform(), 'cpu_count': os.cpu_count(),
                         'python': sys.version.split()[0], 'ray': ray_executor.ray.__version__},

@@ -15,8 +15,8 @@ import os
 import shutil
 from typing import List, Optional
 
-from tools import study_export
-from tools import study_spec
+from tools.study import export as study_export
+from tools.study import spec as study_spec
 
 
 def exported_study(export_dir: str) -> study_spec.Study:

@@ -15,9 +15,9 @@ import os
 import sys
 import time
 
-from tools import study_claim
-from tools import study_schedule
-from tools import study_spec
+from tools.study import claim as study_claim
+from tools.study import schedule as study_schedule
+from tools.study import spec as study_spec
 
 CANCEL_WAIT_SECONDS = 120.  # Ctrl-C: how long the cancelled cells get to save a checkpoint and stop.
 

@@ -1,26 +1,27 @@
 """Copies a study's results into a folder meant to be committed: what was run, on what, and what came out.
 
-<dest>/ gets results.csv, the statistics over seeds (summary.csv, comparisons.csv and .md) and the plots, the
-study file, per cell <cell>/cell.json, the evaluation's metrics.json and metrics.csv and the run's
+<dest>/ gets results.csv, the statistics over seeds (summary.csv, comparisons.csv and .md) and the plots, per cell <cell>/cell.json, the evaluation's metrics.json and metrics.csv and the run's
 learning_curve.csv where recorded (no checkpoints), a side-by-side picture per scene (ground truth, then each
 method's render of the first evaluated test views, of the first seed), table.md (per cell its metrics, wall times
-and commit) and provenance.json: the command, the commit each cell ran at, the machine and the package versions.
+and commit) and provenance.json: the command, the study file's path and SHA-256, the commit each cell ran at
+with the tracked files that differed from it (a commit ending '+dirty'), the machine and the package versions.
 """
 
 import glob
+import hashlib
 import json
 import os
 import platform
 import shutil
 import subprocess
 import sys
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import numpy as np
 from PIL import Image
 
 from internal.evaluation import vis
-from tools import study_spec
+from tools.study import spec as study_spec
 
 RUN_SUBDIR = 'run'    # A cell's run directory (Config.checkpoint_dir) inside its folder.
 METRICS_FILES = ('metrics.json', 'metrics.csv')  # What a cell's evaluation wrote that an export keeps.
@@ -33,15 +34,32 @@ TABLE_METRICS = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'psnr', 'ssim', '
                  'pseudo_depth_mae', 'pseudo_depth_within_5pct')
 
 
+def _git(repo: str, *args) -> Optional[str]:
+  """The output of a git command in repo; None outside git."""
+  try:
+    return subprocess.run(['git', '-C', repo, *args], capture_output=True, text=True, check=True).stdout
+  except (OSError, subprocess.CalledProcessError):
+    return None
+
+
+def changed_files(repo: str) -> List[str]:
+  """The tracked files of repo that differ from its HEAD ([] outside git): what '+dirty' in a commit means."""
+  status = _git(repo, 'status', '--porcelain', '--untracked-files=no')
+  return sorted(line[3:] for line in (status or '').splitlines() if line.strip())
+
+
 def git_commit(repo: str) -> str:
   """HEAD of the repository, with '+dirty' when tracked files differ from it ('unknown' outside git)."""
-  try:
-    head = subprocess.run(['git', '-C', repo, 'rev-parse', 'HEAD'], capture_output=True, text=True, check=True)
-    dirty = subprocess.run(['git', '-C', repo, 'status', '--porcelain', '--untracked-files=no'],
-                           capture_output=True, text=True, check=True)
-  except (OSError, subprocess.CalledProcessError):
+  head = _git(repo, 'rev-parse', 'HEAD')
+  if head is None:
     return 'unknown'
-  return head.stdout.strip() + ('+dirty' if dirty.stdout.strip() else '')
+  return head.strip() + ('+dirty' if changed_files(repo) else '')
+
+
+def file_sha256(path: str) -> str:
+  """The SHA-256 of a file's bytes (a study file's identity in an export's provenance)."""
+  with open(path, 'rb') as f:
+    return hashlib.sha256(f.read()).hexdigest()
 
 
 def machine() -> Dict[str, object]:
@@ -177,7 +195,6 @@ def export(study: study_spec.Study, study_file: str, study_folder: str, dest: st
   for name in sorted(os.listdir(study_folder)):
     if name.endswith(('.csv', '.png', '.md')):
       shutil.copy2(os.path.join(study_folder, name), dest)
-  shutil.copy2(study_file, dest)
   finished, paths = [], {}
   for cell in study_spec.cells(study):
     path = os.path.join(study_folder, cell.cell_id)
@@ -198,8 +215,9 @@ def export(study: study_spec.Study, study_file: str, study_folder: str, dest: st
   with open(os.path.join(dest, TABLE_FILE), 'w') as f:
     f.write(markdown_table(finished))
   provenance = {'command': command, 'machine': machine(),
-                'cells': {c['cell']: {k: c.get(k) for k in ('commit', 'machine', 'train_seconds', 'eval_seconds',
-                                                            'step')}
+                'study_file': {'path': os.path.relpath(study_file), 'sha256': file_sha256(study_file)},
+                'cells': {c['cell']: {k: c.get(k) for k in ('commit', 'changed_files', 'machine', 'train_seconds',
+                                                            'eval_seconds', 'step')}
                           for c in finished}}
   with open(os.path.join(dest, PROVENANCE_FILE), 'w') as f:
     json.dump(provenance, f, indent=1)

@@ -22,7 +22,7 @@ write {{ and }} for literal braces.
 
 Seeds: `seeds = N` (seeds 0 .. N-1) or a list adds the axis SEED_AXIS, whose point s binds Config.jax_rng_seed = s
 (initialization, sampling noise) and Config.np_rng_seed = s (the ray batches). An axis of that name written by hand
-is a seed axis too. Results over it are replicates: tools/study_stats.py gives per cell mean, spread and n, and each
+is a seed axis too. Results over it are replicates: tools/study/stats.py gives per cell mean, spread and n, and each
 [[compare]] entry (default: every other method against the first) the paired difference with its interval.
 """
 

@@ -12,7 +12,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 from scipy import stats as scipy_stats
 
-from tools import study_spec
+from tools.study import spec as study_spec
 
 LEVEL = 0.95  # Confidence level of the paired intervals.
 UNDECIDED = 'UNDECIDED'

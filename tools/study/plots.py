@@ -5,11 +5,11 @@ the paired comparisons get a plot of their intervals, undecided ones marked in r
 
 import math
 import os
-from typing import List, Optional, Sequence, Tuple
+from typing import List, Sequence, Tuple
 
 from internal.evaluation import vis
-from tools import study_spec
-from tools import study_stats
+from tools.study import spec as study_spec
+from tools.study import stats as study_stats
 
 # Learning-curve metrics (internal/evaluation/learning_curve.py) plotted against the training step.
 CURVE_METRICS = ('psnr', 'psnr_masked')

@@ -11,18 +11,18 @@ Each cell runs `train(config)` then eval's `evaluate(config)` in a subprocess (`
 include data loading and compilation), steps/s, XLA's flop count of one train step, the process's peak RSS
 and, on accelerators, the device's peak bytes. Its output goes to <cell>/log.txt.
 Resumable: a cell with cell.json is skipped; a half-trained one resumes from its newest checkpoint. A cell process
-claims its cell first (tools/study_claim.py), so any number of runners may share a study folder. --reuse DIR
+claims its cell first (tools/study/claim.py), so any number of runners may share a study folder. --reuse DIR
 takes the finished cells of an earlier export (another machine's, say) instead of running them again.
 --jobs N runs N cells at a time; --gpus gives one GPU per worker (CUDA_VISIBLE_DEVICES), --shard K/N takes
 every N-th cell from K (one command per host on a shared folder); --executor ray runs the cells as Ray tasks
-(tools/study_ray.py, docs/cluster.md). At the end (also after failures) the
+(tools/study/ray_executor.py, docs/cluster.md). At the end (also after failures) the
 results of all finished cells are gathered into <out>/<study>/results.csv and <metric>_vs_<x>.png plots, and
 the cells' learning curves (Config.curve_every > 0) into psnr_vs_step.png (and psnr_masked_vs_step.png on DTU).
 `python -m tools.tables <out>/<study>` gathers the same runs into the paper's tables.
 With seeds (a `seeds` key or an axis named seed) results also give per cell the mean, spread and n over seeds and
-the paired comparisons with their 95% intervals (tools/study_stats.py). `--list --estimate` measures each distinct
+the paired comparisons with their 95% intervals (tools/study/stats.py). `--list --estimate` measures each distinct
 setting of the pending cells on this machine (about a minute each) and prints the expected wall time before any
-cell runs (tools/study_cost.py); with --cluster-gpus N, the GPU-hours and the wall time on N GPUs from the step
+cell runs (tools/study/cost.py); with --cluster-gpus N, the GPU-hours and the wall time on N GPUs from the step
 times measured on a GPU (results/gpu). Bad input is one line (exit status 2, internal/cli.py).
 """
 
@@ -40,15 +40,15 @@ from typing import Dict, List, Optional
 
 from internal import atomic
 from internal import cli
-from tools import study_budget
-from tools import study_claim
-from tools import study_cost
-from tools import study_export
-from tools import study_plots
-from tools import study_reuse
-from tools import study_schedule
-from tools import study_spec
-from tools import study_stats
+from tools.study import budget as study_budget
+from tools.study import claim as study_claim
+from tools.study import cost as study_cost
+from tools.study import export as study_export
+from tools.study import plots as study_plots
+from tools.study import reuse as study_reuse
+from tools.study import schedule as study_schedule
+from tools.study import spec as study_spec
+from tools.study import stats as study_stats
 
 CELL_FILE = 'cell.json'
 SPEC_FILE = 'cell_spec.json'
@@ -131,7 +131,7 @@ def _train_and_evaluate(path: str) -> dict:
   from internal.evaluation import evaluate
   from internal.pipeline import loop
   from internal.run import checkpoints, flops
-  commit = study_export.git_commit(REPO)  # The code this cell starts with.
+  commit, changed = study_export.git_commit(REPO), study_export.changed_files(REPO)  # The code it starts with.
   with open(os.path.join(path, SPEC_FILE)) as f:
     spec = json.load(f)
   gin.clear_config()
@@ -156,7 +156,7 @@ def _train_and_evaluate(path: str) -> dict:
           'train_seconds': train_seconds, 'eval_seconds': eval_seconds,
           'steps_per_sec': steps / train_seconds if steps else None,
           'gflops_per_step': flops.train_step_flops(config) / 1e9, **_peak_memory(),
-          'commit': commit, 'machine': study_export.machine()}
+          'commit': commit, 'changed_files': changed, 'machine': study_export.machine()}
   _publish(path, cell)
   gin.clear_config()
   return cell
@@ -348,7 +348,7 @@ def run_study(study: study_spec.Study, out: str, data_root: str = 'data', shard:
 
 
 def _parser() -> argparse.ArgumentParser:
-  parser = cli.FlagParser(description=__doc__.split('\n')[0])
+  parser = cli.FlagParser(prog='python -m tools.study', description=__doc__.split('\n')[0])
   parser.add_argument('study', nargs='?', help='study file (TOML)')
   parser.add_argument('--out', default='out/studies', help='root of the study folders')
   parser.add_argument('--data_root', default='data', help='fills {data_root} in the study file')
@@ -375,7 +375,7 @@ def _parser() -> argparse.ArgumentParser:
   parser.add_argument('--export', metavar='DIR', help='after the run, copy results, plots, per-cell metrics, '
                       'side-by-side pictures and provenance (no checkpoints) into DIR, to be committed')
   parser.add_argument('--reuse', metavar='DIR', help='first take the finished cells of an earlier --export DIR '
-                      'that this study lacks and runs with the same settings (tools/study_reuse.py)')
+                      'that this study lacks and runs with the same settings (tools/study/reuse.py)')
   parser.add_argument('--run-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
   parser.add_argument('--job', help=argparse.SUPPRESS)
   parser.add_argument('--measure-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
@@ -419,7 +419,7 @@ def _resources(study: study_spec.Study, args) -> study_spec.Resources:
 def _executor(study: study_spec.Study, args, job: str):
   """The executor of --executor: processes here (--jobs / --gpus), or Ray tasks with the cells' resources."""
   if args.executor == 'ray':
-    from tools import study_ray  # pylint: disable=import-outside-toplevel  (Ray is an optional extra)
+    from tools.study import ray_executor as study_ray  # pylint: disable=import-outside-toplevel  (Ray is an optional extra)
     return study_ray.RayExecutor(args.address, _resources(study, args), job)
   return study_schedule.LocalExecutor(_worker_envs(args.jobs, args.gpus), job)
 
@@ -478,6 +478,3 @@ def _export(study: study_spec.Study, args, argv) -> None:
     for path in study_export.export(study, args.study, study_dir(study, args.out), args.export, command):
       print(path)
 
-
-if __name__ == '__main__':
-  sys.exit(cli.run(main))

@@ -1,8 +1,8 @@
-"""Runs a study's cells on an executor (this machine's processes, or Ray: tools/study_ray.py), each cell once over
+"""Runs a study's cells on an executor (this machine's processes, or Ray: tools/study/ray_executor.py), each cell once over
 every runner that shares the study folder, with a progress bar over the cells.
 
 Each cell runs as its own process, `python -m tools.study --run-cell <cell dir> --job <job>`, whose output goes to
-<cell>/log.txt; it claims the cell first (tools/study_claim.py) and exits with CLAIMED_STATUS when a runner of another
+<cell>/log.txt; it claims the cell first (tools/study/claim.py) and exits with CLAIMED_STATUS when a runner of another
 job holds it. Right before a cell is submitted the runner looks at it again: a finished cell (is_done) is counted,
 a cell another runner holds is left for later and looked at every POLL_SECONDS (taken over if its claim goes
 stale), so each command ends when every cell of its list has finished or failed.
@@ -23,14 +23,14 @@ from typing import Callable, Dict, List, Optional, Tuple
 import tqdm
 
 from internal import progress
-from tools import study_claim
+from tools.study import claim as study_claim
 
 LOG_FILE = 'log.txt'
 CLAIMED_STATUS = 75  # EX_TEMPFAIL: the cell is claimed by a runner of another job; look at it again later.
 PARENT_ENV = 'FREENERF_STUDY_PARENT_PID'  # A cell process stops (checkpoint saved) when its runner dies.
 POLL_SECONDS = 2.
 PR_SET_PDEATHSIG = 1  # prctl(2) option: the signal a process gets when its parent dies.
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def new_job() -> str:

@@ -20,12 +20,12 @@ import statistics
 import time
 from typing import Dict, List, Optional, Tuple
 
-from tools import study_export
-from tools import study_spec
+from tools.study import export as study_export
+from tools.study import spec as study_spec
 
 PROBE_STEPS = 6  # Timed train steps after the first (compiling) one.
 BENCH_GLOB = os.path.join('results', 'gpu', 'bench_device_*.json')  # bench.device's GPU records, in the repository.
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def signature(spec: dict) -> str:

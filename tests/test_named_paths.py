@@ -1,0 +1,49 @@
+"""Every path of this repository that the docs, READMEs, docstrings and study files name exists (no dead paths)."""
+
+import os
+import re
+import subprocess
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TOP = ('internal', 'tools', 'bench', 'docs', 'configs', 'tests', 'studies', 'results')
+PATH = re.compile(r'(?<![\w./-])((?:%s)/[\w./-]*\w)(.?)' % '|'.join(TOP))
+# Files docs/design.md tells a user to create when adding a regularizer: examples, not paths of this repository.
+EXAMPLES = {'configs/common/my_reg.gin', 'internal/losses/my_reg.py', 'tests/test_my_reg.py'}
+
+
+def _texts():
+  """The tracked files whose text names paths: docs, READMEs, Python, study, gin and shell files."""
+  files = subprocess.run(['git', 'ls-files', '*.md', '*.py', '*.toml', '*.gin', '*.sh', '*.sbatch'], cwd=ROOT,
+                         capture_output=True, text=True, check=True).stdout.split()
+  return [f for f in files if not f.startswith('results/') or f.endswith('README.md')]
+
+
+def _exists(path: str, named_in: str) -> bool:
+  """Whether path exists from the root or beside the file naming it; 'a/b.attr' names a/b.py's attribute."""
+  for candidate in (path, os.path.join(os.path.dirname(named_in), path)):
+    stem, dot, _ = candidate.rpartition('.')
+    if os.path.exists(os.path.join(ROOT, candidate)) or (dot and os.path.isfile(os.path.join(ROOT, stem + '.py'))):
+      return True
+  return False
+
+
+def named_paths(text: str):
+  """The repository paths a text names: patterns and placeholders (*, {x}, <x>, $x) left out."""
+  return {m.group(1) for m in PATH.finditer(text)
+          if not re.search(r'[*{}<>$]', m.group(1) + m.group(2)) and m.group(1) not in EXAMPLES}
+
+
+def test_the_pattern_takes_paths_and_leaves_patterns_and_placeholders():
+  text = ('see internal/models/encoding.py, configs/mini/dtu3_{method}.gin, tests/test_datasets_*.py, '
+          'results/<name>/ and internal/config_loader.validate.')
+  assert named_paths(text) == {'internal/models/encoding.py', 'internal/config_loader.validate'}
+  assert _exists('internal/config_loader.validate', 'README.md') and not _exists('internal/encoding.py', 'x.md')
+
+
+@pytest.mark.parametrize('named_in', _texts())
+def test_every_named_path_exists(named_in):
+  with open(os.path.join(ROOT, named_in), errors='replace') as f:
+    dead = sorted(p for p in named_paths(f.read()) if not _exists(p, named_in))
+  assert not dead, f'{named_in} names paths that do not exist: {dead}'
