@@ -25,6 +25,7 @@ from internal import environment
 from internal import interrupt
 from internal import progress
 from internal.run import checkpoints
+from internal.run import disk_full
 from internal.run import distributed
 from internal.run import out_of_memory
 from internal.run import run_dir
@@ -35,7 +36,7 @@ CONFIG_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file
 DEMO_CONFIGS = [os.path.join(CONFIG_DIR, name) for name in ('demo.gin', 'demo_forward.gin')]
 USAGE_ERROR_STATUS = 2
 NONFINITE_STATUS = 3
-DISK_FULL_STATUS = 4  # checkpoints.DiskFullError or another write without space: free space and rerun the command.
+DISK_FULL_STATUS = 4  # disk_full.DiskFullError or another write without space: free space and rerun the command.
 DEBUG_ENV = 'FREENERF_DEBUG'
 # ValueError covers Config validation, gin's unknown bindings and the loaders' DatasetError; FileNotFoundError
 # covers missing data and NoCheckpointError; FileExistsError is an evaluation or rendering that exists already;
@@ -51,7 +52,7 @@ def one_line(err: BaseException) -> str:
 
 
 # Errors that stop a run for a reason of their own, with their exit status (a user error's is USAGE_ERROR_STATUS).
-OWN_STATUS = ((train_step.NonFiniteError, NONFINITE_STATUS), (checkpoints.DiskFullError, DISK_FULL_STATUS))
+OWN_STATUS = ((train_step.NonFiniteError, NONFINITE_STATUS), (disk_full.DiskFullError, DISK_FULL_STATUS))
 
 
 def signal_status(signum) -> int:
@@ -83,7 +84,7 @@ def run(main) -> int:
     print(f'error: {one_line(err)}', file=sys.stderr)
     return next((status for cls, status in OWN_STATUS if isinstance(err, cls)), USAGE_ERROR_STATUS)
   except OSError as err:
-    if debug or not checkpoints.is_disk_full(err):
+    if debug or not disk_full.is_disk_full(err):
       raise
     where = f' writing {err.filename!r}' if err.filename else ''
     print(f'error: no space left on the device{where}; free disk space and run the same command again',

@@ -20,6 +20,7 @@ from conftest import JAX_CACHE, random_rays
 from internal import atomic
 from internal import cli
 from internal.run import checkpoints
+from internal.run import disk_full
 from internal.pipeline import loop
 from orbax.checkpoint._src.path import async_path
 from test_checkpoints import DEMO, ROOT, TINY, tiny_config
@@ -38,8 +39,8 @@ def test_orbax_reports_after_a_failed_save_are_dropped_and_others_kept(tmp_path,
   handler.emit = records.append
   asyncio_logger.addHandler(handler)
   try:
-    with pytest.raises(checkpoints.DiskFullError, match='no space left on the device while saving'):
-      with checkpoints.stop_when_disk_full(str(tmp_path)):
+    with pytest.raises(disk_full.DiskFullError, match='no space left on the device while saving'):
+      with disk_full.stop_when_disk_full(str(tmp_path)):
         raise NO_SPACE
     # What orbax's abandoned writes report later: a future never retrieved, callbacks into its closed loop.
     asyncio_logger.error('Future exception was never retrieved', exc_info=_orbax_write_on_a_full_disk())
@@ -80,7 +81,7 @@ def test_the_filters_go_when_training_ends_without_a_full_disk(tmp_path, monkeyp
   hook = sys.unraisablehook
   monkeypatch.setattr(logging.getLogger('asyncio'), 'filters', [])
   with pytest.raises(KeyError):
-    with checkpoints.stop_when_disk_full(str(tmp_path)):
+    with disk_full.stop_when_disk_full(str(tmp_path)):
       raise KeyError('a bug')
   assert sys.unraisablehook is hook and not logging.getLogger('asyncio').filters
 
@@ -89,14 +90,14 @@ async def _not_orbax():
   """A coroutine of something else than orbax."""
 
 
-def _unawaited_warnings(disk_full: bool) -> list:
+def _unawaited_warnings(full: bool) -> list:
   """The 'never awaited' warnings of one of orbax's write coroutines and of another one, both dropped unawaited
   after a block that raised ENOSPC (or a KeyError)."""
   with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter('always')
-    with pytest.raises(checkpoints.DiskFullError if disk_full else KeyError):
-      with checkpoints.stop_when_disk_full('run'):
-        raise NO_SPACE if disk_full else KeyError('a bug')
+    with pytest.raises(disk_full.DiskFullError if full else KeyError):
+      with disk_full.stop_when_disk_full('run'):
+        raise NO_SPACE if full else KeyError('a bug')
     async_path.write_bytes('run/checkpoints/3.orbax-checkpoint-tmp/x', b'')  # Created and dropped, never awaited.
     _not_orbax()
     gc.collect()
@@ -108,8 +109,8 @@ def test_unawaited_orbax_writes_are_silent_after_a_full_disk_and_others_are_repo
   monkeypatch.setattr(logging.getLogger('absl'), 'filters', [])
   monkeypatch.setattr(logging.getLogger('asyncio'), 'filters', [])
   both = ["coroutine '_not_orbax' was never awaited", "coroutine 'write_bytes' was never awaited"]
-  assert _unawaited_warnings(disk_full=False) == both
-  assert _unawaited_warnings(disk_full=True) == both[:1]  # Only the failed save's own coroutine is silent.
+  assert _unawaited_warnings(full=False) == both
+  assert _unawaited_warnings(full=True) == both[:1]  # Only the failed save's own coroutine is silent.
 
 
 def test_a_full_disk_while_writing_a_settings_file_is_one_line_naming_it(tmp_path, monkeypatch, capsys):
@@ -143,12 +144,12 @@ def test_a_full_disk_during_a_save_prints_no_traceback(small_disk, scene_dir):
 
 
 def test_disk_full_errors_are_recognised_bare_and_as_orbax_wraps_them():
-  assert checkpoints.is_disk_full(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), 'x'))
-  assert checkpoints.is_disk_full(ValueError(
+  assert disk_full.is_disk_full(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), 'x'))
+  assert disk_full.is_disk_full(ValueError(
       'RESOURCE_EXHAUSTED: Error writing "params.w/0" in OCDBT database at local file "/r/checkpoints/2.orbax-'
       'checkpoint-tmp/": Failed to write 199981 bytes to file 5: No space left on device [os_error_code=\'28\']'))
-  assert not checkpoints.is_disk_full(OSError(errno.EACCES, os.strerror(errno.EACCES)))
-  assert not checkpoints.is_disk_full(ValueError('RESOURCE_EXHAUSTED: Out of memory'))
+  assert not disk_full.is_disk_full(OSError(errno.EACCES, os.strerror(errno.EACCES)))
+  assert not disk_full.is_disk_full(ValueError('RESOURCE_EXHAUSTED: Out of memory'))
 
 
 

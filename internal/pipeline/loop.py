@@ -13,6 +13,7 @@ import tensorboardX
 import tqdm
 
 from internal.run import checkpoints
+from internal.run import disk_full
 from internal import datasets
 from internal.run import distributed
 from internal.evaluation import evaluate
@@ -216,7 +217,7 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
   curve = learning_curve.Recorder(config, model, curve_views, run_dir, writer, int(state.step)) if (
       curve_views is not None and primary) else None
   last = min(config.max_steps, stop_at_step) if stop_at_step > 0 else config.max_steps
-  with checkpoints.stop_when_disk_full(run_dir):
+  with disk_full.stop_when_disk_full(run_dir):
     try:
       with writer, stop_on_signals() as stop:
         state, skipped = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last, curve)
