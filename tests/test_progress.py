@@ -1,4 +1,4 @@
-"""loop.Progress: the bar counts steps whose stats were fetched (done), not steps dispatched."""
+"""loop.StepReport: the bar counts steps whose stats were fetched (done), not steps dispatched."""
 
 import io
 import types
@@ -31,7 +31,7 @@ def test_bar_advances_by_the_fetched_steps_at_each_flush(policy, monkeypatch):
   config = types.SimpleNamespace(max_steps=10, nonfinite_grad_policy=policy, max_skipped_steps=5, batch_size=64,
                                  stuck_warning_steps=0)
   writer = Writer()
-  progress = loop.Progress(config, writer, first_step=3)  # Resumed after step 2.
+  progress = loop.StepReport(config, writer, first_step=3)  # Resumed after step 2.
   assert progress.bar.n == 2
   for step in (3, 4, 5):
     progress.add(step, _stats(skipped=step == 4 and policy == 'skip'))  # 'raise' would stop the run.

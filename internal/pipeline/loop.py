@@ -91,7 +91,7 @@ def stop_on_signals():
       signal.signal(s, handler)
 
 
-class Progress:
+class StepReport:
   """Per-step stats kept on device and fetched every Config.print_every steps: tqdm bar and tensorboard.
 
   The bar counts steps whose stats were fetched (so finished), not steps dispatched: with asynchronous dispatch
@@ -238,17 +238,17 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
   """
   step_fn = train_step_lib.make_train_step(config, model)
   first = int(state.step) + 1
-  progress = Progress(config, writer, first)
+  report = StepReport(config, writer, first)
   test_set = None
   needed = lambda: out_of_memory.compiled_bytes(step_fn, state, sharding.shard_batch(batcher(first), mesh), key)
   try:
     with out_of_memory.naming_setting('in the training step', f'Config.batch_size = {config.batch_size}', needed):
       for step in range(first, last + 1):
         state, stats = step_fn(state, sharding.shard_batch(batcher(step), mesh), key)
-        progress.add(step, stats)
+        report.add(step, stats)
         stopping = stop.stopping(step % config.print_every == 0 or step == last)
         if step % config.print_every == 0 or step == last or stopping:
-          progress.flush(step)
+          report.flush(step)
         if stopping:
           break
         if config.train_render_every > 0 and step % config.train_render_every == 0 and distributed.is_primary():
@@ -257,8 +257,8 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
         if curve is not None and curve.due(step):
           curve.record(step, state.params)
         if step % config.checkpoint_every == 0 and step < last:
-          progress.flush(step)
+          report.flush(step)
           checkpoints.save(mngr, state)
   finally:
-    progress.close()
-  return state, progress.skips.total
+    report.close()
+  return state, report.skips.total
