@@ -142,8 +142,9 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   for cell in provenance['cells']:
     record = json.loads((dest / cell / 'metrics.json').read_text())
     assert json.loads((dest / cell / 'cell.json').read_text())['means']['psnr'] == record['means']['psnr']
-    assert provenance['cells'][cell]['commit'] == study_lib.study_export.git_commit(str(REPO))
-    assert provenance['cells'][cell]['changed_files'] == study_lib.study_export.changed_files(str(REPO))
+    assert provenance['cells'][cell]['commit'].split('+')[0] == study_lib.study_export.git_commit(str(REPO)).split('+')[0]
+    changed = provenance['cells'][cell]['changed_files']  # The tree as the cell found it: a list, empty when clean.
+    assert isinstance(changed, list) and bool(changed) == provenance['cells'][cell]['commit'].endswith('+dirty')
     curve = pathlib.Path(out, 'mini', cell, study_lib.RUN_SUBDIR, 'learning_curve.csv')
     assert (dest / cell / 'learning_curve.csv').read_text() == curve.read_text()
   assert (dest / 'psnr_vs_step.png').is_file()
@@ -269,15 +270,26 @@ def test_reuse_takes_the_exported_cells_with_the_same_settings(ran, tmp_path, ca
   pick = lambda rows: [{k: r[k] for k in columns} for r in rows]
   assert pick(_rows(fresh / 'mini' / 'results.csv')) == pick(_rows(pathlib.Path(out, 'mini', 'results.csv')))
   assert (fresh / 'mini' / 'psnr_vs_step.png').is_file()                 # The learning curves came along.
-  changed = tmp_path / 'changed'
+  changed = tmp_path / 'changed'                                         # An export of another version of the file.
   shutil.copytree(export, changed)
-  toml = changed / 'mini.toml'
-  toml.write_text(toml.read_text().replace('"Config.freq_reg_end = 0"', '"Config.freq_reg_end = 5"'))
+  other_version = tmp_path / 'mini_v2.toml'
+  other_version.write_text(path.read_text().replace('"Config.freq_reg_end = 0"', '"Config.freq_reg_end = 5"'))
+  _set_study_file(changed, other_version)
   assert study_lib.main([str(path), '--out', str(tmp_path / 'other'), '--reuse', str(changed), '--list']) == 0
   listing = capsys.readouterr().out
   assert listing.count('reused ') == 2 and listing.count('not reused') == 2 and listing.count('pending') == 2
-  with pytest.raises(study_spec.StudyError, match='expected one exported study file'):
+  other_version.write_text('name = "edited since"')                      # That version is nowhere now.
+  with pytest.raises(study_spec.StudyError, match='which neither that file here nor its git history holds'):
+    study_lib.main([str(path), '--out', str(tmp_path / 'other'), '--reuse', str(changed), '--list'])
+  with pytest.raises(study_spec.StudyError, match='no provenance.json there'):
     study_lib.main([str(path), '--out', str(tmp_path / 'none'), '--reuse', str(tmp_path), '--list'])
+
+
+def _set_study_file(export, study_file):
+  """Makes an export's provenance.json name study_file (path and SHA-256) as the study file it ran."""
+  provenance = json.loads((export / 'provenance.json').read_text())
+  provenance['study_file'] = {'path': str(study_file), 'sha256': hashlib.sha256(study_file.read_bytes()).hexdigest()}
+  (export / 'provenance.json').write_text(json.dumps(provenance))
 
 
 def test_a_dirty_commit_names_the_files_that_differ(tmp_path):

@@ -1,6 +1,7 @@
 """tools.study's bad inputs: each one line on stderr naming the file, key or flag, exit status 2 (through cli.run, as
 `python -m tools.study` runs); --reuse takes an export's numbers only where they agree with its metrics.json."""
 
+import hashlib
 import json
 
 import pytest
@@ -53,10 +54,13 @@ def test_bad_flags_are_one_line(capsys, tmp_path, flags, expected):
 
 
 def _export(tmp_path, cell_json: str, metrics: dict = None):
-  """An export folder holding the study file and one cell's cell.json (and metrics.json)."""
+  """An export folder of the study file (its mini.toml, named in provenance.json by path and SHA-256) and one
+  cell's cell.json (and metrics.json)."""
   export = tmp_path / 'export'
   (export / CELL).mkdir(parents=True)
   (export / 'mini.toml').write_text(TINY_STUDY)
+  study_file = {'path': str(export / 'mini.toml'), 'sha256': hashlib.sha256(TINY_STUDY.encode()).hexdigest()}
+  (export / 'provenance.json').write_text(json.dumps({'study_file': study_file}))
   (export / CELL / 'cell.json').write_text(cell_json)
   if metrics is not None:
     (export / CELL / 'metrics.json').write_text(json.dumps(metrics))

@@ -25,7 +25,7 @@ from tools.study import spec as study_spec
 
 PROBE_STEPS = 6  # Timed train steps after the first (compiling) one.
 BENCH_GLOB = os.path.join('results', 'gpu', 'bench_device_*.json')  # bench.device's GPU records, in the repository.
-REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+REPO = study_spec.REPO
 
 
 def signature(spec: dict) -> str:

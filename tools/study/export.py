@@ -28,6 +28,7 @@ METRICS_FILES = ('metrics.json', 'metrics.csv')  # What a cell's evaluation wrot
 PICTURE_VIEWS = 2     # Test views per scene in the side-by-side picture.
 MIN_TILE_WIDTH = 160  # Narrower renders are upscaled (nearest) so that the column titles fit.
 PROVENANCE_FILE = 'provenance.json'
+REPO = study_spec.REPO
 TABLE_FILE = 'table.md'
 # Columns of table.md, where the cells report them: DTU's object-masked metrics first, as the paper's tables.
 TABLE_METRICS = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'psnr', 'ssim', 'lpips', 'depth_mae',
@@ -60,6 +61,20 @@ def file_sha256(path: str) -> str:
   """The SHA-256 of a file's bytes (a study file's identity in an export's provenance)."""
   with open(path, 'rb') as f:
     return hashlib.sha256(f.read()).hexdigest()
+
+
+def file_at(repo: str, path: str, sha256: str) -> Optional[str]:
+  """The text of the file at path (relative to repo) whose bytes have this SHA-256: the file as it is, else its
+  newest committed version that has them; None when neither has."""
+  full = os.path.join(repo, path)
+  if os.path.isfile(full) and file_sha256(full) == sha256:
+    with open(full, encoding='utf-8') as f:
+      return f.read()
+  for commit in (_git(repo, 'log', '--format=%H', '--', path) or '').split():
+    shown = subprocess.run(['git', '-C', repo, 'show', f'{commit}:{path}'], capture_output=True, check=False)
+    if shown.returncode == 0 and hashlib.sha256(shown.stdout).hexdigest() == sha256:
+      return shown.stdout.decode('utf-8')
+  return None
 
 
 def machine() -> Dict[str, object]:
@@ -215,7 +230,7 @@ def export(study: study_spec.Study, study_file: str, study_folder: str, dest: st
   with open(os.path.join(dest, TABLE_FILE), 'w') as f:
     f.write(markdown_table(finished))
   provenance = {'command': command, 'machine': machine(),
-                'study_file': {'path': os.path.relpath(study_file), 'sha256': file_sha256(study_file)},
+                'study_file': {'path': os.path.relpath(os.path.abspath(study_file), REPO), 'sha256': file_sha256(study_file)},
                 'cells': {c['cell']: {k: c.get(k) for k in ('commit', 'changed_files', 'machine', 'train_seconds',
                                                             'eval_seconds', 'step')}
                           for c in finished}}

@@ -1,15 +1,15 @@
 """Finished cells taken from an earlier export (`tools.study --reuse DIR`), so that a study moved to another machine,
 or whose run folders are gone, runs only the cells it lacks.
 
-A cell of the export is reused when the cell has not finished here and the export's copy of the study file gives it
-the same gin configs and bindings as this study file does. Its numbers are the evaluation's: the export's cell.json
+A cell of the export is reused when the cell has not finished here and the study file the export ran (named in its
+provenance.json by path and SHA-256, found in this checkout or its git history) gives it the same gin configs and
+bindings as this study file does. Its numbers are the evaluation's: the export's cell.json
 must agree with the metrics.json beside it (step, completeness and every mean), else the command stops with one line
 naming both files; a cell exported without metrics.json is not reused (it runs here). Its cell.json, the evaluation's metrics.json and
 metrics.csv and its learning curve go where a run here would have written them; its checkpoints and renders are not
 in an export, so a reused cell cannot resume training and appears in no side-by-side picture.
 """
 
-import glob
 import json
 import os
 import shutil
@@ -20,12 +20,21 @@ from tools.study import spec as study_spec
 
 
 def exported_study(export_dir: str) -> study_spec.Study:
-  """The study file an export holds (its one .toml); StudyError naming the folder when it holds none or several."""
-  found = sorted(glob.glob(os.path.join(export_dir, '*.toml')))
-  if len(found) != 1:
-    raise study_spec.StudyError(f'--reuse {export_dir}: expected one exported study file (*.toml) there, found '
-                                f'{len(found)}; give the folder that tools.study --export wrote')
-  return study_spec.load(found[0])
+  """The study file an export ran: the one its provenance.json names by path and SHA-256, read from this checkout
+  or its git history. StudyError naming the folder when there is no such record or file."""
+  provenance_path = os.path.join(export_dir, study_export.PROVENANCE_FILE)
+  if not os.path.isfile(provenance_path):
+    raise study_spec.StudyError(f'--reuse {export_dir}: no {study_export.PROVENANCE_FILE} there; give the folder '
+                                'that tools.study --export wrote')
+  source = study_export.read_json(provenance_path).get('study_file') or {}
+  if not {'path', 'sha256'} <= source.keys():
+    raise study_spec.StudyError(f'--reuse {export_dir}: its {study_export.PROVENANCE_FILE} names no study file '
+                                '(path and sha256); export it again with this version of tools.study')
+  text = study_export.file_at(study_export.REPO, source['path'], source['sha256'])
+  if text is None:
+    raise study_spec.StudyError(f"--reuse {export_dir}: it ran {source['path']} of SHA-256 {source['sha256'][:12]}..., "
+                                'which neither that file here nor its git history holds')
+  return study_spec.parse(text, source['path'])
 
 
 def _same_settings(study, exported, cell, out: str, data_root: str) -> bool:

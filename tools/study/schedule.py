@@ -24,13 +24,14 @@ import tqdm
 
 from internal import progress
 from tools.study import claim as study_claim
+from tools.study import spec as study_spec
 
 LOG_FILE = 'log.txt'
 CLAIMED_STATUS = 75  # EX_TEMPFAIL: the cell is claimed by a runner of another job; look at it again later.
 PARENT_ENV = 'FREENERF_STUDY_PARENT_PID'  # A cell process stops (checkpoint saved) when its runner dies.
 POLL_SECONDS = 2.
 PR_SET_PDEATHSIG = 1  # prctl(2) option: the signal a process gets when its parent dies.
-REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+REPO = study_spec.REPO
 
 
 def new_job() -> str:

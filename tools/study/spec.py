@@ -36,6 +36,7 @@ from typing import Dict, List, Optional, Tuple
 from internal.evaluation import metric_registry
 
 # Axis named VIEWS_AXIS is the tables' view count: it stays out of Config.expname (the tables' method column).
+REPO = str(pathlib.Path(__file__).resolve().parents[2])  # The repository: studies/, configs/, results/.
 VIEWS_AXIS = 'views'
 # Axis named SEED_AXIS holds replicates (statistics pool over it); it stays out of Config.expname too.
 SEED_AXIS = 'seed'
