@@ -1,1 +1,1 @@
-"""Benchmarks (run as modules, e.g. `python -m bench.train_step`); not part of the test suite."""
+"""Benchmarks (run as modules, e.g. `python -m bench.released_comparison`); not part of the test suite."""

@@ -9,9 +9,12 @@ import gin
 import jax
 import jax.numpy as jnp
 from jax import random
+import numpy as np
 
 from internal import config_loader
 from internal import configs
+from internal import rays as rays_lib
+from internal.evaluation import inference
 from internal.run import flops
 from internal.training import train_step as ts
 
@@ -85,3 +88,27 @@ def step_runner(config, model, batch, compiler_options=None):
     holder[:] = block(step(holder[0], batch, key))
     return time.perf_counter() - start
   return run, holder, xla
+
+
+def dtu_like_rays(num_rays: int, seed: int = 0) -> rays_lib.Rays:
+  """Rays [num_rays, ...] from a camera 2 units from the origin, DTU near/far."""
+  rng = np.random.default_rng(seed)
+  directions = np.concatenate([rng.uniform(-0.3, 0.3, (num_rays, 2)), np.ones((num_rays, 1))], -1)
+  ones = np.ones((num_rays, 1))
+  rays = rays_lib.Rays(np.zeros((num_rays, 3)) + [0., 0., -1.], directions,
+                       directions / np.linalg.norm(directions, axis=-1, keepdims=True),
+                       ones * 1e-3, ones, ones * 0.5, ones * 3.5)
+  return rays_lib.map_rays(lambda x: jnp.asarray(x, jnp.float32), rays)
+
+
+def dtu_like_batch(num_rays: int) -> dict:
+  """{'rays': dtu_like_rays [num_rays, ...], 'rgb' [num_rays, 3] uniform colours}: a training batch without data."""
+  return {'rays': dtu_like_rays(num_rays),
+          'rgb': jnp.asarray(np.random.default_rng(1).uniform(size=(num_rays, 3)), jnp.float32)}
+
+
+def render_runner(render_fn, num_rays: int, chunk: int):
+  """Zero-arg callable returning the seconds to render num_rays rays in chunks (compiled here)."""
+  rays = dtu_like_rays(num_rays, seed=2)
+  block(render_fn(rays_lib.map_rays(lambda x: x[:chunk], rays)))
+  return lambda: timed(lambda: inference.render_image(render_fn, rays, chunk))

@@ -23,10 +23,8 @@ import sys
 import gin
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from bench import common
-from bench import train_step as bench_train_step
 from internal import cli
 from internal import configs
 from internal.evaluation import inference
@@ -62,8 +60,7 @@ def peak_memory():
 
 def measure_precision(name, methods, args, bindings):
   """{'matmul_peak_tflops', 'methods': {method: figures}, 'peak_memory_bytes', 'memory_source'} at one precision."""
-  batch = {'rays': bench_train_step.dtu_like_rays(args.batch_size),
-           'rgb': jnp.asarray(np.random.default_rng(1).uniform(size=(args.batch_size, 3)), jnp.float32)}
+  batch = common.dtu_like_batch(args.batch_size)
   steps, renders = {}, {}
   for method in methods:
     # The model's gin bindings are read when it is traced, so each method is compiled right after its parse.
@@ -71,7 +68,7 @@ def measure_precision(name, methods, args, bindings):
     model = mip_nerf.MipNerfModel(white_background=config.white_background, precision=name)
     steps[method] = common.step_runner(config, model, batch)
     params = jax.tree.map(jnp.copy, steps[method][1][0].params)  # The timed steps donate the state's.
-    renders[method] = bench_train_step.render_runner(
+    renders[method] = common.render_runner(
         inference.make_render_fn(config, model, params, config.max_steps), args.render_rays,
         config.render_chunk_size)
     width, samples = mip_nerf.MLP().net_width, model.num_samples

@@ -7,7 +7,7 @@ Each scale is a gin setting of this project with random rays of its batch size (
   mini   the CPU mini protocol's DTU FreeNeRF (configs/mini/dtu3_freenerf.gin: mip-NeRF 4 x 128, 2 x 32, 512 rays);
   paper  the paper's DTU FreeNeRF (configs/freenerf/dtu3_freenerf.gin: 8 x 256, 2 x 128 samples; batch 256).
 Per scale, interleaved with two matmuls in the same run: the median step time, XLA's flop count of the compiled
-step and the achieved GFLOP/s, against the best rate of the benchmark's matmuls (bench.train_step's
+step and the achieved GFLOP/s, against the best rate of the benchmark's matmuls (bench.released_comparison's
 [4096 | 32768, 256] @ [256, 256]) and of the scale's own MLP matmul ([rays x samples, width] @ [width, width]),
 and the time of the step's own matrix products run alone, one after another (what the step would take if all
 else were free). Then a profiler trace of --profile_steps steps: every XLA operation's time is charged to a
@@ -28,7 +28,7 @@ import numpy as np
 
 from bench import common
 from bench import kernel_profile
-from bench import train_step as bench_train_step
+from bench import released_comparison
 from internal import cli
 from internal import rays as rays_lib
 from internal.models import registry
@@ -53,7 +53,7 @@ def scale_config(name: str):
 
 def random_batch(config):
   """{'rays', 'rgb'} of config.batch_size random rays between the config's near and far."""
-  rays = bench_train_step.dtu_like_rays(config.batch_size)
+  rays = common.dtu_like_rays(config.batch_size)
   bounds = jnp.ones_like(rays.near)
   rays = rays_lib.Rays(*rays[:-2], bounds * config.near, bounds * config.far)
   rgb = jnp.asarray(np.random.default_rng(1).uniform(size=(config.batch_size, 3)), jnp.float32)
@@ -186,7 +186,7 @@ def measure(name: str, args):
   run, _, xla = common.step_runner(config, model, batch)
   rows, width = mlp_shape(config, model)
   runners = {'step': run,
-             'matmul_bench': common.matmul_runner(bench_train_step.MATMUL_SHAPES, min),
+             'matmul_bench': common.matmul_runner(released_comparison.MATMUL_SHAPES, min),
              'matmul_mlp': common.matmul_runner(((rows, width, width),), min),
              'dots_alone': dots_alone_runner(module_dots(xla['hlo']))}
   times = common.interleaved_medians(runners, args.repeats)

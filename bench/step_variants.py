@@ -21,14 +21,12 @@ import shlex
 import sys
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from bench import common
 from bench import device
 from bench import kernel_profile
 from bench import roofline
-from bench import train_step as bench_train_step
 from internal import cli
 from internal.models import mip_nerf
 from internal.models import precision
@@ -132,8 +130,7 @@ def main(argv=None):
     args.variants.insert(0, 'base')
   if args.out_dir:
     os.makedirs(args.out_dir, exist_ok=True)
-  batch = {'rays': bench_train_step.dtu_like_rays(args.batch_size),
-           'rgb': jnp.asarray(np.random.default_rng(1).uniform(size=(args.batch_size, 3)), jnp.float32)}
+  batch = common.dtu_like_batch(args.batch_size)
   report = {'device': jax.devices()[0].device_kind, 'platform': jax.devices()[0].platform,
             'jax_version': jax.__version__,
             'command': shlex.join(['python', '-m', 'bench.step_variants']

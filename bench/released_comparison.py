@@ -1,7 +1,7 @@
-"""Train-step and rendering benchmark on this machine, paper model; all ratios measured in one run.
+"""Our train step and rendering against mip-NeRF's and the released code's graph, paper model; ratios in one run.
 
-Usage: python -m bench.train_step [--batch 256] [--repeats 5] [--render_rays 8192] [--render_repeats 3]
-       python -m bench.train_step --nerf_only [--batch 256] [--repeats 5]
+Usage: python -m bench.released_comparison [--batch 256] [--repeats 5] [--render_rays 8192] [--render_repeats 3]
+       python -m bench.released_comparison --nerf_only [--batch 256] [--repeats 5]
 
 Reports, side by side:
   1. FreeNeRF step (both regularizers on) / plain mip-NeRF step (both off), and RegNeRF step (depth TV on
@@ -45,17 +45,6 @@ FREENERF_ON_NERF = dict(model='nerf', freq_reg=True, freq_reg_end=25000, freq_ma
 REGNERF = dict(anneal_nearfar=True, anneal_nearfar_steps=256, anneal_nearfar_perc=0.5, depth_tvnorm_loss_mult=0.1,
                depth_tvnorm_decay=True, depth_tvnorm_maxstep=512, depth_tvnorm_loss_mult_start=400.,
                depth_tvnorm_loss_mult_end=0.1, depth_tvnorm_mask_weight=1.0, patch_size=8)
-
-
-def dtu_like_rays(num_rays: int, seed: int = 0) -> rays_lib.Rays:
-  """Rays [num_rays, ...] from a camera 2 units from the origin, DTU near/far."""
-  rng = np.random.default_rng(seed)
-  directions = np.concatenate([rng.uniform(-0.3, 0.3, (num_rays, 2)), np.ones((num_rays, 1))], -1)
-  ones = np.ones((num_rays, 1))
-  rays = rays_lib.Rays(np.zeros((num_rays, 3)) + [0., 0., -1.], directions,
-                       directions / np.linalg.norm(directions, axis=-1, keepdims=True),
-                       ones * 1e-3, ones, ones * 0.5, ones * 3.5)
-  return rays_lib.map_rays(lambda x: jnp.asarray(x, jnp.float32), rays)
 
 
 # [rows, C] @ [C, C] matmuls of the MLP's width: a cache-sized one (the fastest shape on a 2-core CPU) and
@@ -107,13 +96,6 @@ def released_render_fn(model, params, config, step):
   return functools.partial(render, params)  # Parameters as an argument, as in make_render_fn.
 
 
-def render_runner(render_fn, num_rays: int, chunk: int):
-  """Zero-arg callable returning the seconds to render num_rays rays in chunks (compiled here)."""
-  rays = dtu_like_rays(num_rays, seed=2)
-  common.block(render_fn(rays_lib.map_rays(lambda x: x[:chunk], rays)))
-  return lambda: common.timed(lambda: inference.render_image(render_fn, rays, chunk))
-
-
 def main():
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('--batch', type=int, default=256)
@@ -124,7 +106,7 @@ def main():
   parser.add_argument('--nerf_only', action='store_true', help='time only FreeNeRF-on-NeRF against NeRF')
   args = parser.parse_args()
   gin.parse_config(['MLP.density_noise = 1.0'])
-  batch = {'rays': dtu_like_rays(args.batch),
+  batch = {'rays': common.dtu_like_rays(args.batch),
            'rgb': jnp.asarray(np.random.default_rng(1).uniform(size=(args.batch, 3)), jnp.float32)}
   if args.nerf_only:
     print(json.dumps(nerf_report(args, batch), indent=2))
@@ -133,7 +115,7 @@ def main():
       ('freenerf', MipNerfModel, FREENERF), ('mipnerf', MipNerfModel, {}),
       ('released_freenerf', released_equivalent.ReleasedModel, FREENERF))}
   steps.update(nerf_step_runners(batch))
-  patches = rays_lib.map_rays(lambda x: x.reshape((-1, 8, 8, x.shape[-1])), dtu_like_rays(args.batch, seed=3))
+  patches = rays_lib.map_rays(lambda x: x.reshape((-1, 8, 8, x.shape[-1])), common.dtu_like_rays(args.batch, seed=3))
   steps['regnerf'] = step_runner(MipNerfModel, dict(REGNERF, batch_size_random=args.batch),
                                  dict(batch, patch_rays=patches))
   runners = {name: run for name, (run, _, _) in steps.items()}
@@ -144,10 +126,10 @@ def main():
   config = configs.Config(**PAPER_DTU3, **FREENERF)
   params = steps['freenerf'][1][0].params
   renders = interleaved_medians({
-      'ours': render_runner(inference.make_render_fn(
+      'ours': common.render_runner(inference.make_render_fn(
           config, MipNerfModel(white_background=False), params, config.max_steps),
           args.render_rays, args.chunk),
-      'released_equivalent_with_normals': render_runner(released_render_fn(
+      'released_equivalent_with_normals': common.render_runner(released_render_fn(
           released_equivalent.ReleasedModel(white_background=False), params, config, config.max_steps),
           args.render_rays, args.chunk)}, args.render_repeats)
   rays_per_s = {name: args.render_rays / seconds for name, seconds in renders.items()}
