@@ -109,15 +109,14 @@ def measured_steps(path: str):
 
 
 def table(layers, gpus) -> str:
-  """Markdown: per GPU and precision the step's TFLOP, GB moved at the least, and the three floors in ms."""
-  lines = ['| GPU | precision | TFLOP | GB at least | matmuls at peak ms | bytes at bandwidth ms | floor ms |',
-           '|---|---|---|---|---|---|---|']
+  """Markdown: per GPU and precision the step's TFLOP, GB moved at the least, the rates, and the three floors in ms."""
+  lines = ['| GPU | precision | TFLOP | GB at least | matmul TFLOP/s | HBM TB/s | matmuls at peak ms | '
+           'bytes at bandwidth ms | floor ms |', '|---|---|---|---|---|---|---|---|---|']
   for gpu, rates in gpus.items():
     for precision in ACTIVATION_BYTES:
-      if precision in rates:
-        f = floor(layers, precision, rates[precision], rates['hbm'])
-        lines.append(f"| {gpu} | {precision} | {f['flops'] / 1e12:.2f} | {f['bytes'] / 1e9:.1f} | "
-                     f"{f['compute_ms']:.1f} | {f['memory_ms']:.1f} | {f['floor_ms']:.1f} |")
+      f = floor(layers, precision, rates[precision], rates['hbm'])
+      lines.append(f"| {gpu} | {precision} | {f['flops'] / 1e12:.2f} | {f['bytes'] / 1e9:.1f} | {rates[precision]} | "
+                   f"{rates['hbm']} | {f['compute_ms']:.1f} | {f['memory_ms']:.1f} | {f['floor_ms']:.1f} |")
   return '\n'.join(lines)
 
 
