@@ -16,11 +16,9 @@ commands recorded show them.
 
 import argparse
 import dataclasses
-import datetime
 import glob
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -31,10 +29,10 @@ from internal import demo
 from internal.configs import Config
 from internal.evaluation import evaluate
 from internal.evaluation import results
-from tools import study_export
+from tools import provenance
 from tools import study_stats
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = provenance.ROOT
 DEFAULT_SEED = next(f.default for f in dataclasses.fields(Config) if f.name == 'jax_rng_seed')
 ALL_VIEWS = ['Config.n_input_views = 0', 'Config.compute_lpips = False', "Config.checkpoint_dir = 'out/all_views'"]
 METRICS = ('psnr', 'ssim', 'lpips', 'depth_mae')  # The columns of each method's metrics.json means in the table.
@@ -61,12 +59,7 @@ def commands(seed: int, extra=()) -> dict:
 
 def shown(argv: list) -> str:
   """A command as a user types it in the repository: python, paths relative to it."""
-  return quoted(['python'] + [a[len(ROOT) + 1:] if a.startswith(ROOT + os.sep) else a for a in argv[1:]])
-
-
-def quoted(words) -> str:
-  """Words joined as a shell line, those with spaces in double quotes."""
-  return ' '.join(f'"{w}"' if ' ' in w else w for w in words)
+  return provenance.quoted(['python'] + [a[len(ROOT) + 1:] if a.startswith(ROOT + os.sep) else a for a in argv[1:]])
 
 
 def run_timed(argv_list: list, cwd: str, log: str) -> float:
@@ -98,22 +91,6 @@ def run_seed(seed: int, work: str, extra=()) -> dict:
                    'means': {name: means(os.path.join(cwd, cfg.checkpoint_dir), step) for name, cfg in cfgs.items()}},
           'all_views': {'commands': [shown(argv) for argv in cmds['all_views']], 'seconds': all_views_seconds,
                         'means': means(os.path.join(cwd, 'out', 'all_views'), step)}}
-
-
-def provenance(argv) -> dict:
-  """The tool's command, the commit, the machine and the date of a record."""
-  return {'command': quoted(['python', '-m', 'tools.demo_seeds'] + list(argv)), 'commit': study_export.git_commit(ROOT),
-          'machine': dict(study_export.machine(), cpu=cpu_model()),
-          'date': datetime.datetime.now().isoformat(timespec='seconds')}
-
-
-def cpu_model(cpuinfo: str = '/proc/cpuinfo') -> str:
-  """The CPU's model name (Linux), else the processor platform names."""
-  try:
-    with open(cpuinfo) as f:
-      return next(line.split(':', 1)[1].strip() for line in f if line.startswith('model name'))
-  except (OSError, StopIteration):
-    return platform.processor() or platform.machine()
 
 
 def read_seeds(out: str) -> list:
@@ -201,7 +178,8 @@ def main(argv=None) -> int:
                             'times would not be whole runs; remove it or choose --work')
   os.makedirs(args.out, exist_ok=True)
   for seed in args.seeds:
-    record = dict(run_seed(seed, args.work, args.gin_bindings), provenance=provenance(argv))
+    found = run_seed(seed, args.work, args.gin_bindings)
+    record = dict(found, provenance=provenance.record(['python', '-m', 'tools.demo_seeds', *argv]))
     atomic.write_text(seed_file(args.out, seed), json.dumps(record, indent=1) + '\n')
     table = write_summary(args.out)
     print(f'seed {seed}: ' + ', '.join(f'{k} {_cell(v, k)}' for k, v in table['rows'][str(seed)].items()))
