@@ -25,7 +25,7 @@ from internal.evaluation import ply
 from internal.run import checkpoints
 from internal.run import out_of_memory
 from internal.pipeline import loop
-from test_checkpoints import DEMO, TINY, tiny_config
+from test_checkpoints import DEMO, ROOT, TINY, tiny_config
 from tools import mesh as mesh_tool
 
 RADIUS = .6
@@ -207,6 +207,15 @@ def test_a_mesh_missing_solids_fails_the_check_whatever_its_chamfer_distance(tra
   # both.
   missing = [name for name, s in scores['solids'].items() if s['coverage'] < MIN_COVERAGE]
   assert len(missing) == (3 if kept == 'ground only' else 2) and not surface_found(scores), scores
+
+
+def test_the_recorded_mesh_of_the_demo_finds_every_solid():
+  """results/mesh/demo_object.json, from the README's mesh commands (the demo's FreeNeRF, 8 views, 192^3 grid)."""
+  record = json.loads((ROOT / 'results' / 'mesh' / 'demo_object.json').read_text())
+  assert record['provenance']['command'].endswith('--resolution 192 --picture out/mesh_demo/mesh.png --scores '
+                                                  'results/mesh/demo_object.json')
+  assert '+dirty' not in record['provenance']['commit'] and record['step'] == 700
+  assert surface_found(record['scores']) and len(record['scores']['solids']) == 4, record['scores']
 
 
 def _mesh_cli(capsys, *argv) -> tuple:
