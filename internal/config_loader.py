@@ -11,6 +11,7 @@ from typing import Sequence
 
 import gin
 
+from internal import configs
 from internal.configs import Config
 from internal.models import freq_schedule
 from internal.models import gaussians
@@ -32,7 +33,7 @@ from internal.datasets import raygen
 gin.add_config_file_search_path(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 # Model fields set from Config (gin refuses bindings of them), e.g. the background the data and renderer share.
-SET_FROM_CONFIG = ('white_background', 'precision')
+SET_FROM_CONFIG = configs.declared(configs.TO_MODEL)
 
 
 def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> None:
@@ -84,8 +85,7 @@ def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = (
 
 
 # The Config fields that name a file or folder: a leading '~' means a home folder, as in a shell.
-PATH_FIELDS = ('checkpoint_dir', 'output_dir', 'data_dir', 'dtu_mask_path', 'lpips_weights_path',
-               'depth_reference_dir')
+PATH_FIELDS = configs.declared(configs.PATH)
 
 
 def _expand_home(config: Config) -> Config:
@@ -124,39 +124,45 @@ def validate(config: Config) -> None:
   for name, options in MODEL_CHOICES:
     base.check_choice(f'MipNerfModel.{name}', getattr(model, name), options, ValueError)
   _check_types(config)
-  for name in ('max_steps', 'batch_size', 'render_chunk_size', 'checkpoint_every', 'checkpoint_keep',
-               'print_every', 'render_path_frames', 'eval_factor'):
-    if getattr(config, name) < 1:
-      raise ValueError(f'Config.{name} = {getattr(config, name)}; expected a positive integer')
-  for name in ('n_input_views', 'freq_reg_end', 'occ_reg_range', 'occ_wb_range', 'lr_delay_steps',
-               'stuck_warning_steps', 'factor', 'render_factor'):
-    if getattr(config, name) < 0:
-      raise ValueError(f'Config.{name} = {getattr(config, name)}; expected >= 0')
+  _check_ranges(config)
   _check_generated_size(config.generated_size)
   _check_model_sizes(config.model)
-  if config.max_skipped_steps < 1:
-    raise ValueError(f'Config.max_skipped_steps = {config.max_skipped_steps}; expected >= 1')
   if config.far <= config.near:
     raise ValueError(f'Config.far = {config.far} must exceed Config.near = {config.near}')
-  for name in ('near', 'far', 'lr_init', 'lr_final'):
-    if not math.isfinite(getattr(config, name)):
-      raise ValueError(f'Config.{name} = {getattr(config, name)}; expected a finite number')
-  for name in ('lr_init', 'lr_final'):
-    if getattr(config, name) <= 0.:
-      raise ValueError(f'Config.{name} = {getattr(config, name)}; expected > 0 (the learning rate decays '
-                       'log-linearly from lr_init to lr_final)')
   if loader.ndc(config) is False and config.near <= 0.:
     raise ValueError(f'Config.near = {config.near}; expected > 0 for {config.dataset_loader!r} scenes, whose rays '
                      'start in world space (only LLFF-style NDC rays start at 0)')
   _check_ndc_near_far(config)
-  if config.precrop_steps < 0 or not 0. < config.precrop_frac <= 1.:
-    raise ValueError(f'Config.precrop_steps = {config.precrop_steps}, Config.precrop_frac = {config.precrop_frac}; '
-                     'expected steps >= 0 and a fraction in (0, 1]')
+  if not 0. < config.precrop_frac <= 1.:
+    raise ValueError(f'Config.precrop_frac = {config.precrop_frac}; expected a fraction in (0, 1]')
   freq_schedule.check_settings(config, registry.build(config.model).encoding_degrees())
   _warn_on_unused_regularizer(config)
   _validate_regnerf(config)
   _validate_curve(config)
   _validate_blender_code_settings(config)
+
+
+def _check_ranges(config: Config) -> None:
+  """Raises a ValueError naming the first setting outside a range it declares (configs.RANGES), with its hint."""
+  fields = {f.name: f for f in dataclasses.fields(Config)}
+  for kind in configs.RANGES:
+    for name in configs.declared(kind):
+      value, field = getattr(config, name), fields[name]
+      expected = _outside(kind, value, isinstance(field.default, float))
+      if expected:
+        hint = f' ({field.metadata["hint"]})' if field.metadata['hint'] else ''
+        raise ValueError(f'Config.{name} = {value}; expected {expected}{hint}')
+
+
+def _outside(kind: str, value, floats: bool) -> str:
+  """What a value outside a declared range is expected to be ('' when it is inside)."""
+  if kind == configs.FINITE:
+    return '' if math.isfinite(value) else 'a finite number'
+  if kind == configs.NON_NEGATIVE:
+    return '' if value >= 0 else '>= 0'
+  if floats:
+    return '' if value > 0 else '> 0'
+  return '' if value >= 1 else 'a positive integer'
 
 
 def _validate_blender_code_settings(config: Config) -> None:
@@ -245,9 +251,6 @@ def _validate_regnerf(config: Config) -> None:
   if config.batch_size_random < config.patch_size**2 or config.batch_size_random % config.patch_size**2:
     raise ValueError(f'Config.batch_size_random = {config.batch_size_random}; expected a positive multiple of '
                      f'Config.patch_size**2 = {config.patch_size**2}')
-  for name in ('n_random_poses', 'anneal_nearfar_steps'):
-    if getattr(config, name) < 1:
-      raise ValueError(f'Config.{name} = {getattr(config, name)}; expected a positive integer')
   if config.depth_tvnorm_decay and config.depth_tvnorm_maxstep < 1:
     raise ValueError(f'Config.depth_tvnorm_maxstep = {config.depth_tvnorm_maxstep}; expected a positive '
                      'integer when Config.depth_tvnorm_decay = True')
@@ -255,14 +258,6 @@ def _validate_regnerf(config: Config) -> None:
 
 def _validate_curve(config: Config) -> None:
   """Raises a ValueError naming the learning-curve setting that is out of range."""
-  if config.curve_every < 0:
-    raise ValueError(f'Config.curve_every = {config.curve_every}; expected >= 0 (steps between learning-curve '
-                     'points, 0 = no curve)')
-  if config.curve_factor < 1:
-    raise ValueError(f'Config.curve_factor = {config.curve_factor}; expected a positive integer')
-  if config.curve_spread_views < 0:
-    raise ValueError(f'Config.curve_spread_views = {config.curve_spread_views}; expected >= 0 (0 = the views of '
-                     'Config.curve_test_ids)')
   ids = config.curve_test_ids
   if (not isinstance(ids, (list, tuple)) or not ids or len(set(ids)) != len(ids)
       or any(isinstance(i, bool) or not isinstance(i, int) or i < 0 for i in ids)):

@@ -1,10 +1,19 @@
-"""Every Config field says what it does: a comment on its line or on the line above."""
+"""Every Config field says what it does (a comment on its line or on the line above) and declares its properties,
+which the code that acts on them follows: ranges, the fingerprint, packs, paths, the model's fields, seeds."""
 
 import dataclasses
+import math
 import pathlib
 import re
 
+import pytest
+
+from internal import config_loader
+from internal import configs
 from internal.configs import Config
+from internal.datasets import loader
+from internal.datasets import packed
+from internal.run import run_dir
 
 SOURCE = pathlib.Path(__file__).resolve().parents[1] / 'internal' / 'configs.py'
 
@@ -28,3 +37,83 @@ def test_every_config_field_is_commented():
   declared = [m.group(1) for m in (re.match(r'  (\w+): [^=]+=', line) for line in lines) if m]
   assert declared == [f.name for f in dataclasses.fields(Config)]  # The parser sees every field.
   assert uncommented_fields(lines) == []
+
+
+# ------------------------------------------------------------------ the properties each field declares
+
+FIELDS = dataclasses.fields(Config)
+
+
+def test_every_field_declares_its_properties_with_setting():
+  for field in FIELDS:  # A bare `name: int = 3` has no metadata: it must say what it is.
+    assert set(field.metadata) == {'properties', 'shapes', 'hint'}, field.name
+    assert field.metadata['properties'] <= set(configs.PROPERTIES), field.name
+    assert set(field.metadata['shapes']) <= set(loader.LOADERS) | {configs.ALL_LOADERS}, field.name
+  with pytest.raises(ValueError, match=r"unknown setting properties \['postive'\]"):
+    configs.setting(1, 'postive')
+
+
+def _out_of_range(kind: str, default):
+  return {configs.FINITE: math.inf, configs.NON_NEGATIVE: -1}.get(kind, 0. if isinstance(default, float) else 0)
+
+
+@pytest.mark.parametrize('kind', configs.RANGES)
+def test_validate_refuses_each_value_outside_the_range_its_field_declares(kind):
+  expected = {configs.FINITE: 'a finite number', configs.NON_NEGATIVE: '>= 0'}
+  for field in FIELDS:
+    if kind in field.metadata['properties']:
+      value = _out_of_range(kind, field.default)
+      why = expected.get(kind, '> 0' if isinstance(field.default, float) else 'a positive integer')
+      hint = f' ({field.metadata["hint"]})' if field.metadata['hint'] else ''
+      with pytest.raises(ValueError, match='^' + re.escape(f'Config.{field.name} = {value}; expected {why}{hint}')
+                         + '$'):
+        config_loader.validate(dataclasses.replace(Config(), **{field.name: value}))
+  assert configs.declared(kind)  # Each range is declared somewhere.
+
+
+def _other_value(field):
+  """A value of the field's type other than its default."""
+  value = field.default
+  if field.name == 'model':
+    return 'nerf'
+  if isinstance(value, bool):
+    return not value
+  if isinstance(value, (int, float)):
+    return value + 1
+  return value + 'x' if isinstance(value, str) else (7, 8)
+
+
+def test_exactly_the_bookkeeping_fields_leave_the_fingerprint_unchanged():
+  base = run_dir.fingerprint(Config())
+  for field in FIELDS:
+    changed = run_dir.fingerprint(dataclasses.replace(Config(), **{field.name: _other_value(field)})) != base
+    assert changed == (configs.BOOKKEEPING not in field.metadata['properties']), field.name
+  bookkeeping = set(configs.declared(configs.BOOKKEEPING))
+  assert {'checkpoint_dir', 'data_dir', 'print_every', 'compute_lpips', 'test_view_ids'} <= bookkeeping
+  assert not {'max_steps', 'lr_init', 'freq_reg', 'n_input_views', 'train_view_ids', 'jax_rng_seed'} & bookkeeping
+
+
+def test_a_pack_records_the_settings_that_shape_its_loaders_data():
+  for name in loader.LOADERS:
+    recorded = packed.settings(Config(dataset_loader=name))
+    shaping = {f.name for f in FIELDS if {name, configs.ALL_LOADERS} & set(f.metadata['shapes'])}
+    assert set(recorded) == shaping, name
+  assert {'train_view_ids', 'test_view_ids', 'factor'} <= set(configs.shaping_settings(configs.ALL_LOADERS))
+
+
+def test_exactly_the_path_fields_expand_a_home_folder(monkeypatch):
+  monkeypatch.setenv('HOME', '/home/someone')
+  text = [f for f in FIELDS if isinstance(f.default, str)]
+  expanded = config_loader._expand_home(Config(**{f.name: '~/x' for f in text}))
+  assert {f.name for f in text if getattr(expanded, f.name) == '/home/someone/x'} == set(configs.declared(
+      configs.PATH))
+
+
+@pytest.mark.parametrize('name', configs.declared(configs.TO_MODEL))
+def test_the_fields_set_into_the_model_are_refused_as_its_gin_bindings(name):
+  with pytest.raises(ValueError, match=f'bind Config.{name} instead'):
+    config_loader.parse_gin([], [f'MipNerfModel.{name} = None'])
+
+
+def test_the_seeds_are_those_metrics_json_records():
+  assert configs.declared(configs.SEED) == ('jax_rng_seed', 'np_rng_seed')  # Its "seeds": [jax, np].

@@ -1,7 +1,10 @@
 """The demo: both methods share every setting but the regularizers, the side-by-side picture, the whole command."""
 
 import dataclasses
+import json
 import os
+import pathlib
+import statistics
 
 import gin
 
@@ -14,43 +17,55 @@ from internal import demo
 from internal.evaluation import evaluate
 from internal.pipeline import loop
 from test_checkpoints import TINY
+from tools import demo_seeds
+from tools import provenance
 import train
 
 REGULARIZERS = {'freq_reg', 'freq_reg_end', 'occ_reg_loss_mult'}
-# The pipeline check: the demo's model (a 4 x 64 NeRF), samples, batching, schedule, step count and scene on every
-# training view (all 17) without regularizers (NeRF); the test reduces only the evaluation (no LPIPS). Its test
-# PSNR over the 3 test views is chaotic in the rounding: 27.10 dB with the default seed and XLA's sin, 25.97 with
-# this project's vectorized sin (equal to 6e-8), 22.33 and 22.40 with seed 1. A broken pipeline stays far below.
+# The demo's results, per seed, as `python -m tools.demo_seeds` recorded them (results/demo/README.md). The tests
+# below train with the default seed and compare with what was recorded for it (the settings that chose the demo:
+# docs/results.md).
+RESULTS = pathlib.Path(__file__).resolve().parents[1] / 'results' / 'demo'
+# On the machine and versions that recorded them a run reproduces them; within this of them, in dB.
+REPRODUCED = .01
+# The pipeline check: the demo's model, samples, batching, schedule, step count and scene on every training view
+# (all 17) without regularizers (NeRF); the test reduces only the evaluation (no LPIPS).
 PIPELINE = ['Config.n_input_views = 0', 'Config.compute_lpips = False']
-PIPELINE_MIN_PSNR = 21.5
-# The demo's claim. With its schedule (700 steps of 512 rays, T = 0.5 x steps unless said), each a pair (baseline,
-# FreeNeRF) of test PSNRs in dB, measured without LPIPS:
-#   mip-NeRF 4 x 64, 2 x 32 samples (configs/demo.gin), object rig:
-#     8 views:                                                           24.34, 23.40
-#     4 views, 2,500 steps, T = 0.9 x steps:                             25.9,  22.4
-#     3 views, T = 0.9 x steps:                                          18.10, 16.43
-#     4 views, fine checkers (ground 0.15, box 0.12, sphere stripes x6):  18.74, 19.09
-#   the same on the forward rig:
-#     3 views, fine checkers (floor 0.2, wall 0.3), T = 0.9 x steps:     20.40, 20.92
-#     3 views, T = 0.9 x steps (the paper's LLFF T):                     19.78, 21.39
-#     3 views, T = 0.9 x steps, 1,000 steps:                             20.19, 21.56
-#     3 views, T = 0.3 x steps:                                          19.78, 21.23
-#     3 views (the previous demo):                                       19.78, 21.94
-#     3 views, cameras twice as far apart:                               15.94, 15.78
-#     2 views:                                                           17.86, 18.81
-#   plain NeRF 4 x 64, 32 + 32 samples (configs/demo_forward.gin), forward rig:
-#     3 views:                                                           19.78, 21.59
-#     3 views, T = 0.9 x steps:                                          18.49, 20.42
-#     3 views, 1,400 steps of 256 rays:                                  20.48, 22.41
-#     2 views, seeds: default, 1:                                        17.66, 21.11; 17.93, 19.24
-#     2 views, 600 steps; with T = 0.9 x steps:                          17.61, 19.04; 17.61, 19.85
-#     2 views, 16 fine samples, T = 0.9 x steps:                         17.79, 19.69
-#     2 views, T = 0.9 x steps (the demo), seeds: default, 1, 2:         17.66, 21.52; 17.93, 19.33; 15.65, 19.69
-#   the same, object rig, 8 views:                                       25.49, 7.85 (dead network)
-# and for the demo mean depth errors 3.51 vs 1.09 (scaled world units). From 2 views the lead depends on the
-# trajectory (1.4 to 4.0 dB over 3 seeds): the test asks the demo's target, 3 dB, of the default seed's run (3.86
-# measured); on another CPU a different rounding may take another trajectory before it means a bug.
-FEW_VIEW_MIN_GAIN = 3.0
+
+
+def recorded() -> list:
+  """The per-seed records of results/demo, by seed."""
+  return demo_seeds.read_seeds(str(RESULTS))
+
+
+def accepted_range(values: list, reproduced: bool) -> tuple:
+  """(low, high) a run of the default seed (values[0]) must fall in: within REPRODUCED of it where the recording
+  machine and versions are this one's; elsewhere a different rounding takes another trajectory, as another seed
+  does: the range of the recorded seeds widened by their sample standard deviation on each side.
+
+  With the 3 seeds recorded: all views 25.97 (21.78 to 25.97 over the seeds, std 2.26: 19.52 to 28.23 elsewhere),
+  FreeNeRF from 2 views 21.94 (19.32 to 21.94, std 1.46: 17.86 to 23.40 elsewhere). Where they were recorded a
+  regression of 0.01 dB fails; elsewhere the seeds' chaos hides any change that stays within their spread.
+  """
+  if reproduced:
+    return values[0] - REPRODUCED, values[0] + REPRODUCED
+  spread = statistics.stdev(values)
+  return min(values) - spread, max(values) + spread
+
+
+def same_machine(record: dict) -> bool:
+  """Whether this machine and its versions are those that recorded a result (CPU, cores, jax, Python)."""
+  here = provenance.record([])['machine']
+  return all(record['provenance']['machine'][key] == here[key] for key in ('cpu', 'cpu_count', 'jax', 'python'))
+
+
+def check_against_recorded(psnr: float, key) -> None:
+  """Asserts a default-seed PSNR falls in the accepted range of the recorded seeds' key(record)."""
+  records = sorted(recorded(), key=lambda r: r['seed'] != demo_seeds.DEFAULT_SEED)
+  low, high = accepted_range([key(r) for r in records], same_machine(records[0]))
+  assert low <= psnr <= high, (f'{psnr:.2f} dB is outside [{low:.2f}, {high:.2f}] of results/demo (per seed '
+                               f'{[round(key(r), 2) for r in records]}); if the demo changed on purpose, record it '
+                               'again: python -m tools.demo_seeds --seeds ' + ' '.join(str(r['seed']) for r in records))
 
 
 def test_shown_positions_spread_over_the_test_split():
@@ -144,24 +159,48 @@ def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch)
   assert train.main(['--gin_bindings', *bindings]) == 0   # Again: everything is done, nothing is refused.
 
 
+def test_the_accepted_range_is_the_recorded_run_here_and_the_seeds_spread_elsewhere():
+  assert accepted_range([25.97, 22.40, 21.78], True) == pytest.approx((25.96, 25.98))
+  spread = statistics.stdev([25.97, 22.40, 21.78])
+  assert accepted_range([25.97, 22.40, 21.78], False) == pytest.approx((21.78 - spread, 25.97 + spread))
+  record = {'provenance': provenance.record([])}
+  assert same_machine(record)
+  record['provenance']['machine']['cpu'] = 'another CPU'
+  assert not same_machine(record)
+
+
+def test_the_recorded_results_are_the_demo_over_several_seeds():
+  records = recorded()
+  seeds = [r['seed'] for r in records]
+  assert len(seeds) >= 2 and demo_seeds.DEFAULT_SEED in seeds, seeds
+  for record in records:  # Made by the demo's own commands, with no setting but the seed changed.
+    assert record['demo']['command'] == provenance.quoted(
+        ['python', 'train.py'] + (['--gin_bindings', *demo_seeds.seed_bindings(record['seed'])]
+                                  if record['seed'] != demo_seeds.DEFAULT_SEED else []))
+    assert '+dirty' not in record['provenance']['commit'] and '--gin_bindings' not in record['provenance']['command']
+    means = record['demo']['means']
+    assert means['FreeNeRF']['psnr'] > means['NeRF']['psnr'], record['seed']  # FreeNeRF leads on every seed.
+  assert json.loads((RESULTS / demo_seeds.SUMMARY).read_text()) == json.loads(json.dumps(demo_seeds.summary(records)))
+
+
 def test_demo_settings_reconstruct_the_scene_from_all_views(tmp_path):
   gin.clear_config()
   config = config_loader.load_config(demo.METHODS['NeRF'], PIPELINE + [
       f"Config.data_dir = '{tmp_path / 'scene'}'", f"Config.checkpoint_dir = '{tmp_path / 'run'}'"])
   assert config.n_input_views == 0 and not config.freq_reg and config.lr_final == demo.method_configs()[
       'FreeNeRF'].lr_final
+  assert config.jax_rng_seed == demo_seeds.DEFAULT_SEED
   loop.train(config)
   record = evaluate.evaluate(config)
-  assert record['complete'] and record['means']['psnr'] >= PIPELINE_MIN_PSNR, record['means']
+  assert record['complete']
+  check_against_recorded(record['means']['psnr'], lambda r: r['all_views']['means']['psnr'])
 
 
-def test_demo_settings_freenerf_beats_nerf_from_few_views(tmp_path):
-  psnrs = {}
-  for name in demo.METHODS:
-    config = demo.method_config(name, ['Config.compute_lpips = False', f"Config.data_dir = '{tmp_path / 'scene'}'",
-                                       f"Config.checkpoint_dir = '{tmp_path / name}'"])
-    loop.train(config)
-    record = evaluate.evaluate(config)
-    assert record['complete'], record
-    psnrs[name] = record['means']['psnr']
-  assert psnrs['FreeNeRF'] - psnrs['NeRF'] >= FEW_VIEW_MIN_GAIN, psnrs
+def test_demo_settings_freenerf_from_few_views_as_recorded(tmp_path):
+  """FreeNeRF of the demo (2 views) trained as the demo does; the NeRF it leads is in the recorded results."""
+  config = demo.method_config('FreeNeRF', ['Config.compute_lpips = False', f"Config.data_dir = '{tmp_path / 'scene'}'",
+                                           f"Config.checkpoint_dir = '{tmp_path / 'run'}'"])
+  loop.train(config)
+  record = evaluate.evaluate(config)
+  assert record['complete'], record
+  check_against_recorded(record['means']['psnr'], lambda r: r['demo']['means']['FreeNeRF']['psnr'])

@@ -89,5 +89,5 @@ def test_a_state_with_nan_is_never_saved(tmp_path):
 
 
 def test_max_skipped_steps_must_be_positive():
-  with pytest.raises(ValueError, match=r'Config.max_skipped_steps = 0; expected >= 1'):
+  with pytest.raises(ValueError, match=r'Config.max_skipped_steps = 0; expected a positive integer'):
     config_loader.validate(configs.Config(max_skipped_steps=0))

@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from internal import configs
 from internal.configs import Config
 from internal.datasets import DatasetError, loader
 from internal.evaluation import depth_metrics, metric_registry, metrics, results
@@ -115,8 +116,6 @@ def test_every_record_is_consistent():
       assert record.protocol_scenes or name == 'colmap', name  # Captures are users' scenes: no protocol.
     for setting, options in record.choices:
       assert setting in {f.name for f in dataclasses.fields(Config)} and options, name
-    if record.pack_cameras is not None:
-      assert set(record.shaping_settings) <= {f.name for f in dataclasses.fields(Config)}, name
 
 
 def test_unknown_loader_and_unpackable_loader_name_the_setting():
@@ -145,15 +144,16 @@ def test_records_take_the_loader_files_functions_and_settings():
     assert (record.load, record.render_path) == (module.load_scene, module.scene_render_path), name
   assert [name for name, record in loader.REGISTRY.items() if record.pack_cameras] == [
       'dtu', 'llff', 'blender', 'generated']
-  assert {name: record.shaping_settings for name, record in loader.REGISTRY.items()} == {
+  # The settings each loader's data depends on (declared in internal/configs.py), besides those of every loader.
+  assert {name: configs.shaping_settings(name) for name in loader.REGISTRY} == {
       'dtu': ('dtu_scan', 'dtu_light_cond', 'dtu_max_images', 'dtu_split_type', 'dtuhold', 'near', 'far',
               'near_origin'),
       'llff': ('llff_scan', 'llffhold'),
-      'blender': ('blender_scene', 'blender_split', 'near', 'far', 'white_background', 'pixel_offset'),
-      'generated': ('generated_rig', 'generated_seed', 'generated_size', 'near', 'far', 'white_background', 'llffhold',
-                    'pixel_offset'),
-      'colmap': ('capture_scene', 'capture_images', 'capture_model', 'capture_rig', 'llffhold'),
-      'packed': ()}  # Besides packed.COMMON_SETTINGS, the view ids among them.
+      'blender': ('blender_scene', 'blender_split', 'white_background', 'near', 'far', 'pixel_offset'),
+      'generated': ('llffhold', 'white_background', 'near', 'far', 'pixel_offset', 'generated_rig', 'generated_size',
+                    'generated_seed'),
+      'colmap': ('llffhold', 'capture_scene', 'capture_images', 'capture_model', 'capture_rig'),
+      'packed': ()}
   assert [name for name, record in loader.REGISTRY.items() if record.mesh_bounds] == [
       'dtu', 'blender', 'generated', 'colmap']
   assert loader.SETTING_CHOICES == (

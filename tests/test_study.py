@@ -18,10 +18,11 @@ import pytest
 from internal import config_loader
 from internal import demo
 from internal.pipeline import loop
-from tools.study import runner as study_lib
-from tools.study import plots as study_plots
-from tools.study import spec as study_spec
+from tools import provenance
 from tools import tables
+from tools.study import plots as study_plots
+from tools.study import runner as study_lib
+from tools.study import spec as study_spec
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 STEPS = 20
@@ -142,7 +143,7 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   for cell in provenance['cells']:
     record = json.loads((dest / cell / 'metrics.json').read_text())
     assert json.loads((dest / cell / 'cell.json').read_text())['means']['psnr'] == record['means']['psnr']
-    assert provenance['cells'][cell]['commit'].split('+')[0] == study_lib.study_export.git_commit(str(REPO)).split('+')[0]
+    assert provenance['cells'][cell]['commit'].split('+')[0] == provenance.git_commit(str(REPO)).split('+')[0]
     changed = provenance['cells'][cell]['changed_files']  # The tree as the cell found it: a list, empty when clean.
     assert isinstance(changed, list) and bool(changed) == provenance['cells'][cell]['commit'].endswith('+dirty')
     curve = pathlib.Path(out, 'mini', cell, study_lib.RUN_SUBDIR, 'learning_curve.csv')
@@ -299,10 +300,10 @@ def test_a_dirty_commit_names_the_files_that_differ(tmp_path):
     (tmp_path / name).write_text('x = 1\n')
   git('add', '.')
   git('-c', 'user.name=t', '-c', 'user.email=t@t', 'commit', '-qm', 'c')
-  assert study_lib.study_export.changed_files(str(tmp_path)) == []
-  assert not study_lib.study_export.git_commit(str(tmp_path)).endswith('+dirty')
+  assert provenance.changed_files(str(tmp_path)) == []
+  assert not provenance.git_commit(str(tmp_path)).endswith('+dirty')
   (tmp_path / 'b.py').write_text('x = 2\n')
   (tmp_path / 'untracked.py').write_text('')
-  assert study_lib.study_export.changed_files(str(tmp_path)) == ['b.py']
-  assert study_lib.study_export.git_commit(str(tmp_path)).endswith('+dirty')
-  assert study_lib.study_export.changed_files(str(tmp_path / 'nowhere')) == []
+  assert provenance.changed_files(str(tmp_path)) == ['b.py']
+  assert provenance.git_commit(str(tmp_path)).endswith('+dirty')
+  assert provenance.changed_files(str(tmp_path / 'nowhere')) == []

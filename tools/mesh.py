@@ -15,24 +15,34 @@ are the radiance at each vertex seen head-on from outside (view direction = -nor
 an NDC one while the model was trained on world directions, an approximation). Writes
 <run>/mesh_step_<step>_<resolution>.ply (or --out) and never replaces a file unless Config.overwrite = True. A
 field that stays on one side of the level is an error naming its minimum and maximum, and no file is written.
+On the generated object scene --scores FILE also writes the mesh's distances to the scene's exact surfaces, overall
+and per solid (Chamfer distance and coverage, internal/evaluation/mesh_scores.py), the mesh's size, the seconds
+meshing took (the grid and the colours, once compiled) and provenance (command, commit, machine), e.g. into
+results/mesh/ to be committed.
 """
+import json
 import math
 import os
 import sys
+import time
 
 import jax
 import matplotlib.collections
 import matplotlib.figure
 import numpy as np
 
+from internal import atomic
 from internal import cli
 from internal import datasets
 from internal.datasets import loader
 from internal.evaluation import mesh
+from internal.evaluation import mesh_scores
 from internal.evaluation import ply
 from internal.run import checkpoints
 from internal.run import out_of_memory
 from internal.run import run_dir as run_dir_lib
+from internal.datasets import generated_scene
+from tools import provenance
 
 
 def scene_bounds(config, flag_bounds) -> np.ndarray:
@@ -112,6 +122,28 @@ def save_picture(path: str, verts, faces, colours, normals, views=((20, -100), (
   fig.savefig(path, dpi=100)
 
 
+def check_scores_flag(config, path: str) -> None:
+  """ValueError naming --scores unless the scene is the generated object scene; FileExistsError for a file there."""
+  if (config.dataset_loader, config.generated_rig) != ('generated', 'object'):
+    raise ValueError(f'--scores {path}: only the generated object scene (Config.dataset_loader = \'generated\', '
+                     "Config.generated_rig = 'object') has exact surfaces to score a mesh against; got "
+                     f'{config.dataset_loader!r}' + (f' ({config.generated_rig!r} rig)' if config.dataset_loader
+                                                     == 'generated' else ''))
+  if os.path.exists(path) and not config.overwrite:
+    raise FileExistsError(f'{path!r} exists; set Config.overwrite = True to replace it, or choose --scores')
+
+
+def write_scores(path: str, config, surface: dict, argv) -> dict:
+  """Writes the mesh's scores against the scene's exact surfaces, its size and provenance to path; the record."""
+  solids = generated_scene.read_scene(config.data_dir)['solids']
+  record = {'run': config.checkpoint_dir, 'step': surface['step'], 'resolution': surface['resolution'],
+            'level': surface['level'], 'vertices': len(surface['verts']), 'triangles': len(surface['faces']),
+            'seconds': surface['seconds'], 'scores': mesh_scores.score(surface['verts'], solids),
+            'provenance': provenance.record(['python', '-m', 'tools.mesh', *argv])}
+  atomic.write_text(path, json.dumps(record, indent=1) + '\n')
+  return record
+
+
 def parse_args(argv):
   parser = cli.flag_parser(__doc__.split('\n')[0])
   parser.add_argument('--resolution', type=int, default=256, help='grid points along each axis (default 256)')
@@ -121,6 +153,7 @@ def parse_args(argv):
   parser.add_argument('--chunk', type=int, default=65536, help='grid points evaluated at once (default 65536)')
   parser.add_argument('--out', help='the PLY file (default <run>/mesh_step_<step>_<resolution>.ply)')
   parser.add_argument('--picture', help='also a PNG of the mesh (matplotlib, two views), e.g. for a README')
+  parser.add_argument('--scores', help='generated object scene: also a JSON of the mesh against its exact surfaces')
   args = parser.parse_args(argv)
   if args.resolution < 2 or args.chunk < 1:
     raise ValueError(f'--resolution {args.resolution} and --chunk {args.chunk}: expected >= 2 and >= 1')
@@ -131,9 +164,12 @@ def parse_args(argv):
 
 def main(argv=None) -> int:
   """CLI entry point; returns the exit status."""
+  argv = sys.argv[1:] if argv is None else list(argv)
   args = parse_args(argv)
   check_resolution(args.resolution)
   config = cli.config_from_flags(args)
+  if args.scores:
+    check_scores_flag(config, args.scores)
   run_dir = run_dir_lib.check_run_dir(config)
   bounds = scene_bounds(config, args.bounds)
   example = jax.tree.map(lambda x: x.reshape(-1, x.shape[-1])[:8], datasets.load_dataset('train', config).rays)
@@ -145,16 +181,24 @@ def main(argv=None) -> int:
   cell = float(np.max((bounds[1] - bounds[0]) / (args.resolution - 1)))
   density_fn, colour_fn, chunk = field_functions(config, model, state, args.resolution, cell, args.chunk)
   level = mesh.surface_level(config, model) if args.level is None else args.level
+  start = time.perf_counter()
   with out_of_memory.naming_setting('meshing', '--chunk'), out_of_memory.naming_host_setting('meshing', '--resolution'):
     try:
       verts, faces, normals = mesh.march(density_fn, bounds, args.resolution, level, chunk)
     except mesh.EmptyFieldError as err:
       raise mesh.EmptyFieldError(f'{err} (--level sets the level, --bounds the region)') from err
     colours = mesh.vertex_colours(colour_fn, verts, normals, chunk)
+  seconds = round(time.perf_counter() - start, 1)
   ply.write(out, verts, faces, colours)
   if args.picture:
     save_picture(args.picture, verts, faces, colours, normals)
   print(f'{len(verts)} vertices, {len(faces)} triangles of step {step} at density {level:.3g} in {out!r}')
+  if args.scores:
+    scores = write_scores(args.scores, config, {'step': step, 'resolution': args.resolution, 'level': level,
+                                                'verts': verts, 'faces': faces, 'seconds': seconds}, argv)['scores']
+    print(f'Chamfer distance {scores["chamfer"]:.3f}; per solid, its Chamfer distance and the coverage of its '
+          'surface: ' + ', '.join(f'{name} {s["chamfer"] or float("nan"):.3f} and {s["coverage"]:.0%}'
+                                  for name, s in scores['solids'].items()) + f'; in {args.scores!r}')
   return 0
 
 

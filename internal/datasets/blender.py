@@ -13,9 +13,6 @@ SPLIT_MODES = ('dietnerf', 'first_n')
 SETTING_CHOICES = (('blender_split', SPLIT_MODES),)
 TEST_STRIDE = 8  # DietNeRF/FreeNeRF evaluate on test frames [::8] (25 views).
 PROTOCOL_SCENES = ('chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship')  # NeRF-synthetic's 8.
-# Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
-SHAPING_SETTINGS = ('blender_scene', 'blender_split', 'near', 'far', 'white_background', 'pixel_offset')
-
 
 def read_transforms(scene_dir: str, split: str) -> dict:
   """The parsed transforms_{split}.json (camera_angle_x and frames[file_path, transform_matrix])."""

@@ -32,7 +32,6 @@ SETTING_CHOICES = (('capture_rig', RIGS),)
 FORWARD_SPREAD = 0.9   # 'auto': forward when the mean of the unit viewing directions is at least this long.
 CAMERA_DISTANCE = 1.   # Inward captures are scaled so that the median camera is this far from the centre.
 OPENCV_TO_OPENGL = np.diag([1., -1., -1.])
-SHAPING_SETTINGS = ('capture_scene', 'capture_images', 'capture_model', 'capture_rig', 'llffhold')
 
 
 @dataclasses.dataclass

@@ -18,10 +18,6 @@ SETTING_CHOICES = (('dtu_layout', LAYOUTS),)
 SPLIT_TYPES = ('pixelnerf', 'all', 'dtuhold', 'depth_eval')  # 'depth_eval' (dtu_mipnerf_all.gin) = 'dtuhold'.
 # The 15 test scans of pixelNeRF's protocol, which the paper's DTU means cover.
 PROTOCOL_SCENES = tuple(f'scan{i}' for i in (8, 21, 30, 31, 34, 38, 40, 41, 45, 55, 63, 82, 103, 110, 114))
-# Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
-SHAPING_SETTINGS = ('dtu_scan', 'dtu_light_cond', 'dtu_max_images', 'dtu_split_type', 'dtuhold', 'near', 'far',
-                    'near_origin')
-
 
 def split_ids(split_type: str, n_cameras: int, dtuhold: int) -> tuple:
   """(train pool, test ids) of the DTU split type over n_cameras views ('dtuhold': test = ids % dtuhold == 0)."""

@@ -7,9 +7,6 @@ import numpy as np
 
 from internal.datasets import base, blender, generated_scene, llff
 
-# Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
-SHAPING_SETTINGS = ('generated_rig', 'generated_seed', 'generated_size', 'near', 'far', 'white_background',
-                    'llffhold', 'pixel_offset')
 # (Config field, its allowed values) of this loader's own settings, checked before any work.
 SETTING_CHOICES = (('generated_rig', generated_scene.RIGS),)
 

@@ -10,9 +10,6 @@ from internal.datasets import base, cameras, image_io, random_poses, raygen
 IMAGE_EXTENSIONS = ('JPG', 'jpg', 'png')
 AXIS_FIX = np.array([[0., -1., 0., 0.], [1., 0., 0., 0.], [0., 0., 1., 0.], [0., 0., 0., 1.]])
 PROTOCOL_SCENES = ('fern', 'flower', 'fortress', 'horns', 'leaves', 'orchids', 'room', 'trex')  # The paper's 8.
-# Config fields besides factor, eval_factor, n_input_views and downsample_mode that shape the loaded data.
-SHAPING_SETTINGS = ('llff_scan', 'llffhold')
-
 
 def image_folder(scene_dir: str, factor: int, name: str = 'images') -> tuple:
   """(folder, extra factor): <name>_{factor}/ (<name>/ for 1), else a finer <name>_k/ to downsample by factor/k.

@@ -15,7 +15,7 @@ from internal.datasets import base, blender, colmap, dtu, generated, llff, packe
 
 # Loader fields filled from the loader file's attribute of that name where it has one (see Loader.of).
 MODULE_ATTRIBUTES = (('load', 'load_scene'), ('render_path', 'scene_render_path'),
-                     ('protocol_scenes', 'PROTOCOL_SCENES'), ('shaping_settings', 'SHAPING_SETTINGS'),
+                     ('protocol_scenes', 'PROTOCOL_SCENES'),
                      ('choices', 'SETTING_CHOICES'), ('pack_cameras', 'pack_cameras'),
                      ('random_pose_cameras', 'random_pose_cameras'), ('mesh_bounds', 'mesh_bounds'))
 
@@ -35,7 +35,6 @@ class Loader:
   filed_as: Optional[Callable] = None  # config -> (dataset, scene) of its runs in metrics.json and the tables;
                                        # None: (its own name, the scene setting), a dataset of its own.
   ground_truth: Optional[Callable] = None  # (Dataset, config) -> Dataset with exact depths and object masks.
-  shaping_settings: Tuple[str, ...] = ()   # The Config fields a pack records and checks on load.
   pack_cameras: Optional[Callable] = None  # (config, {split: Dataset}) -> the pack's camera record; None: unpackable.
   choices: Tuple[Tuple[str, Tuple[str, ...]], ...] = ()  # (Config field, its allowed values) of its own settings.
   # (Dataset, config, rng) -> (RegNeRF's random poses [n,3,4], pixtocam [3,3], NDC focal or 0: world rays), or
@@ -117,7 +116,7 @@ def pack_arrays(config, datasets: dict) -> dict:
     packable = [name for name, other in REGISTRY.items() if other.pack_cameras]
     raise base.DatasetError(f'Config.dataset_loader = {config.dataset_loader!r} scenes cannot be packed; pack a '
                             f'scene from its source loader, one of {packable}')
-  return packed.pack_arrays(config, datasets, record.shaping_settings, record.pack_cameras(config, datasets))
+  return packed.pack_arrays(config, datasets, record.pack_cameras(config, datasets))
 
 
 def mesh_bounds(config) -> Optional[np.ndarray]:

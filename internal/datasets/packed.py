@@ -14,11 +14,10 @@ import zipfile
 
 import numpy as np
 
+from internal import configs
 from internal.datasets import base, cameras, raygen
 
 VERSION = 1
-# The settings that shape every loader's data (each loader adds its own SHAPING_SETTINGS): packs record and check them.
-COMMON_SETTINGS = ('factor', 'eval_factor', 'n_input_views', 'downsample_mode', 'train_view_ids', 'test_view_ids')
 FIELDS = ('images', 'masks', 'depths', 'object_masks')
 
 
@@ -27,9 +26,10 @@ def _jsonable(value):
   return json.loads(json.dumps(value, default=lambda x: x.tolist()))
 
 
-def settings(config, source_settings) -> dict:
-  """{Config field: value} of the common settings and those of the source loader that shape the data."""
-  return {name: _jsonable(getattr(config, name)) for name in COMMON_SETTINGS + tuple(source_settings)}
+def settings(config) -> dict:
+  """{Config field: value} of the settings that shape the data of every loader and of Config.dataset_loader's."""
+  names = configs.shaping_settings(configs.ALL_LOADERS) + configs.shaping_settings(config.dataset_loader)
+  return {name: _jsonable(getattr(config, name)) for name in names}
 
 
 # ---------------------------------------------------------------- value coding
@@ -74,11 +74,11 @@ def path_poses(kind: str, source, bounds, n_frames: int) -> np.ndarray:
 
 # ---------------------------------------------------------------- pack and load
 
-def pack_arrays(config, datasets: dict, source_settings, record: dict) -> dict:
+def pack_arrays(config, datasets: dict, record: dict) -> dict:
   """Every array of the pack ('meta' JSON included) from the loaded splits {split: Dataset}.
 
-  source_settings: the Config fields besides COMMON_SETTINGS that shaped the data (checked on load); record:
-  the cameras of the scene ({'ray_kind', 'path_kind', 'render', 'arrays'}, see dtu.pack_cameras).
+  The pack records the settings that shaped the data (`settings`, checked on load); record: the cameras of the
+  scene ({'ray_kind', 'path_kind', 'render', 'arrays'}, see dtu.pack_cameras).
   """
   arrays = dict(record['arrays'])
   splits = {}
@@ -89,7 +89,7 @@ def pack_arrays(config, datasets: dict, source_settings, record: dict) -> dict:
     splits[split] = {'ids': list(map(int, data.ids)), 'height': data.height, 'width': data.width,
                      'near': float(data.near), 'far': float(data.far), 'name': data.name}
   meta = {'version': VERSION, 'source_loader': config.dataset_loader,
-          'settings': settings(config, source_settings),
+          'settings': settings(config),
           'ray_kind': record['ray_kind'], 'path_kind': record['path_kind'],
           'ray_params': {'near': float(config.near), 'far': float(config.far),
                          'near_origin': float(config.near_origin), 'pixel_offset': float(config.pixel_offset)},

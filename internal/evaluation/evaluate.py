@@ -9,6 +9,7 @@ import jax
 import numpy as np
 
 from internal import atomic
+from internal import configs
 from internal.run import checkpoints
 from internal import datasets
 from internal.evaluation import depth_metrics
@@ -130,7 +131,7 @@ def evaluate(config) -> dict:
   record = results.make_record(dataset, scene, config.n_input_views, config.expname, step, per_image,
                               is_complete(config))
   record.update(lpips_missing_reason=lpips_reason, eval_factor=config.eval_factor,
-                seeds=[config.jax_rng_seed, config.np_rng_seed],
+                seeds=[getattr(config, name) for name in configs.declared(configs.SEED)],
                 test_positions=positions, run_dir=os.path.abspath(run_dir))
   write_csv(per_image, os.path.join(out_dir, 'metrics.csv'))
   results.write_record(metrics_path, record)

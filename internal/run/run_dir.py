@@ -19,6 +19,7 @@ import time
 import gin
 
 from internal import atomic
+from internal import configs
 from internal import lock_holders
 from internal.models import registry
 
@@ -57,16 +58,10 @@ WRITTEN = {
     **{_atomic_tmp(re.escape(name)): None for name in ('learning_curve.csv', GIN_FILE, FINGERPRINT_FILE)},
     re.escape(FINGERPRINT_FILE): None}
 # Config fields that do not change what training computes: they may differ between a run and its resumption.
-NOT_FINGERPRINTED = (
-    'expname', 'project', 'checkpoint_dir', 'overwrite', 'output_dir', 'checkpoint_every', 'checkpoint_keep',
-    'print_every', 'train_render_every', 'render_chunk_size', 'data_dir', 'dtu_mask_path', 'allow_missing_test_views',
-    'render_factor', 'render_path_frames', 'eval_test_ids', 'eval_factor', 'lpips_weights_path',
-    'lpips_input_range', 'compute_lpips', 'max_skipped_steps', 'depth_reference_dir', 'curve_every',
-    'curve_test_ids', 'curve_spread_views', 'curve_factor', 'stuck_warning_steps', 'test_view_ids')
-# flax bookkeeping fields of the model and its MLP, and precision (set from Config.precision, fingerprinted there).
-MODULE_NOT_FINGERPRINTED = ('parent', 'name', 'precision')
-# white_background is set from Config.white_background; the MLPs a model holds are fingerprinted as <MLP class>.*.
-MODEL_NOT_FINGERPRINTED = MODULE_NOT_FINGERPRINTED + ('white_background', 'mlp', 'coarse_mlp', 'fine_mlp')
+NOT_FINGERPRINTED = configs.declared(configs.BOOKKEEPING)
+# Of the model and its MLPs: flax's bookkeeping fields, the MLPs a model holds (fingerprinted as <MLP class>.*) and
+# the fields set from Config (fingerprinted there, e.g. Config.precision).
+MODEL_NOT_FINGERPRINTED = ('parent', 'name', 'mlp', 'coarse_mlp', 'fine_mlp') + configs.declared(configs.TO_MODEL)
 UNSET = '<unset>'
 
 

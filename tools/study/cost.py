@@ -20,6 +20,7 @@ import statistics
 import time
 from typing import Dict, List, Optional, Tuple
 
+from tools import provenance
 from tools.study import export as study_export
 from tools.study import spec as study_spec
 
@@ -151,7 +152,7 @@ def cluster_lines(cells: List[Tuple[str, str, object]], bench_path: str, bench: 
   """The cluster estimate of cells (cell id, method, Config): a line per cell, then per precision the GPU-hours
   and the wall time on gpus GPUs (the cells' own precisions first)."""
   lines = [f'GPU estimate from {os.path.relpath(bench_path, REPO)} ({bench.get("device")}, jax '
-           f'{bench.get("jax_version")}) at commit {study_export.git_commit(REPO)}: training steps only, no '
+           f'{bench.get("jax_version")}) at commit {provenance.git_commit(REPO)}: training steps only, no '
            'compilation, checkpoints, learning curves or evaluation; one GPU per cell']
   own = []
   for cell_id, method, config in cells:

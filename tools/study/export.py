@@ -8,19 +8,16 @@ with the tracked files that differed from it (a commit ending '+dirty'), the mac
 """
 
 import glob
-import hashlib
 import json
 import os
-import platform
 import shutil
-import subprocess
-import sys
-from typing import Dict, List, Optional
+from typing import Dict, List
 
 import numpy as np
 from PIL import Image
 
 from internal.evaluation import vis
+from tools import provenance
 from tools.study import spec as study_spec
 
 RUN_SUBDIR = 'run'    # A cell's run directory (Config.checkpoint_dir) inside its folder.
@@ -33,57 +30,6 @@ TABLE_FILE = 'table.md'
 # Columns of table.md, where the cells report them: DTU's object-masked metrics first, as the paper's tables.
 TABLE_METRICS = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'psnr', 'ssim', 'lpips', 'depth_mae',
                  'pseudo_depth_mae', 'pseudo_depth_within_5pct')
-
-
-def _git(repo: str, *args) -> Optional[str]:
-  """The output of a git command in repo; None outside git."""
-  try:
-    return subprocess.run(['git', '-C', repo, *args], capture_output=True, text=True, check=True).stdout
-  except (OSError, subprocess.CalledProcessError):
-    return None
-
-
-def changed_files(repo: str) -> List[str]:
-  """The tracked files of repo that differ from its HEAD ([] outside git): what '+dirty' in a commit means."""
-  status = _git(repo, 'status', '--porcelain', '--untracked-files=no')
-  return sorted(line[3:] for line in (status or '').splitlines() if line.strip())
-
-
-def git_commit(repo: str) -> str:
-  """HEAD of the repository, with '+dirty' when tracked files differ from it ('unknown' outside git)."""
-  head = _git(repo, 'rev-parse', 'HEAD')
-  if head is None:
-    return 'unknown'
-  return head.strip() + ('+dirty' if changed_files(repo) else '')
-
-
-def file_sha256(path: str) -> str:
-  """The SHA-256 of a file's bytes (a study file's identity in an export's provenance)."""
-  with open(path, 'rb') as f:
-    return hashlib.sha256(f.read()).hexdigest()
-
-
-def file_at(repo: str, path: str, sha256: str) -> Optional[str]:
-  """The text of the file at path (relative to repo) whose bytes have this SHA-256: the file as it is, else its
-  newest committed version that has them; None when neither has."""
-  full = os.path.join(repo, path)
-  if os.path.isfile(full) and file_sha256(full) == sha256:
-    with open(full, encoding='utf-8') as f:
-      return f.read()
-  for commit in (_git(repo, 'log', '--format=%H', '--', path) or '').split():
-    shown = subprocess.run(['git', '-C', repo, 'show', f'{commit}:{path}'], capture_output=True, check=False)
-    if shown.returncode == 0 and hashlib.sha256(shown.stdout).hexdigest() == sha256:
-      return shown.stdout.decode('utf-8')
-  return None
-
-
-def machine() -> Dict[str, object]:
-  """The machine and the versions a result was measured with."""
-  import jax  # pylint: disable=import-outside-toplevel
-  devices = jax.devices()
-  return {'platform': platform.platform(), 'processor': platform.processor() or platform.machine(),
-          'cpu_count': os.cpu_count(), 'python': sys.version.split()[0], 'jax': jax.__version__,
-          'devices': f'{len(devices)} x {devices[0].device_kind}'}
 
 
 def read_json(path: str) -> dict:
@@ -229,11 +175,12 @@ def export(study: study_spec.Study, study_file: str, study_folder: str, dest: st
     _scene_picture(cells, paths, _ground_truth(paths[cells[0]['cell']], cells[0], PICTURE_VIEWS), pictures[-1])
   with open(os.path.join(dest, TABLE_FILE), 'w') as f:
     f.write(markdown_table(finished))
-  provenance = {'command': command, 'machine': machine(),
-                'study_file': {'path': os.path.relpath(os.path.abspath(study_file), REPO), 'sha256': file_sha256(study_file)},
+  record = {'command': command, 'machine': provenance.machine(),
+                'study_file': {'path': os.path.relpath(os.path.abspath(study_file), REPO),
+                               'sha256': provenance.file_sha256(study_file)},
                 'cells': {c['cell']: {k: c.get(k) for k in ('commit', 'changed_files', 'machine', 'train_seconds',
                                                             'eval_seconds', 'step')}
                           for c in finished}}
   with open(os.path.join(dest, PROVENANCE_FILE), 'w') as f:
-    json.dump(provenance, f, indent=1)
+    json.dump(record, f, indent=1)
   return pictures

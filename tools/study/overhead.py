@@ -20,7 +20,7 @@ import time
 
 from internal import atomic
 from internal import cli
-from tools.study import export as study_export
+from tools import provenance
 from tools.study import schedule as study_schedule
 from tools.study import spec as study_spec
 
@@ -74,7 +74,7 @@ def main(argv=None) -> int:
   local.close()
   ray_executor.close()
   record = {'command': ' '.join(['python -m tools.study.overhead'] + list(sys.argv[1:] if argv is None else argv)),
-            'commit': study_export.git_commit(study_schedule.REPO), 'date': time.strftime('%Y-%m-%d %H:%M %z'),
+            'commit': provenance.git_commit(study_schedule.REPO), 'date': time.strftime('%Y-%m-%d %H:%M %z'),
             'machine': {'platform': platform.platform(), 'cpu_count': os.cpu_count(),
                         'python': sys.version.split()[0], 'ray': ray_executor.ray.__version__},
             'cluster': args.address or 'local (started by the command)',

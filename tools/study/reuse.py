@@ -15,6 +15,7 @@ import os
 import shutil
 from typing import List, Optional
 
+from tools import provenance
 from tools.study import export as study_export
 from tools.study import spec as study_spec
 
@@ -30,7 +31,7 @@ def exported_study(export_dir: str) -> study_spec.Study:
   if not {'path', 'sha256'} <= source.keys():
     raise study_spec.StudyError(f'--reuse {export_dir}: its {study_export.PROVENANCE_FILE} names no study file '
                                 '(path and sha256); export it again with this version of tools.study')
-  text = study_export.file_at(study_export.REPO, source['path'], source['sha256'])
+  text = provenance.file_at(study_export.REPO, source['path'], source['sha256'])
   if text is None:
     raise study_spec.StudyError(f"--reuse {export_dir}: it ran {source['path']} of SHA-256 {source['sha256'][:12]}..., "
                                 'which neither that file here nor its git history holds')

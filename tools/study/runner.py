@@ -40,6 +40,7 @@ from typing import Dict, List, Optional
 
 from internal import atomic
 from internal import cli
+from tools import provenance
 from tools.study import budget as study_budget
 from tools.study import claim as study_claim
 from tools.study import cost as study_cost
@@ -131,7 +132,7 @@ def _train_and_evaluate(path: str) -> dict:
   from internal.evaluation import evaluate
   from internal.pipeline import loop
   from internal.run import checkpoints, flops
-  commit, changed = study_export.git_commit(REPO), study_export.changed_files(REPO)  # The code it starts with.
+  commit, changed = provenance.git_commit(REPO), provenance.changed_files(REPO)  # The code it starts with.
   with open(os.path.join(path, SPEC_FILE)) as f:
     spec = json.load(f)
   gin.clear_config()
@@ -156,7 +157,7 @@ def _train_and_evaluate(path: str) -> dict:
           'train_seconds': train_seconds, 'eval_seconds': eval_seconds,
           'steps_per_sec': steps / train_seconds if steps else None,
           'gflops_per_step': flops.train_step_flops(config) / 1e9, **_peak_memory(),
-          'commit': commit, 'changed_files': changed, 'machine': study_export.machine()}
+          'commit': commit, 'changed_files': changed, 'machine': provenance.machine()}
   _publish(path, cell)
   gin.clear_config()
   return cell

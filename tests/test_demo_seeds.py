@@ -1,0 +1,69 @@
+"""tools.demo_seeds: the commands it runs per seed, what it records and summarizes, what it refuses."""
+
+import json
+import statistics
+import sys
+
+import pytest
+
+from internal import cli
+from tools import demo_seeds
+
+
+def _record(seed: int, nerf: float, free: float, all_views: float, seconds: float) -> dict:
+  means = lambda psnr: {'psnr': psnr, 'ssim': psnr / 100, 'lpips': None, 'depth_mae': 1.}
+  return {'seed': seed, 'step': 700,
+          'demo': {'command': 'python train.py', 'seconds': seconds, 'means': {'NeRF': means(nerf),
+                                                                             'FreeNeRF': means(free)}},
+          'all_views': {'commands': [], 'seconds': 100., 'means': means(all_views)},
+          'provenance': {'command': 'python -m tools.demo_seeds --seeds 1', 'commit': 'abc', 'date': 'today',
+                         'machine': {'cpu_count': 2, 'cpu': 'X', 'jax': '0.1'}}}
+
+
+def test_the_demo_seed_runs_plain_train_py_and_another_seed_binds_it():
+  commands = demo_seeds.commands(demo_seeds.DEFAULT_SEED)
+  assert demo_seeds.shown(commands['demo']) == 'python train.py'
+  commands = demo_seeds.commands(7, ['Config.max_steps = 4'])
+  assert demo_seeds.shown(commands['demo']) == ('python train.py --gin_bindings "Config.max_steps = 4" '
+                                                '"Config.jax_rng_seed = 7"')
+  train, evaluate = (demo_seeds.shown(argv) for argv in commands['all_views'])
+  flags = ('--gin_configs configs/demo.gin configs/demo_forward.gin configs/demo_nerf.gin --gin_bindings '
+           '"Config.n_input_views = 0" "Config.compute_lpips = False" "Config.checkpoint_dir = \'out/all_views\'" '
+           '"Config.max_steps = 4" "Config.jax_rng_seed = 7"')
+  assert (train, evaluate) == ('python train.py ' + flags, 'python eval.py ' + flags)
+
+
+def test_summary_and_readme_over_the_seeds(tmp_path):
+  for record in (_record(2, 16., 19.5, 22., 300.), _record(1, 18., 21., 26., 320.)):
+    (tmp_path / f'seed_{record["seed"]}.json').write_text(json.dumps(record))
+  table = demo_seeds.write_summary(str(tmp_path))
+  assert list(table['rows']) == ['1', '2']
+  assert table['rows']['2']['FreeNeRF lead psnr'] == pytest.approx(3.5)
+  lead = table['over_seeds']['FreeNeRF lead psnr']
+  assert (lead['n'], lead['mean'], lead['min'], lead['max']) == (2, 3.25, 3., 3.5)
+  assert lead['std'] == pytest.approx(statistics.stdev([3., 3.5]))
+  assert 'NeRF lpips' not in table['rows']['1']  # Not measured: no column.
+  readme = (tmp_path / demo_seeds.README).read_text()
+  assert '| 1 | 18.00 | 21.00 | 0.180 | 0.210 | 1.000 | 1.000 | 3.00 | 26.00 | 320 | 100 |' in readme
+  assert '| std | 1.41 | 1.06 |' in readme and '- seed 2: commit abc, today, 2 CPUs (X), jax 0.1;' in readme
+  assert json.loads((tmp_path / demo_seeds.SUMMARY).read_text()) == json.loads(json.dumps(table))
+
+
+def test_a_recorded_seed_or_a_used_work_folder_is_refused(tmp_path, monkeypatch, capsys):
+  (tmp_path / 'out').mkdir()
+  (tmp_path / 'out' / 'seed_3.json').write_text('{}')
+  (tmp_path / 'work' / 'seed_4').mkdir(parents=True)
+  for seed, what in ((3, 'seed 3 is recorded'), (4, 'its runs would resume')):
+    monkeypatch.setattr(sys, 'argv', ['demo_seeds', '--seeds', str(seed), '--out', str(tmp_path / 'out'),
+                                      '--work', str(tmp_path / 'work')])
+    assert cli.run(demo_seeds.main) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('error: ') and what in err and err.count('\n') == 1, err
+  assert (tmp_path / 'out' / 'seed_3.json').read_text() == '{}'
+
+
+def test_a_failed_command_names_itself_and_its_log(tmp_path):
+  log = tmp_path / 'log.txt'
+  with pytest.raises(RuntimeError, match=r"python -c .*failed in .*; its output is in .*log.txt"):
+    demo_seeds.run_timed([[sys.executable, '-c', 'print("why"); raise SystemExit(3)']], str(tmp_path), str(log))
+  assert log.read_text() == 'why\n'
