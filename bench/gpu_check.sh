@@ -71,6 +71,5 @@ for spec in $runs; do
 done
 
 tests=${TEST_FILES:-tests/test_activations.py tests/test_precision.py tests/test_train_step.py tests/test_trig.py}
-parallel=$("$py" -c 'import xdist' 2>/dev/null && echo '-n 8')  # pytest-xdist where installed.
-stage tests 120 45 "$py" -m pytest -q $parallel -p no:cacheprovider $tests
+stage tests 120 45 "$py" -m pytest -q -p no:cacheprovider $tests  # On every core (pytest.ini).
 "$py" -m bench.gpu_report "$out"
