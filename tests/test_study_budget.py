@@ -23,6 +23,7 @@ metrics = ["psnr"]
 budgets = [5, 25, 60]
 '''
 T_975_DF3 = 3.182446305284263  # Student's t quantile (two-sided 95%, 3 degrees of freedom), from a table.
+T_99167_DF3 = 4.856657  # The same at two-sided 1 - 0.05 / 3 (Bonferroni over 3 pairs), from a table.
 FAST = {'0': 12., '1': 12.5, '2': 11.5, '3': 12.2}  # fast's PSNR from 10 s on; slow's is fast's + 3 from 40 s.
 
 
@@ -90,3 +91,22 @@ def test_curves_against_seconds_are_plotted_and_budgets_written(tmp_path):
 def test_bad_budgets_are_named(budgets):
   with pytest.raises(study_spec.StudyError, match=r'plot\.budgets'):
     study_spec.parse(STUDY.replace('budgets = [5, 25, 60]', f'budgets = {budgets}'), 'budget.toml')
+
+
+def test_with_three_settings_the_interval_holds_for_all_three_pairs_as_the_best_is_chosen_from_them():
+  third = '[methods.third]\nconfigs = ["configs/demo.gin"]\n[scenes.s1]'
+  study = study_spec.parse(STUDY.replace('[scenes.s1]', third), 'budget.toml')
+  rows = _curve_rows()
+  noise = {'0': 4., '1': -3.5, '2': 2., '3': -2.8}
+  for row in list(rows):
+    if row['method'] == 'slow' and row['seconds'] == 40.:
+      row['psnr'] += noise[row['seed']]
+    if row['method'] == 'fast':
+      rows.append(dict(row, method='third', psnr=row['psnr'] - 5.))
+  (row,) = study_budget.budget_rows(study, rows, 'psnr', (60.,))
+  differences = np.array([3. + n for n in noise.values()])
+  half = T_99167_DF3 * differences.std(ddof=1) / 2.  # 3 pairs: each at 1 - 0.05 / 3.
+  assert row['best'] == 'slow' and row['runner_up'] == 'fast'
+  assert (row['ci_low'], row['ci_high']) == pytest.approx((differences.mean() - half, differences.mean() + half))
+  assert study_budget.selection_level(2) == pytest.approx(0.95)
+  assert study_budget.selection_level(3) == pytest.approx(1 - 0.05 / 3)

@@ -4,7 +4,9 @@ A run with learning curves gives its whole trade between time and accuracy: at a
 that of the last curve point recorded within b (what stopping there would have kept). Per budget of the study's
 `[plot] budgets` and per setting (every label but the seed) this gives the mean, spread and n over seeds; the best
 setting; and its paired difference to the runner-up over the seeds both reached, with the interval and verdict of
-tools/study/stats.py, so a budget where the choice is not decided says so.
+tools/study/stats.py, so a budget where the choice is not decided says so. The best is chosen on these same seeds,
+so a plain 95% interval for its lead would be too narrow; the interval holds 95% simultaneously for all k(k - 1)/2
+pairs of the k settings (Bonferroni), so it stays valid for whichever pair the choice picked.
 """
 
 import os
@@ -47,8 +49,15 @@ def _at_budget(curves: Dict[str, Dict[str, Curve]], budget: float) -> Dict[str, 
           if any(v is not None for v in by_seed.values())}
 
 
+def selection_level(settings: int) -> float:
+  """The level of each pair's interval that makes all settings x (settings - 1) / 2 pairs hold together at
+  study_stats.LEVEL (Bonferroni): valid for the pair of the best and the runner-up, chosen after seeing them."""
+  return 1. - (1. - study_stats.LEVEL) / max(1, settings * (settings - 1) // 2)
+
+
 def budget_row(values: Dict[str, Dict[str, float]], budget: float, metric: str) -> dict:
-  """The best setting at one budget, its spread, and the paired comparison with the runner-up."""
+  """The best setting at one budget, its spread, and the paired comparison with the runner-up (its interval
+  corrected for the choice: selection_level)."""
   sign = -1. if metric in study_spec.LOWER_IS_BETTER else 1.
   ranked = sorted(values, key=lambda s: -sign * study_stats.spread(list(values[s].values()))['mean'])
   best = ranked[0]
@@ -57,8 +66,9 @@ def budget_row(values: Dict[str, Dict[str, float]], budget: float, metric: str) 
     runner_up = ranked[1]
     shared = sorted(set(values[best]) & set(values[runner_up]))
     differences = [values[best][seed] - values[runner_up][seed] for seed in shared]
-    comparison = study_stats.Comparison('setting', best, runner_up, metric, len(differences),
-                                        *study_stats.t_interval(differences), sign < 0) if differences else None
+    interval = study_stats.t_interval(differences, selection_level(len(ranked))) if differences else None
+    comparison = study_stats.Comparison('setting', best, runner_up, metric, len(differences), *interval,
+                                        sign < 0) if differences else None
     row.update(runner_up=runner_up,
                runner_up_mean=study_stats.spread(list(values[runner_up].values()))['mean'],
                **({k: comparison.row()[k] for k in ('mean_a_minus_b', 'ci_low', 'ci_high', 'verdict')}
@@ -81,7 +91,7 @@ def _cell(value, digits: int = 2) -> str:
 def budget_markdown(rows: List[dict]) -> str:
   """The per-budget choice as a Markdown table (undecided verdicts in bold)."""
   lines = ['| budget (s) | metric | best setting | mean | std | n | runner-up (mean) | best - runner-up '
-           '[95% interval] | verdict |', '|---|---|---|---|---|---|---|---|---|']
+           '[95% interval, corrected for choosing the best] | verdict |', '|---|---|---|---|---|---|---|---|---|']
   for r in rows:
     verdict = r.get('verdict', 'only setting')
     verdict = f'**{verdict}**' if verdict.startswith(study_stats.UNDECIDED) else verdict
