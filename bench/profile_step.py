@@ -36,13 +36,19 @@ from internal.models import registry
 SCALES = {'demo': (cli.DEMO_CONFIGS, None),
           'mini': ([os.path.join(cli.CONFIG_DIR, 'mini', 'dtu3_freenerf.gin')], None),
           'paper': ([os.path.join(cli.CONFIG_DIR, 'freenerf', 'dtu3_freenerf.gin')], 256)}
-# Stages by the source file of an operation; the model files split into matmuls and the rest by operation.
-FILE_STAGES = {'encoding.py': 'encoding', 'trig.py': 'encoding', 'gaussians.py': 'Gaussians of the samples',
-               'sampling.py': 'sampling and resampling', 'volume_render.py': 'volume rendering',
-               'freq_schedule.py': 'frequency masks', 'optim.py': 'clipping and Adam', 'schedule.py': 'clipping and Adam',
-               'anneal.py': 'sampling and resampling'}
-MODEL_FILES = ('mip_nerf.py', 'nerf.py')
-LOSS_DIR = os.sep + 'losses' + os.sep
+PROJECT_FOLDERS = ('internal', 'bench', 'tools', 'tests')
+# Stages by the module an operation was traced from (its path in the repository, or in site-packages for a
+# library); the model's modules split into matmuls and the rest by operation.
+FILE_STAGES = {'internal/models/encoding.py': 'encoding', 'internal/models/trig.py': 'encoding',
+               'internal/models/gaussians.py': 'Gaussians of the samples',
+               'internal/models/sampling.py': 'sampling and resampling',
+               'internal/training/anneal.py': 'sampling and resampling',
+               'internal/models/volume_render.py': 'volume rendering',
+               'internal/models/freq_schedule.py': 'frequency masks',
+               'internal/training/optim.py': 'clipping and Adam', 'internal/training/schedule.py': 'clipping and Adam'}
+MODEL_FILES = ('internal/models/mip_nerf.py', 'internal/models/nerf.py', 'internal/models/precision.py',
+               'internal/models/activations.py')
+DIR_STAGES = {'internal/losses/': 'losses', 'optax/': 'clipping and Adam'}
 
 
 def scale_config(name: str):
@@ -66,8 +72,19 @@ def mlp_shape(config, model):
   return config.batch_size * model.fine_samples_per_ray(), mlp.net_width
 
 
+def module_path(path: str) -> str:
+  """A source file's path from this project's top folders (internal/, bench/, ...), or inside site-packages for a
+  library's; else as given. By its parts, not by this checkout's location: a cached compilation keeps the paths
+  of the checkout that compiled it."""
+  parts = path.replace(os.sep, '/').split('/')
+  if 'site-packages' in parts:
+    return '/'.join(parts[len(parts) - parts[::-1].index('site-packages'):])
+  top = next((i for i in range(len(parts) - 1, -1, -1) if parts[i] in PROJECT_FOLDERS), None)
+  return '/'.join(parts[top:]) if top is not None else path
+
+
 def source_table(hlo_text: str):
-  """{stack frame id: (file base name, function)} of the compiled module's location tables."""
+  """{stack frame id: (module_path of the file, function)} of the compiled module's location tables."""
   tables = collections.defaultdict(dict)
   section = None
   for line in hlo_text.splitlines():
@@ -79,7 +96,7 @@ def source_table(hlo_text: str):
       tables[section][int(match.group(1))] = match.group(2)
     elif line.strip():
       section = None
-  files = {i: os.path.basename(v.strip('"')) for i, v in tables['FileNames'].items()}
+  files = {i: module_path(v.strip('"')) for i, v in tables['FileNames'].items()}
   functions = {i: v.strip('"') for i, v in tables['FunctionNames'].items()}
 
   def ids(text):
@@ -154,10 +171,9 @@ def stage_of(source) -> str:
     return 'MLP matmuls' if is_matmul or function in ('matmul', 'dense') else 'MLP activations and layout'
   if file in FILE_STAGES:
     return FILE_STAGES[file]
-  if 'loss' in function or file in ('reconstruction.py', 'occlusion.py', 'depth_smoothness.py'):
-    return 'losses'
-  if file in ('transform.py', '_tree_math.py', 'numerics.py', 'update.py'):
-    return 'clipping and Adam'
+  folder = next((folder for folder in DIR_STAGES if file.startswith(folder)), None)
+  if folder or 'loss' in function:
+    return DIR_STAGES[folder] if folder else 'losses'
   return 'other (step glue)'
 
 

@@ -3,7 +3,7 @@
 Usage: python -m bench.released_comparison [--batch 256] [--repeats 5] [--render_rays 8192] [--render_repeats 3]
        python -m bench.released_comparison --nerf_only [--batch 256] [--repeats 5]
 
-Reports, side by side:
+Each step's settings are its gin file's (GIN_FILES), at --batch rays. Reports, side by side:
   1. FreeNeRF step (both regularizers on) / plain mip-NeRF step (both off), and RegNeRF step (depth TV on
      batch_size_random = batch random-pose rays in 8x8 patches, near/far annealing) / mip-NeRF step, beside the
      ratio of their XLA flop counts (how much of RegNeRF's extra time is extra work);
@@ -18,33 +18,28 @@ Reports, side by side:
 import argparse
 import functools
 import json
+import os
 import statistics
 import sys
 
-import gin
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from bench import common
 from bench import released_equivalent
 from internal import cli
-from internal.models import freq_schedule
-from internal import configs
-from internal.evaluation import inference
-from internal.models.mip_nerf import MipNerfModel
-from internal.models.nerf import NerfModel
 from internal import rays as rays_lib
+from internal.evaluation import inference
+from internal.models import freq_schedule
+from internal.models import registry
+from internal.models.mip_nerf import MipNerfModel
 
-PAPER_DTU3 = dict(near=0.5, far=3.5, white_background=False, max_steps=43945, lr_init=2e-3,
-                  lr_final=2e-5, lr_delay_steps=512, lr_delay_mult=0.01, grad_max_norm=0.1,
-                  grad_max_val=0.1)
-FREENERF = dict(freq_reg=True, freq_reg_end=39550, occ_reg_loss_mult=0.01, occ_wb_prior=True)
-FREENERF_ON_NERF = dict(model='nerf', freq_reg=True, freq_reg_end=25000, freq_mask_layout='released',
-                        occ_reg_loss_mult=0.03, occ_reg_range=20)
-REGNERF = dict(anneal_nearfar=True, anneal_nearfar_steps=256, anneal_nearfar_perc=0.5, depth_tvnorm_loss_mult=0.1,
-               depth_tvnorm_decay=True, depth_tvnorm_maxstep=512, depth_tvnorm_loss_mult_start=400.,
-               depth_tvnorm_loss_mult_end=0.1, depth_tvnorm_mask_weight=1.0, patch_size=8)
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# Each step's settings: its released gin file (DTU 3 views for the mip-NeRF family, Blender 8 views for NeRF).
+GIN_FILES = {'freenerf': 'configs/freenerf/dtu3_freenerf.gin', 'mipnerf': 'configs/mipnerf/dtu3_mipnerf.gin',
+             'regnerf': 'configs/regnerf/dtu3_regnerf.gin', 'freenerf_nerf': 'configs/freenerf/blender8_freenerf.gin',
+             'nerf': 'configs/nerf/blender8_nerf.gin'}
+NOISE = ['MLP.density_noise = 1.0']  # One noise draw a step, as the released code (and nothing compiled away).
 
 
 # [rows, C] @ [C, C] matmuls of the MLP's width: a cache-sized one (the fastest shape on a 2-core CPU) and
@@ -57,10 +52,20 @@ def matmul_runner(reduce):
   return common.matmul_runner(MATMUL_SHAPES, reduce)
 
 
-def step_runner(model_cls, overrides, batch):
-  """(zero-arg callable returning one step's seconds, params, flops per step) for the paper model."""
-  config = configs.Config(**PAPER_DTU3, **overrides)
-  run, holder, xla = common.step_runner(config, model_cls(white_background=False), batch)
+def method_config(name: str, batch_size: int):
+  """The validated Config of a step's gin file (parsed now, replacing earlier bindings) at batch_size rays (and as
+  many random-pose rays for RegNeRF)."""
+  random_rays = {'batch_size_random': batch_size} if name == 'regnerf' else {}
+  return common.gin_config([os.path.join(ROOT, GIN_FILES[name])], NOISE, batch_size=batch_size, **random_rays)
+
+
+def step_runner(name: str, batch, model_cls=None):
+  """(zero-arg callable returning one step's seconds, [state, stats], flops per step) of a step of GIN_FILES,
+  compiled right after its gin file is parsed (the model reads its bindings when traced)."""
+  config = method_config(name, batch['rgb'].shape[0])
+  model = (model_cls(white_background=config.white_background) if model_cls else
+           registry.build(config.model, white_background=config.white_background))
+  run, holder, xla = common.step_runner(config, model, batch)
   return run, holder, xla['flops']
 
 
@@ -69,8 +74,7 @@ interleaved_medians = common.interleaved_medians
 
 def nerf_step_runners(batch):
   """{'freenerf_nerf', 'nerf'}: step_runner results of FreeNeRF on plain NeRF and of plain NeRF (paper-size)."""
-  return {'freenerf_nerf': step_runner(NerfModel, FREENERF_ON_NERF, batch),
-          'nerf': step_runner(NerfModel, dict(model='nerf'), batch)}
+  return {name: step_runner(name, batch) for name in ('freenerf_nerf', 'nerf')}
 
 
 def nerf_report(args, batch):
@@ -83,7 +87,7 @@ def nerf_report(args, batch):
 
 def released_render_fn(model, params, config, step):
   """jit-compiled rays [N, ...] -> fine outputs plus the per-sample normals the released code keeps."""
-  mask_point, mask_view = freq_schedule.masks_at(config, model.mlp.encoding_degrees(), jnp.asarray(step))
+  mask_point, mask_view = freq_schedule.model_masks(config, model, jnp.asarray(step))
 
   @jax.jit
   def render(params, chunk_rays):
@@ -105,33 +109,29 @@ def main():
   parser.add_argument('--render_repeats', type=int, default=3)
   parser.add_argument('--nerf_only', action='store_true', help='time only FreeNeRF-on-NeRF against NeRF')
   args = parser.parse_args()
-  gin.parse_config(['MLP.density_noise = 1.0'])
-  batch = {'rays': common.dtu_like_rays(args.batch),
-           'rgb': jnp.asarray(np.random.default_rng(1).uniform(size=(args.batch, 3)), jnp.float32)}
+  batch = common.dtu_like_batch(args.batch)
   if args.nerf_only:
     print(json.dumps(nerf_report(args, batch), indent=2))
     return
-  steps = {name: step_runner(model_cls, overrides, batch) for name, model_cls, overrides in (
-      ('freenerf', MipNerfModel, FREENERF), ('mipnerf', MipNerfModel, {}),
-      ('released_freenerf', released_equivalent.ReleasedModel, FREENERF))}
+  steps = {name: step_runner(name, batch) for name in ('mipnerf', 'freenerf')}
+  steps['released_freenerf'] = step_runner('freenerf', batch, released_equivalent.ReleasedModel)
   steps.update(nerf_step_runners(batch))
   patches = rays_lib.map_rays(lambda x: x.reshape((-1, 8, 8, x.shape[-1])), common.dtu_like_rays(args.batch, seed=3))
-  steps['regnerf'] = step_runner(MipNerfModel, dict(REGNERF, batch_size_random=args.batch),
-                                 dict(batch, patch_rays=patches))
+  steps['regnerf'] = step_runner('regnerf', dict(batch, patch_rays=patches))
   runners = {name: run for name, (run, _, _) in steps.items()}
   runners.update(matmul_peak=matmul_runner(min), matmul_sustained=matmul_runner(statistics.mean))
   times = interleaved_medians(runners, args.repeats)
   flops = steps['freenerf'][2]
   peak, sustained = (1 / times.pop(name) / 1e9 for name in ('matmul_peak', 'matmul_sustained'))
-  config = configs.Config(**PAPER_DTU3, **FREENERF)
+  config = method_config('freenerf', args.batch)  # The renders compile under FreeNeRF's bindings again.
   params = steps['freenerf'][1][0].params
   renders = interleaved_medians({
       'ours': common.render_runner(inference.make_render_fn(
-          config, MipNerfModel(white_background=False), params, config.max_steps),
+          config, MipNerfModel(white_background=config.white_background), params, config.max_steps),
           args.render_rays, args.chunk),
       'released_equivalent_with_normals': common.render_runner(released_render_fn(
-          released_equivalent.ReleasedModel(white_background=False), params, config, config.max_steps),
-          args.render_rays, args.chunk)}, args.render_repeats)
+          released_equivalent.ReleasedModel(white_background=config.white_background), params, config,
+          config.max_steps), args.render_rays, args.chunk)}, args.render_repeats)
   rays_per_s = {name: args.render_rays / seconds for name, seconds in renders.items()}
   achieved = flops / times['freenerf'] / 1e9
   report = {

@@ -11,7 +11,7 @@ import pytest
 from bench import profile_step
 from internal.models import encoding
 
-STAGES = set(profile_step.FILE_STAGES.values()) | {
+STAGES = set(profile_step.FILE_STAGES.values()) | set(profile_step.DIR_STAGES.values()) | {
     'MLP matmuls', 'MLP activations and layout', 'losses', 'clipping and Adam', 'other (step glue)'}
 
 
@@ -21,7 +21,7 @@ def test_operations_of_the_encoding_are_charged_to_the_encoding():
   sources = profile_step.operation_sources(fn.lower(*args).compile().as_text())
   stages = {profile_step.stage_of(source) for source in sources.values()}
   assert 'encoding' in stages and stages <= STAGES
-  assert {file for file, _, _ in sources.values()} >= {'encoding.py', 'trig.py'}
+  assert {file for file, _, _ in sources.values()} >= {'internal/models/encoding.py', 'internal/models/trig.py'}
 
 
 def test_a_scale_reports_consistent_figures(tmp_path):
@@ -58,3 +58,12 @@ def test_the_module_dots_are_the_products_the_program_runs():
                   ((2, 8, 8), (2, 8, 8), (((2,), (1,)), ((0,), (0,)))): 1}
   run = profile_step.dots_alone_runner(dots)
   assert run() > 0
+
+
+def test_module_paths_are_read_from_the_projects_folders_wherever_the_checkout_was():
+  assert profile_step.module_path('/elsewhere/clone/internal/models/trig.py') == 'internal/models/trig.py'
+  assert profile_step.module_path('/venv/lib/python3.11/site-packages/optax/_src/transform.py') == \
+      'optax/_src/transform.py'
+  assert profile_step.stage_of(('optax/_src/transform.py', 'update_fn', False)) == 'clipping and Adam'
+  assert profile_step.stage_of(('internal/losses/occlusion.py', 'occlusion_loss', False)) == 'losses'
+  assert profile_step.module_path('<frozen runpy>') == '<frozen runpy>'
