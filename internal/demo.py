@@ -12,6 +12,7 @@ import os
 
 import gin
 import numpy as np
+from matplotlib import font_manager
 from PIL import Image, ImageDraw, ImageFont
 
 from internal.run import checkpoints
@@ -86,6 +87,11 @@ def evaluated_views(config, record: dict, test_set, positions) -> list:
   return out
 
 
+def label_font(size: int = 11) -> ImageFont.FreeTypeFont:
+  """DejaVu Sans, the font matplotlib ships, for picture labels (PIL's default bitmap font draws spaces 2 px wide)."""
+  return ImageFont.truetype(font_manager.findfont('DejaVu Sans'), size)
+
+
 def grid(tiles, column_titles, row_titles, title: str = '', scale: int = SCALE) -> np.ndarray:
   """Tiles (rows of float [h, w, 3] images in [0, 1]) -> labelled uint8 picture [H, W, 3].
 
@@ -101,7 +107,7 @@ def grid(tiles, column_titles, row_titles, title: str = '', scale: int = SCALE) 
       top, left = top0 + r * (th + GAP), LABEL_WIDTH + c * (tw + GAP)
       canvas[top:top + th, left:left + tw] = np.repeat(np.repeat(vis.to_uint8(tile), scale, 0), scale, 1)
   image = Image.fromarray(canvas)
-  draw, font = ImageDraw.Draw(image), ImageFont.load_default()
+  draw, font = ImageDraw.Draw(image), label_font()
   if title:
     draw.text((4, 2), title, fill=(0, 0, 0), font=font)
   for c, text in enumerate(column_titles):

@@ -204,3 +204,9 @@ def test_demo_settings_freenerf_from_few_views_as_recorded(tmp_path):
   record = evaluate.evaluate(config)
   assert record['complete'], record
   check_against_recorded(record['means']['psnr'], lambda r: r['demo']['means']['FreeNeRF']['psnr'])
+
+
+def test_picture_labels_keep_their_spaces():
+  font = demo.label_font()
+  # PIL's default bitmap font draws a space 2 px wide ('mipnerfseed=0'); a real font's is a third of a letter's.
+  assert font.getlength('a b') - font.getlength('ab') >= font.getlength('a') / 3
