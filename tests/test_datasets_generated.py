@@ -11,7 +11,7 @@ import pytest
 from scipy import ndimage
 
 from internal.configs import Config
-from internal.datasets import (DatasetError, generated_scene, image_io, llff, load_dataset, loader, make_batcher,
+from internal.datasets import (DatasetError, image_io, llff, load_dataset, loader, make_batcher, scene_generator,
                                random_poses, render_path_rays)
 
 
@@ -135,9 +135,9 @@ def test_forward_rig_depth_exact_in_file_and_loader_worlds(scenes):
 
 
 def test_write_scene_is_deterministic_and_seeded(tmp_path):
-  generated_scene.write_scene(str(tmp_path / 'a'), 'forward', seed=3, height=16, width=20)
-  generated_scene.write_scene(str(tmp_path / 'b'), 'forward', seed=3, height=16, width=20)
-  generated_scene.write_scene(str(tmp_path / 'c'), 'forward', seed=4, height=16, width=20)
+  scene_generator.write_scene(str(tmp_path / 'a'), 'forward', seed=3, height=16, width=20)
+  scene_generator.write_scene(str(tmp_path / 'b'), 'forward', seed=3, height=16, width=20)
+  scene_generator.write_scene(str(tmp_path / 'c'), 'forward', seed=4, height=16, width=20)
   files = sorted(str(p.relative_to(tmp_path / 'a')) for p in (tmp_path / 'a').rglob('*') if p.is_file())
   assert len(files) == 1 + 1 + 3 * 20
   match, mismatch, errors = filecmp.cmpfiles(tmp_path / 'a', tmp_path / 'b', files, shallow=False)
@@ -147,7 +147,7 @@ def test_write_scene_is_deterministic_and_seeded(tmp_path):
 
 
 def test_write_scene_any_size(tmp_path):
-  generated_scene.write_scene(str(tmp_path / 'big'), 'object', height=30, width=50)
+  scene_generator.write_scene(str(tmp_path / 'big'), 'object', height=30, width=50)
   data = load_dataset('test', gen_config(tmp_path / 'big', 'object', generated_size=(30, 50), n_input_views=2))
   assert data.images.shape == (8, 30, 50, 3)
 

@@ -18,7 +18,7 @@ from internal import cli
 from internal import datasets
 from internal.configs import Config
 from internal.datasets import dtu
-from internal.datasets import generated_scene
+from internal.datasets import scene_generator
 from internal.evaluation import mesh
 from internal.evaluation import mesh_scores
 from internal.evaluation import ply
@@ -90,7 +90,7 @@ def test_ply_header_and_records_by_hand(tmp_path):
 
 
 def test_bounds_per_scene_kind_and_a_clear_error_where_there_are_none():
-  scene, _ = generated_scene.build_scene(generated_scene.scene_params('object', 0, 32, 40, 2))
+  scene, _ = scene_generator.build_scene(scene_generator.scene_params('object', 0, 32, 40, 2))
   tops = []
   for solid in scene['solids'][1:]:
     if solid['shape'] == 'sphere':
@@ -98,7 +98,7 @@ def test_bounds_per_scene_kind_and_a_clear_error_where_there_are_none():
     else:  # The highest of the box's 8 corners.
       corners = np.array(np.meshgrid(*[[-h, h] for h in solid['half']])).reshape(3, -1).T
       tops.append((np.array(solid['centre']) + corners @ np.array(solid['rotation']).T)[:, 2].max())
-  np.testing.assert_allclose(generated_scene.scene_bounds(scene), [[-1.5, -1.5, 0.], [1.5, 1.5, max(tops)]], atol=1e-9)
+  np.testing.assert_allclose(scene_generator.scene_bounds(scene), [[-1.5, -1.5, 0.], [1.5, 1.5, max(tops)]], atol=1e-9)
   assert mesh_tool.scene_bounds(Config(dataset_loader='blender'), None).tolist() == [[-1.5] * 3, [1.5] * 3]
   assert mesh_tool.scene_bounds(Config(dataset_loader='llff'), None)[0].tolist() == [-1.] * 3
   with pytest.raises(ValueError, match="Config.dataset_loader = 'packed' .* --bounds"):

@@ -4,7 +4,7 @@ kind of solid by hand, uniform surface samples, the hidden contact surfaces, Cha
 import numpy as np
 import pytest
 
-from internal.datasets import generated_scene
+from internal.datasets import scene_generator
 from internal.evaluation import mesh_scores
 
 SPHERE = {'shape': 'sphere', 'kind': 'object', 'centre': [0., 0., .5], 'radius': .5}
@@ -66,6 +66,6 @@ def test_a_perfect_mesh_a_shifted_one_and_a_missing_solid():
 
 
 def test_the_forward_scene_has_unbounded_planes_and_is_refused():
-  scene, _ = generated_scene.build_scene(generated_scene.scene_params('forward', 0, 8, 10, 1))
+  scene, _ = scene_generator.build_scene(scene_generator.scene_params('forward', 0, 8, 10, 1))
   with pytest.raises(ValueError, match='plane is unbounded'):
     mesh_scores.score(np.zeros((1, 3)), scene['solids'])

@@ -18,7 +18,7 @@ from internal.evaluation import lpips
 from internal.models import precision
 from internal.models import sampling
 from internal.training import train_step
-from internal.datasets import batching, colmap, generated_scene, image_io, loader, packed
+from internal.datasets import batching, colmap, image_io, loader, packed, scene_generator
 from internal.datasets import blender as blender_lib
 from internal.datasets import DatasetError, dtu, load_dataset
 from test_checkpoints import tiny_config
@@ -73,7 +73,7 @@ def test_sizes_of_the_nerf_model_are_checked_when_it_is_the_model():
     ('Config.blender_split', blender_lib.SPLIT_MODES), ('Config.downsample_mode', image_io.DOWNSAMPLE_MODES),
     ('Config.batching', batching.BATCHING_MODES), ('Config.freq_mask_layout', freq_schedule.LAYOUTS),
     ('Config.nonfinite_grad_policy', train_step.NONFINITE_POLICIES), ('Config.lpips_input_range', lpips.INPUT_RANGES),
-    ('Config.generated_rig', generated_scene.RIGS), ('Config.precision', precision.CHOICES),
+    ('Config.generated_rig', scene_generator.RIGS), ('Config.precision', precision.CHOICES),
     ('Config.capture_rig', colmap.RIGS),
     ('MipNerfModel.ray_shape', gaussians.RAY_SHAPES), ('MipNerfModel.pdf_padding', sampling.PDF_PADDINGS)])
 def test_option_settings_use_the_list_of_the_module_that_implements_them(name, options):

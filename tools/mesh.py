@@ -41,7 +41,7 @@ from internal.evaluation import ply
 from internal.run import checkpoints
 from internal.run import out_of_memory
 from internal.run import run_dir as run_dir_lib
-from internal.datasets import generated_scene
+from internal.datasets import scene_generator
 from tools import provenance
 
 
@@ -135,7 +135,7 @@ def check_scores_flag(config, path: str) -> None:
 
 def write_scores(path: str, config, surface: dict, argv) -> dict:
   """Writes the mesh's scores against the scene's exact surfaces, its size and provenance to path; the record."""
-  solids = generated_scene.read_scene(config.data_dir)['solids']
+  solids = scene_generator.read_scene(config.data_dir)['solids']
   record = {'run': config.checkpoint_dir, 'step': surface['step'], 'resolution': surface['resolution'],
             'level': surface['level'], 'vertices': len(surface['verts']), 'triangles': len(surface['faces']),
             'seconds': surface['seconds'], 'scores': mesh_scores.score(surface['verts'], solids),

@@ -1,19 +1,19 @@
-"""The generated scene (generated_scene.py) as a loader: written into Config.data_dir if absent, then read through the
+"""The generated scene (scene_generator.py) as a loader: written into Config.data_dir if absent, then read through the
 Blender layout (object rig, world-space rays) or the LLFF layout (forward rig, NDC rays)."""
 
 import dataclasses
 
 import numpy as np
 
-from internal.datasets import base, blender, generated_scene, llff
+from internal.datasets import base, blender, llff, scene_generator
 
 # (Config field, its allowed values) of this loader's own settings, checked before any work.
-SETTING_CHOICES = (('generated_rig', generated_scene.RIGS),)
+SETTING_CHOICES = (('generated_rig', scene_generator.RIGS),)
 
 
 def scene(config) -> str:
   """Config.data_dir after writing the generated scene there if it is absent (checked to match otherwise)."""
-  generated_scene.ensure_scene(config.data_dir, config.generated_rig, config.generated_seed, config.generated_size)
+  scene_generator.ensure_scene(config.data_dir, config.generated_rig, config.generated_seed, config.generated_size)
   return config.data_dir
 
 
@@ -28,7 +28,7 @@ def with_ground_truth(data: base.Dataset, config) -> base.Dataset:
   """data with the exact depths [N,H,W] (in the units of its rays) and object masks [N,H,W] of its views."""
   rig, scene_dir = config.generated_rig, config.data_dir
   scale = 1. if rig == 'object' else 1. / (.75 * llff.read_poses_bounds(scene_dir)[:, 15:17].min())
-  depths, masks = generated_scene.load_ground_truth(scene_dir, rig, data.split, data.ids,
+  depths, masks = scene_generator.load_ground_truth(scene_dir, rig, data.split, data.ids,
                                               base.load_factor(config, data.split), config.downsample_mode)
   return dataclasses.replace(data, depths=(depths * scale).astype(np.float32), object_masks=masks)
 
@@ -41,7 +41,7 @@ def mesh_bounds(config):
   rig's NDC rays, meshed in the NDC box)."""
   if config.generated_rig != 'object':
     return None
-  box = generated_scene.scene_bounds(generated_scene.read_scene(scene(config)))
+  box = scene_generator.scene_bounds(scene_generator.read_scene(scene(config)))
   return box + np.array([-1., 1.])[:, None] * MESH_MARGIN * (box[1] - box[0])
 
 

@@ -1,6 +1,6 @@
 """A mesh of the generated object scene against its exact surfaces: Chamfer distance and coverage, per solid.
 
-The solids are those of scene.json (internal/datasets/generated_scene.py): spheres, boxes and a ground disc. Mesh
+The solids are those of scene.json (internal/datasets/scene_generator.py): spheres, boxes and a ground disc. Mesh
 to truth (accuracy) is exact: each vertex's distance to the nearest solid surface. Truth to mesh (completeness)
 samples each solid's visible surface uniformly (less the ground under a box and a box's bottom face, which no view
 sees) and takes each sample's distance to the nearest vertex. A solid the mesh misses shows as a low coverage: the
