@@ -137,15 +137,15 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   assert (dest / 'results.csv').read_text() == pathlib.Path(out, 'mini', 'results.csv').read_text()
   assert not (dest / 'mini.toml').exists() and (dest / 'psnr_vs_views.png').is_file()
   assert not list(dest.rglob('checkpoints'))
-  provenance = json.loads((dest / 'provenance.json').read_text())
-  assert provenance['study_file']['sha256'] == hashlib.sha256(path.read_bytes()).hexdigest()
-  assert provenance['command'].startswith('python -m tools.study ') and '--export' in provenance['command']
-  for cell in provenance['cells']:
+  exported = json.loads((dest / 'provenance.json').read_text())
+  assert exported['study_file']['sha256'] == hashlib.sha256(path.read_bytes()).hexdigest()
+  assert exported['command'].startswith('python -m tools.study ') and '--export' in exported['command']
+  for cell, source in exported['cells'].items():
     record = json.loads((dest / cell / 'metrics.json').read_text())
     assert json.loads((dest / cell / 'cell.json').read_text())['means']['psnr'] == record['means']['psnr']
-    assert provenance['cells'][cell]['commit'].split('+')[0] == provenance.git_commit(str(REPO)).split('+')[0]
-    changed = provenance['cells'][cell]['changed_files']  # The tree as the cell found it: a list, empty when clean.
-    assert isinstance(changed, list) and bool(changed) == provenance['cells'][cell]['commit'].endswith('+dirty')
+    assert source['commit'].split('+')[0] == provenance.git_commit(str(REPO)).split('+')[0]
+    changed = source['changed_files']  # The tree as the cell found it: a list, empty when clean.
+    assert isinstance(changed, list) and bool(changed) == source['commit'].endswith('+dirty')
     curve = pathlib.Path(out, 'mini', cell, study_lib.RUN_SUBDIR, 'learning_curve.csv')
     assert (dest / cell / 'learning_curve.csv').read_text() == curve.read_text()
   assert (dest / 'psnr_vs_step.png').is_file()
@@ -154,7 +154,7 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   assert all(f'| {float(r["psnr"]):.3f} |' in row for r, row in zip(_rows(dest / 'results.csv'), table[2:]))
   with pytest.raises(ValueError, match='exists and is not empty'):        # Never over an earlier export.
     study_lib.main([str(path), '--out', out, '--plots-only', '--export', str(dest)])
-  assert json.loads((dest / 'provenance.json').read_text()) == provenance
+  assert json.loads((dest / 'provenance.json').read_text()) == exported
   h, w = 120, 160                                                         # 12 x 16 renders upscaled x10.
   for scene in ('object', 'forward'):
     with Image.open(dest / f'side_by_side_{scene}.png') as picture:    # Two views x (colour, depth) x (truth + 2).
