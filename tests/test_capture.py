@@ -113,8 +113,17 @@ def test_the_loader_reads_the_capture_with_the_reported_views(cup_capture):
   found = colmap.read_capture(config)
   assert [found.names[i] for i in test.ids] == report['views']['test']
   assert report['rig'] == ('forward' if found.forward else 'inward') and test.images.shape[1:3] == (150, 200)
+  # 12 images hold 2 test views: the command binds the learning curve's views to those two.
   assert report['next'] == (f'python train.py --gin_configs={capture.CONFIG} --gin_bindings="Config.data_dir = '
-                            f"'{folder}'\" \"Config.checkpoint_dir = 'out/cup'\"")
+                            f"'{folder}'\" \"Config.curve_test_ids = [0, 1]\" \"Config.checkpoint_dir = 'out/cup'\"")
+
+
+def test_the_printed_command_fits_the_capture():
+  assert capture.bindings('c', 4, 77) == ["Config.data_dir = 'c'"]
+  assert capture.bindings('c', 8, 20) == ["Config.data_dir = 'c'", 'Config.factor = 8', 'Config.render_factor = 8']
+  assert capture.bindings('c', 4, 5) == ["Config.data_dir = 'c'", 'Config.curve_test_ids = [0]']  # 1 test view.
+  assert capture.bindings('c', 4, 3) == ["Config.data_dir = 'c'", 'Config.n_input_views = 2',
+                                         'Config.curve_test_ids = [0]']
 
 
 def test_report_summary_and_picture(cup_capture):

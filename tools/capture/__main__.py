@@ -23,7 +23,9 @@ import numpy as np
 
 from internal import cli
 from internal import config_loader
+from internal import configs
 from internal.datasets import colmap, colmap_model, load_dataset
+from internal.evaluation import learning_curve
 from tools.capture import CaptureError, model, output as output_lib, photos, picture, poses, report as report_lib
 from tools.capture import sfm, video
 
@@ -33,6 +35,7 @@ VIEWS, LLFFHOLD = 3, 8  # Its view count and hold-out rule (configs/common/captu
 FACTORS = (4, 8)  # The training image size: the config's factor 4 unless the images stay larger than MAX_TRAIN_SIDE.
 MAX_TRAIN_SIDE = 512
 MIN_REGISTERED = 3
+CURVE_VIEWS = len(configs.Config.curve_test_ids)  # The learning curve's test views (CONFIG keeps the default).
 
 
 def parse_args(argv):
@@ -136,29 +139,34 @@ def training_factor(sized) -> int:
   return next((f for f in FACTORS if long_side / f <= MAX_TRAIN_SIDE), FACTORS[-1])
 
 
-def load_back(out: str, n_registered: int, factor: int) -> tuple:
-  """(Config, the loader's Capture, default views {split: ids}): the capture read and both splits loaded through
-  the colmap loader with the printed command's config."""
-  views = min(VIEWS, n_registered - math.ceil(n_registered / LLFFHOLD))
+def bindings(out: str, factor: int, n_registered: int) -> list:
+  """The gin bindings beside CONFIG for this capture: its folder, and what its size changes (the factor; fewer
+  training views, or fewer learning-curve views, when it has too few images for CONFIG's)."""
+  n_test = math.ceil(n_registered / LLFFHOLD)  # Every LLFFHOLD-th along the arc, from the first.
+  views = min(VIEWS, n_registered - n_test)
+  found = [f'Config.data_dir = {out!r}']
+  found += [f'Config.factor = {factor}', f'Config.render_factor = {factor}'] if factor != FACTORS[0] else []
+  found += [f'Config.n_input_views = {views}'] if views != VIEWS else []
+  return found + ([f'Config.curve_test_ids = {list(range(n_test))}'] if n_test < CURVE_VIEWS else [])
+
+
+def load_back(gin_bindings: list) -> tuple:
+  """(Config, the loader's Capture, default views {split: ids}): the capture read, both splits loaded through the
+  colmap loader and the learning curve's views checked, with the printed command's config."""
   gin.clear_config()  # The tool's own process: the config is parsed once, fresh.
-  config = config_loader.load_config([os.path.join(REPO, CONFIG)], bindings(out, factor, views))
-  for split in ('train', 'test'):
-    load_dataset(split, config)
+  config = config_loader.load_config([os.path.join(REPO, CONFIG)], gin_bindings)
+  load_dataset('train', config)
+  test = load_dataset('test', config)
+  if config.curve_every:
+    learning_curve.curve_positions(config, len(test.ids))
   capture = colmap.read_capture(config)
-  return config, capture, colmap.default_views(capture, config.llffhold, views)
+  return config, capture, colmap.default_views(capture, config.llffhold, config.n_input_views)
 
 
-def bindings(out: str, factor: int, views: int) -> list:
-  """The gin bindings of the printed command beside CONFIG: the capture folder and what differs from CONFIG."""
-  extra = [f'Config.factor = {factor}', f'Config.render_factor = {factor}'] if factor != FACTORS[0] else []
-  return [f'Config.data_dir = {out!r}'] + extra + ([f'Config.n_input_views = {views}'] if views != VIEWS else [])
-
-
-def next_command(out: str, factor: int, views: int) -> str:
+def next_command(out: str, gin_bindings: list) -> str:
   """The train.py command line for the capture (eval.py and render.py take the same flags)."""
   run = f"Config.checkpoint_dir = 'out/{os.path.basename(os.path.normpath(out))}'"
-  quoted = ' '.join(f'"{b}"' for b in bindings(out, factor, views) + [run])
-  return f'python train.py --gin_configs={CONFIG} --gin_bindings={quoted}'
+  return f'python train.py --gin_configs={CONFIG} --gin_bindings=' + ' '.join(f'"{b}"' for b in gin_bindings + [run])
 
 
 def draw_picture(path: str, sized, capture, views: dict, order: list, title: str) -> None:
@@ -174,13 +182,14 @@ def finish(args, sized, report: dict, output) -> dict:
   """Loads the capture back, adds the views, flags, picture and next command to the report; writes images_k."""
   photos.write_downsampled(sorted(i.name for i in sized.images.values()), output)
   factor = training_factor(sized)
-  config, capture, views = load_back(args.out, report['registered'], factor)
+  gin_bindings = bindings(args.out, factor, report['registered'])
+  _, capture, views = load_back(gin_bindings)
   order = sorted(range(len(capture.names)), key=lambda i: photos.natural_key(capture.names[i]))
   problems = report_lib.order_problems(capture.camtoworlds[order], capture.forward, [capture.names[i] for i in order])
   report.update(out=args.out, rig='forward' if capture.forward else 'inward', factor=factor,
                 views={split: [capture.names[i] for i in ids] for split, ids in views.items()},
                 observations=model.observations(sized), order=problems, picture=os.path.join(args.out, 'cameras.png'),
-                next=next_command(args.out, factor, config.n_input_views))
+                next=next_command(args.out, gin_bindings))
   report['flags'] = report_lib.flags(report, problems, report['observations'], report['kind'] == 'video')
   title = (f'{report["registered"]} of {report["photos"]} images registered, {report["points"]} points, '
            f'{report["rig"]} rig')
