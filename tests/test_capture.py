@@ -18,7 +18,7 @@ from PIL import Image
 from conftest import SHARED_DATA
 from internal import config_loader
 from internal.datasets import colmap, colmap_model, load_dataset
-from tools.capture import CaptureError, __main__ as capture, output, photos, poses, sfm
+from tools.capture import CaptureError, __main__ as capture, bench, output, photos, poses, sfm
 
 CUP = SHARED_DATA / 'colmap' / 'cup'
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -224,3 +224,24 @@ def test_a_missing_input_or_a_single_photo_is_an_error(tmp_path):
   Image.new('RGB', (8, 8)).save(tmp_path / 'one.jpg')
   with pytest.raises(CaptureError, match=r'is one photo; expected the folder holding the photos'):
     capture.main([str(tmp_path / 'one.jpg'), '--out', str(tmp_path / 'capture')])
+
+
+@needs_cup
+@needs_pycolmap
+def test_the_benchmark_writes_its_results_with_the_pose_errors(tmp_path):
+  source = _photos(tmp_path / 'photos', PHOTOS)
+  rows = np.load(CUP / 'poses_bounds.npy')[[sorted(os.listdir(CUP / 'images')).index(n) for n in sorted(PHOTOS)]]
+  np.save(tmp_path / 'poses_bounds.npy', rows)
+  printed = io.StringIO()
+  with contextlib.redirect_stdout(printed):
+    bench.main([source, '--reference', str(tmp_path / 'poses_bounds.npy'), '--out', str(tmp_path / 'r' / 'cup.json'),
+                '--work', str(tmp_path / 'work'), '--matching', 'sequential', '--max_size', str(MAX_SIZE)])
+  with open(tmp_path / 'r' / 'cup.json', encoding='utf-8') as f:
+    run = json.load(f)['runs'][0]
+  assert run['capture'] == str(tmp_path / 'work' / f'{tmp_path.name}_sequential') and run['registered'] == 12
+  assert run['median_rotation_deg'] < MEDIAN_DEGREES and run['median_position'] < MEDIAN_POSITION
+  assert set(run['seconds_per_photo']) == {'extraction', 'matching', 'mapping'}
+  assert run['targets_met']['all_registered'] and '| sequential | 12 of 12 |' in (tmp_path / 'r' / 'cup.md').read_text()
+  np.save(tmp_path / 'poses_bounds.npy', rows[:5])
+  with pytest.raises(CaptureError, match=r'has 5 cameras for the 12 photos'):
+    bench.errors(run['capture'], str(tmp_path / 'poses_bounds.npy'), source)

@@ -82,11 +82,13 @@ def test_order_check_passes_one_sweep_and_flags_a_turn_and_a_jump():
 
 
 def test_flags_name_few_point_images_and_images_left_out():
-  fields = {'unregistered': ['9.jpg'], 'photos': 10, 'left_in_other_models': [], 'models': [9]}
+  fields = {'unregistered': ['9.jpg'], 'photos': 10, 'left_in_other_models': [], 'models': [9],
+            'views': {'train': ['1.jpg', '5.jpg'], 'test': ['0.jpg', '3.jpg']}}
   counts = {f'{i}.jpg': 400 for i in range(9)} | {'3.jpg': 60}
   found = report.flags(fields, {'jumps': [], 'turns': []}, counts, video=False)
   assert [f['check'] for f in found] == ['unregistered', 'few_points']
   assert found[1]['images'] == ['3.jpg'] and '3.jpg (60)' in found[1]['message']
+  assert 'among the default views: 3.jpg (test)' in found[1]['message']
 
 
 def test_overwrite_removes_only_recorded_files(tmp_path):
@@ -180,6 +182,7 @@ def _video(path, frames):
   writer.close()
 
 
+@pytest.mark.filterwarnings('ignore:os.fork:RuntimeWarning')  # ffmpeg runs as a subprocess of this jax process.
 def test_video_frames_are_the_sharpest_of_each_window(tmp_path):
   rng = np.random.default_rng(0)
   sharp = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(6)]

@@ -69,10 +69,13 @@ def flags(report: dict, order: Dict[str, List[str]], observations: Dict[str, int
   median = float(np.median(list(observations.values())))
   few = sorted((n for n, count in observations.items() if count < FEW_POINTS * median), key=observations.get)
   if few:
+    chosen = [f'{n} ({split})' for split, names in report['views'].items() for n in names if n in few]
     found.append({'check': 'few_points', 'images': few, 'message':
                   f'{len(few)} images are registered on few points (under {FEW_POINTS:.0%} of the median '
                   f'{median:.0f}): {_names([f"{n} ({observations[n]})" for n in few])}; their cameras are the '
-                  'least certain'})
+                  'least certain' + (f', and among the default views: {", ".join(chosen)} (choose others with '
+                                     'Config.train_view_ids / test_view_ids if its camera is off in cameras.png)'
+                                     if chosen else '')})
   if order['jumps'] or order['turns']:
     found.append({'check': 'order', 'images': [], 'message':
                   f'the cameras are out of order along the capture: the path jumps {len(order["jumps"])} times '
