@@ -1,11 +1,12 @@
 """Benchmark of tools.capture on photos with independent cameras: registrations, pose errors, seconds per photo.
 
-Usage: python -m tools.capture.bench PHOTOS_DIR --reference POSES_BOUNDS.npy --out results/capture/cup.json
+Usage: python -m tools.capture.bench PHOTOS_DIR --reference POSES_BOUNDS.npy|CAMERAS_SPHERE.npz --out RESULTS.json
                                      [--work out/capture] [--matching sequential exhaustive] [--max_size 1600]
 
 For each matching mode, runs `python -m tools.capture PHOTOS_DIR --out <work>/<scene>_<matching>` in this process
 (scene: the reference's folder name), then compares the recovered cameras with the reference (LLFF's
-poses_bounds.npy, its rows in the photos' sorted name order) after a similarity alignment (tools/capture/poses.py).
+poses_bounds.npy, its rows in the photos' sorted name order, or DTU's calibration as an IDR cameras_sphere.npz)
+after a similarity alignment (tools/capture/poses.py).
 Writes the JSON (the command, commit, machine, the load average before and after each run, and per run the
 registrations, the errors, the images flagged for few points, wall and CPU seconds and the seconds per photo of
 extraction, matching and mapping) and the same as Markdown beside it (same name, .md).
@@ -21,7 +22,7 @@ import numpy as np
 
 from internal import atomic
 from internal import cli
-from internal.datasets import colmap_model
+from internal.datasets import cameras, colmap_model, dtu
 from tools import study_export
 from tools.capture import CaptureError, __main__ as capture, photos, poses, sfm
 
@@ -35,17 +36,26 @@ def cpu_seconds() -> float:
   return usage.ru_utime + usage.ru_stime
 
 
-def errors(capture_dir: str, reference: str, photo_dir: str) -> dict:
-  """Median and largest rotation (degrees) and position (fraction of the camera distance) errors of the capture's
-  sparse/0 against the reference poses_bounds.npy, whose rows follow the sorted names of photo_dir's photos."""
-  names, c2w = poses.model_cameras(colmap_model.read_model(os.path.join(capture_dir, 'sparse', '0')))
+def reference_cameras(reference: str, names: list, photo_dir: str) -> np.ndarray:
+  """Camera-to-world [N, 3, 4] (OpenCV axes) of the photos named, from LLFF's poses_bounds.npy (its rows in the
+  sorted name order of photo_dir's photos) or an IDR cameras_sphere.npz (DTU: photo NNNNNN.png is camera NNNNNN)."""
+  if reference.endswith('.npz'):
+    projections = dtu.idr_projections(os.path.dirname(reference), 1 + max(int(os.path.splitext(n)[0]) for n in names))
+    return np.stack([cameras.projection_to_camtoworld(projections[int(os.path.splitext(n)[0])])[1] for n in names])
   order, rows = sorted(photos.list_photos(photo_dir)[0]), np.load(reference)
   if len(rows) != len(order):
     raise CaptureError(f'{reference!r} has {len(rows)} cameras for the {len(order)} photos of {photo_dir!r}; expected '
                        'one row per photo, in sorted name order')
-  found = poses.pose_errors(c2w, poses.llff_cameras(rows)[[order.index(n) for n in names]])
-  return {f'{stat}_{key}': float(fn(found[name])) for stat, fn in (('median', np.median), ('max', np.max))
-          for key, name in (('rotation_deg', 'rotation_deg'), ('position', 'position'))}
+  return poses.llff_cameras(rows)[[order.index(n) for n in names]]
+
+
+def errors(capture_dir: str, reference: str, photo_dir: str) -> dict:
+  """Median and largest rotation (degrees) and position (fraction of the camera distance) errors of the capture's
+  sparse/0 against the reference cameras (reference_cameras)."""
+  names, c2w = poses.model_cameras(colmap_model.read_model(os.path.join(capture_dir, 'sparse', '0')))
+  found = poses.pose_errors(c2w, reference_cameras(reference, names, photo_dir))
+  return {f'{stat}_{key}': float(fn(found[key])) for stat, fn in (('median', np.median), ('max', np.max))
+          for key in ('rotation_deg', 'position')}
 
 
 def run(args, matching: str) -> dict:
@@ -103,7 +113,8 @@ def markdown(record: dict) -> str:
 def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('photos', help='the folder of photos')
-  parser.add_argument('--reference', required=True, help="LLFF's poses_bounds.npy of the same photos")
+  parser.add_argument('--reference', required=True, help="LLFF's poses_bounds.npy of the same photos, or an IDR "
+                      'cameras_sphere.npz (DTU)')
   parser.add_argument('--out', required=True, help='the results file to write (.json; a .md beside it)')
   parser.add_argument('--work', default='out/capture', help='where the captures go (kept for training)')
   parser.add_argument('--matching', nargs='+', choices=sfm.MATCHING, default=list(sfm.MATCHING))
