@@ -1,7 +1,7 @@
 """Benchmark of tools.capture on photos with independent cameras: registrations, pose errors, seconds per photo.
 
 Usage: python -m tools.capture.bench PHOTOS_DIR --reference POSES_BOUNDS.npy|CAMERAS_SPHERE.npz --out RESULTS.json
-                                     [--work out/capture] [--matching sequential exhaustive] [--max_size 1600]
+                                     [--work out/capture] [--matching sequential exhaustive] [--max_size 800]
 
 For each matching mode, runs `python -m tools.capture PHOTOS_DIR --out <work>/<scene>_<matching>` in this process
 (scene: the reference's folder name), then compares the recovered cameras with the reference (LLFF's
@@ -118,7 +118,7 @@ def main(argv=None) -> int:
   parser.add_argument('--out', required=True, help='the results file to write (.json; a .md beside it)')
   parser.add_argument('--work', default='out/capture', help='where the captures go (kept for training)')
   parser.add_argument('--matching', nargs='+', choices=sfm.MATCHING, default=list(sfm.MATCHING))
-  parser.add_argument('--max_size', type=int, default=1600)
+  parser.add_argument('--max_size', type=int, default=capture.MAX_SIZE)
   args = parser.parse_args(argv)
   rows = [run(args, matching) for matching in args.matching]
   record = {'command': ' '.join(['python -m tools.capture.bench'] + (sys.argv[1:] if argv is None else argv)),
