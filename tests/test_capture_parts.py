@@ -11,7 +11,7 @@ from PIL import Image, ImageFilter
 
 from conftest import SHARED_DATA
 from internal.datasets import cameras, colmap_model
-from tools.capture import CaptureError, model, output, photos, poses, report, video
+from tools.capture import CaptureError, bench, model, output, photos, poses, report, video
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 CUP = SHARED_DATA / 'colmap' / 'cup'
@@ -68,6 +68,18 @@ def test_llff_cameras_equal_the_colmap_model_they_were_made_from():
   reference = poses.llff_cameras(np.load(CUP / 'poses_bounds.npy'))
   assert names == sorted(os.listdir(CUP / 'images'))
   np.testing.assert_allclose(reference, c2w, atol=1e-9)
+
+
+@pytest.mark.skipif(not (SHARED_DATA / 'dtu' / 'dtu_scan24').is_dir(), reason='the shared DTU scan is absent')
+def test_dtu_reference_cameras_are_the_calibrations_centres_and_rotations():
+  path = SHARED_DATA / 'dtu' / 'dtu_scan24' / 'cameras_sphere.npz'
+  c2w = bench.reference_cameras(str(path), ['000000.png', '000013.png'], '')
+  for camera, index in zip(c2w, (0, 13)):
+    projection = np.load(path)[f'world_mat_{index}'][:3].astype(np.float64)
+    np.testing.assert_allclose(camera[:, 3], -np.linalg.solve(projection[:, :3], projection[:, 3]), rtol=1e-9)
+    viewing = projection[2, :3] / np.linalg.norm(projection[2, :3])  # P's third row: the optical axis (z) in world.
+    np.testing.assert_allclose(camera[:, 2], viewing * np.sign(np.linalg.det(projection[:, :3])), atol=1e-9)
+    np.testing.assert_allclose(camera[:, :3].T @ camera[:, :3], np.eye(3), atol=1e-9)
 
 
 def test_order_check_passes_one_sweep_and_flags_a_turn_and_a_jump():
