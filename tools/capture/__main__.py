@@ -97,9 +97,10 @@ def run_sfm(args, found, output, kind: str) -> tuple:
   mode = 'per_image' if args.camera == 'per_image' else 'per_folder' if any(folders.values()) else 'single'
   matching = args.matching or ('sequential' if kind == 'video' else 'exhaustive')
   database = output.claim(os.path.join('sfm', 'database.db'))
-  print(f'structure-from-motion on {len(found)} images ({matching} matching, {len(set(folders.values()))} camera'
-        f'{"s" if len(set(folders.values())) > 1 else ""}; this takes about a second an image on 2 cores) ...',
-        flush=True)
+  n_cameras = len(found) if mode == 'per_image' else len(set(folders.values()))
+  print(f'structure-from-motion on {len(found)} images ({matching} matching, {n_cameras} camera'
+        f'{"s" if n_cameras > 1 else ""}; on 2 cores about a second an image for a hundred, exhaustive matching '
+        'growing with their square):', flush=True)
   result = sfm.reconstruct(database, os.path.join(args.out, 'sfm', 'images'), os.path.join(args.out, 'sfm', 'models'),
                            mode, args.camera_model, matching)
   output.claim_tree(os.path.join('sfm', 'models'))

@@ -49,20 +49,26 @@ def reconstruct(database: str, image_dir: str, models_dir: str, camera_mode: str
   pycolmap.logging.minloglevel = 3  # Fatal only: the tool prints its own progress and errors.
   pycolmap.set_random_seed(SEED)
   seconds, start = {}, time.perf_counter()
+
+  def done(stage: str) -> None:
+    nonlocal start
+    seconds[stage], start = time.perf_counter() - start, time.perf_counter()
+    print(f'  {stage}: {seconds[stage]:.0f} s', flush=True)
+
   reader = pycolmap.ImageReaderOptions()
   reader.camera_model = camera_model
   mode = getattr(pycolmap.CameraMode, camera_mode.upper())
   pycolmap.extract_features(database, image_dir, camera_mode=mode, reader_options=reader, device=pycolmap.Device.cpu)
-  seconds['extraction'], start = time.perf_counter() - start, time.perf_counter()
+  done('extraction')
   match = pycolmap.match_sequential if matching == 'sequential' else pycolmap.match_exhaustive
   match(database, device=pycolmap.Device.cpu)
-  seconds['matching'], start = time.perf_counter() - start, time.perf_counter()
+  done('matching')
   options = pycolmap.IncrementalPipelineOptions()
   options.min_model_size = 2  # Keep small models: the report names them, and the error tells 2 from none.
   options.random_seed = SEED
   os.makedirs(models_dir, exist_ok=True)
   models = pycolmap.incremental_mapping(database, image_dir, models_dir, options=options)
-  seconds['mapping'] = time.perf_counter() - start
+  done('mapping')
   ranked = sorted(models, key=lambda k: (-models[k].num_reg_images(), k))
   return Result([os.path.join(models_dir, str(k)) for k in ranked], [models[k].num_reg_images() for k in ranked],
                 seconds)
