@@ -52,7 +52,7 @@ def list_photos(folder: str) -> Tuple[List[str], List[str]]:
   others = [n for n in names if not n.lower().endswith(PHOTO_EXTENSIONS)]
   if not photos:
     found = f'; it holds {len(others)} other files ({", ".join(others[:3])}...): convert them to JPEG' if others else ''
-    raise CaptureError(f'no JPEG or PNG photos in {folder!r}{found}')
+    raise CaptureError(f'no JPEG or PNG photos in {folder!r} (sub-folders are not read){found}')
   return photos, others
 
 
