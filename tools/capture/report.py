@@ -40,16 +40,15 @@ def order_problems(c2w: np.ndarray, forward: bool, names: List[str]) -> Dict[str
   median = float(np.median(steps))
   jumping = steps > max(JUMP_STEPS * median, JUMP_MIN)
   direction = np.sign(np.sum(along[~jumping])) or 1.
+  backward = [bool(not jumping[i] and step * direction < 0) for i, step in enumerate(along)] + [False]
   turns, run, start = [], 0., None
-  for i, step in enumerate(along):
-    if not jumping[i] and step * direction < 0:
-      run, start = run + abs(step), i if start is None else start
-      continue
-    if start is not None and run > TURN_STEPS * median:
-      turns.append(f'at {names[start]}')
-    run, start = 0., None
-  if start is not None and run > TURN_STEPS * median:
-    turns.append(f'at {names[start]}')
+  for i, back in enumerate(backward):  # The closing False ends a run still open at the last step.
+    if back:
+      run, start = run + abs(along[i]), i if start is None else start
+    else:
+      if start is not None and run > TURN_STEPS * median:
+        turns.append(f'at {names[start]}')
+      run, start = 0., None
   return {'jumps': [f'{names[i]} -> {names[i + 1]}' for i in np.flatnonzero(jumping)], 'turns': turns}
 
 
