@@ -2,6 +2,7 @@
 
 import os
 
+import gin
 import pytest
 
 from conftest import SHARED_DATA
@@ -63,3 +64,21 @@ def test_mini_blender_config_is_the_paper_config_at_the_cpu_scale(method):
   # Alone after either paper config: T = 0.5 x steps and occlusion on 7 of the 64 fine samples (20 of 192).
   assert config.freq_reg_end == config.max_steps // 2 and config.occ_reg_range == round(20 * 64 / 192)
   assert mlp.weight_init == 'xavier' and config.pixel_offset == 0.  # The released Blender code's, kept.
+
+
+# DTU's (steps, T) per view count, the capture configs' schedules, written out here independently of the files.
+CAPTURE_PAPER = {3: (43945, 39550), 6: (87891, 61524), 9: (131836, 65918)}
+
+
+@pytest.mark.parametrize('views', [3, 6, 9])
+@pytest.mark.parametrize('method', ['freenerf', 'mipnerf'])
+def test_capture_mini_configs_scale_dtus_schedule_for_their_view_count(views, method):
+  paper = config_loader.load_config([os.path.join(REPO, 'configs', method, f'capture{views}_{method}.gin')])
+  steps, end = CAPTURE_PAPER[views]
+  assert (paper.max_steps, paper.freq_reg_end) == (steps, end if method == 'freenerf' else 0)
+  gin.clear_config()
+  config = config_loader.load_config([os.path.join(REPO, 'configs', 'mini', f'capture{views}_{method}.gin')])
+  assert config.max_steps == 2000 and config.n_input_views == views and config.dataset_loader == 'colmap'
+  assert config.lr_delay_steps == round(512 * 2000 / steps)                          # Warm-up scaled as the steps.
+  assert config.freq_reg_end == (round(2000 * end / steps, -2) if method == 'freenerf' else 0)  # T: 0.9, 0.7, 0.5.
+  assert config.factor == 4 and config.curve_every == 250

@@ -4,13 +4,14 @@ Each block runs in bash in a copy of the repository, with one scene per loop (th
 and a `python` on PATH that appends tiny model and data bindings to train.py / eval.py / render.py and to the
 tools that take them (tools.study, tools.pack_scene, tools.mesh): the shared scenes instead of data/, 2 steps, a
 small model, low resolution (tools.mesh: a 16^3 grid at a level a 2-step field crosses; a paper table's study:
-its first cell). It turns
+its first cell; tools.capture: 18 of the shared cup's photos as the `photos` folder, at half size). It turns
 `python -m pytest` into a collection run (the suite is not run inside itself). `python3 -m venv`,
 `. .venv/bin/activate` and `pip install` steps are dropped: the test runs in the installed environment (the GPU
 install, `pip install -r requirements-gpu.txt`, cannot run on a CPU machine; tests/test_gpu_install.py checks
 that it resolves).
 """
 
+import importlib.util
 import json
 import os
 import re
@@ -51,9 +52,11 @@ DATA = {
              'Config.render_factor = 32'],
     'blender': [f"Config.data_dir = '{SHARED_DATA / 'blender'}'", "Config.blender_scene = 'lego'",
                 'Config.factor = 16', 'Config.render_factor = 16'],
-    'capture': [f"Config.data_dir = '{SHARED_DATA / 'colmap' / 'cup'}'", 'Config.factor = 8', 'Config.render_factor = 8',
-                'Config.curve_factor = 1'],
+    'capture': ['Config.factor = 8', 'Config.render_factor = 8', 'Config.curve_factor = 1'],  # The block's capture.
 }
+# The README's `photos` folder: 18 of the cup's photos (17 registered give the 3 test views that the capture config's
+# learning curve needs; 16.jpg, which registers at full size only, is left out).
+CAPTURE_PHOTOS = [f'{i}.jpg' for i in list(range(1, 16)) + [18, 19, 20]]
 SHARED_SCENES = {'dtu': SHARED_DATA / 'dtu' / 'dtu_scan24', 'llff': SHARED_DATA / 'llff' / 'fern',
                  'blender': SHARED_DATA / 'blender' / 'lego', 'capture': SHARED_DATA / 'colmap' / 'cup'}
 SHIM = '''#!{python}
@@ -68,6 +71,8 @@ if args[:2] == ['-m', 'tools.study'] and any('studies/table_' in a for a in args
   args += ['--shard', '0/1000']
 if args[:2] == ['-m', 'tools.mesh']:  # A 2-step field crosses softplus(-1), the density of a zero pre-activation.
   args += ['--resolution', '16', '--level', '0.3133']
+elif args[:2] == ['-m', 'tools.capture']:  # Structure-from-motion at half size.
+  args += ['--max_size', '400']
 elif args[:2] == ['-m', 'pytest']:
   args += ['--collect-only']
 status = subprocess.call([{python!r}] + args)
@@ -98,6 +103,10 @@ def sandbox(tmp_path_factory):
   repo = root / 'repo'
   shutil.copytree(ROOT, repo, ignore=shutil.ignore_patterns('.git', 'out', 'data', '.venv', '__pycache__',
                                                           '.pytest_cache'))
+  if SHARED_SCENES['capture'].is_dir():
+    (repo / 'photos').mkdir()
+    for name in CAPTURE_PHOTOS:
+      shutil.copyfile(SHARED_SCENES['capture'] / 'images' / name, repo / 'photos' / name)
   log = root / 'calls.jsonl'
   (root / 'bin').mkdir()
   for name in ('python', 'python3'):
@@ -120,6 +129,8 @@ def test_readme_block_runs_as_written(index, block, sandbox):
              not path.is_dir()]
   if missing:
     pytest.skip(f'block {index} needs shared scenes that are absent: {missing}')
+  if 'tools.capture' in called(block) and importlib.util.find_spec('pycolmap') is None:
+    pytest.skip(f'block {index} runs tools.capture, which needs pycolmap (pip install -r requirements-capture.txt)')
   repo, path, log = sandbox
   log.write_text('')
   env = dict(os.environ, PATH=path, JAX_COMPILATION_CACHE_DIR=JAX_CACHE,

@@ -131,3 +131,16 @@ def test_train_step_adds_the_depth_tv_only_when_asked():
   expected = 0.1 * stats2['depth_tv_level0'] + 0.5 * stats2['depth_tv_level1']
   assert float(stats2['loss_depth_tv']) == pytest.approx(float(expected)) and float(expected) > 0
   assert float(loss0) != float(loss1)
+
+
+def test_annealing_narrows_each_rays_own_bounds():
+  rays = random_rays(0, 6)
+  near, far = np.linspace(.3, .8, 6)[:, None], np.linspace(3., 4., 6)[:, None]  # A capture's bounds, not Config's.
+  rays = rays._replace(near=near.astype(np.float32), far=far.astype(np.float32))
+  config = configs.Config(anneal_nearfar=True, anneal_nearfar_steps=10, anneal_nearfar_perc=.5, anneal_mid_perc=.5)
+  start, end = anneal.anneal_rays(config, rays, 0), anneal.anneal_rays(config, rays, 10)
+  mid = (near + far) / 2
+  np.testing.assert_allclose(start.near, mid + .5 * (near - mid), rtol=1e-6)
+  np.testing.assert_allclose(start.far, mid + .5 * (far - mid), rtol=1e-6)
+  np.testing.assert_allclose(end.near, near, rtol=1e-6)
+  np.testing.assert_allclose(end.far, far, rtol=1e-6)

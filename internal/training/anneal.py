@@ -12,7 +12,9 @@ def near_far(step, near, far, n_steps: int, init_perc: float, mid_perc: float):
 
 
 def anneal_rays(config, rays, step):
-  """Rays [..., 1] with near/far replaced by Config's annealed values at a (possibly traced) step."""
-  near, far = near_far(step, config.near, config.far, config.anneal_nearfar_steps, config.anneal_nearfar_perc,
+  """Rays [..., 1] with their own near/far annealed at a (possibly traced) step. The rays' bounds, not Config.near/far:
+  they are equal on DTU and LLFF, but a capture's loader finds its own (Config.near/far of 2 and 6 would leave a cup
+  1 unit from the camera unsampled all through training)."""
+  near, far = near_far(step, rays.near, rays.far, config.anneal_nearfar_steps, config.anneal_nearfar_perc,
                        config.anneal_mid_perc)
-  return rays._replace(near=jnp.full_like(rays.near, near), far=jnp.full_like(rays.far, far))
+  return rays._replace(near=near, far=far)

@@ -1,0 +1,87 @@
+"""Structure-from-motion with pycolmap (the only module that imports it; its API changed twice in 2025, so the
+version is pinned in requirements-capture.txt): SIFT features on the CPU, sequential or exhaustive matching,
+incremental mapping into every model it finds. The project's own reader (internal/datasets/colmap_model.py) reads
+the models it writes.
+"""
+
+import dataclasses
+import os
+import sqlite3
+import time
+import warnings
+from typing import List
+
+from tools.capture import CaptureError
+
+PINNED = '4.2.1'
+INSTALL = 'pip install -r requirements-capture.txt'
+CAMERA_MODES = ('single', 'per_folder', 'per_image')
+MATCHING = ('sequential', 'exhaustive')
+SEED = 0
+VERIFIED = 2  # two_view_geometries.config from this value up: a geometry was verified (COLMAP's enum).
+
+
+def require_pycolmap():
+  """The pycolmap module; CaptureError saying how to install it when it is missing."""
+  try:
+    import pycolmap  # pylint: disable=import-outside-toplevel  (an optional extra, needed by this tool only)
+  except ImportError as err:
+    raise CaptureError(f'tools.capture needs pycolmap (structure-from-motion, CPU wheels on PyPI): {INSTALL} '
+                       f'(pycolmap=={PINNED})') from err
+  if pycolmap.__version__ != PINNED:
+    warnings.warn(f'pycolmap {pycolmap.__version__} is installed; tools.capture is tested with {PINNED} (its API '
+                  f'changes between versions): {INSTALL}')
+  return pycolmap
+
+
+@dataclasses.dataclass
+class Result:
+  """The models' folders and registered images, largest first, and the seconds each stage took."""
+  models: List[str]
+  sizes: List[int]
+  seconds: dict
+
+
+def reconstruct(database: str, image_dir: str, models_dir: str, camera_mode: str, camera_model: str,
+                matching: str) -> Result:
+  """Features, matches and incremental mapping of the images in image_dir; the models go to models_dir/<k>/."""
+  pycolmap = require_pycolmap()
+  pycolmap.logging.minloglevel = 3  # Fatal only: the tool prints its own progress and errors.
+  pycolmap.set_random_seed(SEED)
+  seconds, start = {}, time.perf_counter()
+
+  def done(stage: str) -> None:
+    nonlocal start
+    seconds[stage], start = time.perf_counter() - start, time.perf_counter()
+    print(f'  {stage}: {seconds[stage]:.0f} s', flush=True)
+
+  reader = pycolmap.ImageReaderOptions()
+  reader.camera_model = camera_model
+  mode = getattr(pycolmap.CameraMode, camera_mode.upper())
+  pycolmap.extract_features(database, image_dir, camera_mode=mode, reader_options=reader, device=pycolmap.Device.cpu)
+  done('extraction')
+  match = pycolmap.match_sequential if matching == 'sequential' else pycolmap.match_exhaustive
+  match(database, device=pycolmap.Device.cpu)
+  done('matching')
+  options = pycolmap.IncrementalPipelineOptions()
+  options.min_model_size = 2  # Keep small models: the report names them, and the error tells 2 from none.
+  options.random_seed = SEED
+  os.makedirs(models_dir, exist_ok=True)
+  models = pycolmap.incremental_mapping(database, image_dir, models_dir, options=options)
+  done('mapping')
+  ranked = sorted(models, key=lambda k: (-models[k].num_reg_images(), k))
+  return Result([os.path.join(models_dir, str(k)) for k in ranked], [models[k].num_reg_images() for k in ranked],
+                seconds)
+
+
+def initial_pair_needs() -> tuple:
+  """(verified matches, degrees between the views) that the pair a model starts from needs (pycolmap's defaults)."""
+  mapper = require_pycolmap().IncrementalPipelineOptions().mapper
+  return mapper.init_min_num_inliers, mapper.init_min_tri_angle
+
+
+def best_pair(database: str) -> int:
+  """The most verified matches any two images share in the database (0 without any)."""
+  with sqlite3.connect(f'file:{database}?mode=ro', uri=True) as connection:
+    row = connection.execute('SELECT MAX(rows) FROM two_view_geometries WHERE config >= ?', (VERIFIED,)).fetchone()
+  return int(row[0] or 0)
