@@ -31,7 +31,7 @@ METHODS = {'NeRF': cli.DEMO_CONFIGS + [os.path.join(cli.CONFIG_DIR, 'demo_nerf.g
 MAX_SHOWN_VIEWS = 4            # Test views in the picture, evenly spread over the evaluated ones.
 BLOCKS_PER_ROW = 2             # Test views side by side in the picture.
 SCALE = 2                      # Nearest-neighbour upscaling of the small renders.
-GAP, HEADER, LABEL_WIDTH, LINE = 4, 22, 56, 16
+GAP, HEADER, LABEL_WIDTH, LINE = 4, 22, 56, 16  # LABEL_WIDTH: the row titles' column, at least.
 PICTURE, CURVES, ORBIT_VIDEO = 'demo.png', 'demo_curves.png', 'demo_orbit.mp4'
 
 
@@ -92,26 +92,32 @@ def label_font(size: int = 11) -> ImageFont.FreeTypeFont:
   return ImageFont.truetype(font_manager.findfont('DejaVu Sans'), size)
 
 
+def label_width(row_titles) -> int:
+  """Pixels of the row titles' column: the widest title with a margin, at least LABEL_WIDTH."""
+  font = label_font()
+  return max([LABEL_WIDTH] + [int(np.ceil(font.getlength(text))) + 8 for text in row_titles])
+
+
 def grid(tiles, column_titles, row_titles, title: str = '', scale: int = SCALE) -> np.ndarray:
   """Tiles (rows of float [h, w, 3] images in [0, 1]) -> labelled uint8 picture [H, W, 3].
 
   Tile (r, c) is upscaled by `scale` (nearest) and placed at top = HEADER + LINE * bool(title) + r * (h*scale +
-  GAP), left = LABEL_WIDTH + c * (w*scale + GAP), on white.
+  GAP), left = label_width(row_titles) + c * (w*scale + GAP), on white.
   """
   h, w = np.shape(tiles[0][0])[:2]
-  th, tw = h * scale, w * scale
+  th, tw, left0 = h * scale, w * scale, label_width(row_titles)
   top0 = HEADER + (LINE if title else 0)
-  canvas = np.full((top0 + len(tiles) * (th + GAP), LABEL_WIDTH + len(tiles[0]) * (tw + GAP), 3), 255, np.uint8)
+  canvas = np.full((top0 + len(tiles) * (th + GAP), left0 + len(tiles[0]) * (tw + GAP), 3), 255, np.uint8)
   for r, row in enumerate(tiles):
     for c, tile in enumerate(row):
-      top, left = top0 + r * (th + GAP), LABEL_WIDTH + c * (tw + GAP)
+      top, left = top0 + r * (th + GAP), left0 + c * (tw + GAP)
       canvas[top:top + th, left:left + tw] = np.repeat(np.repeat(vis.to_uint8(tile), scale, 0), scale, 1)
   image = Image.fromarray(canvas)
   draw, font = ImageDraw.Draw(image), label_font()
   if title:
     draw.text((4, 2), title, fill=(0, 0, 0), font=font)
   for c, text in enumerate(column_titles):
-    draw.text((LABEL_WIDTH + c * (tw + GAP) + 2, top0 - HEADER + 4), text, fill=(0, 0, 0), font=font)
+    draw.text((left0 + c * (tw + GAP) + 2, top0 - HEADER + 4), text, fill=(0, 0, 0), font=font)
   for r, text in enumerate(row_titles):
     draw.text((4, top0 + r * (th + GAP) + th // 2 - 6), text, fill=(0, 0, 0), font=font)
   return np.asarray(image)

@@ -105,6 +105,15 @@ def test_grid_places_upscaled_tiles_under_titles():
   assert demo.grid(tiles, ['a', 'b'], ['x', 'y', 'z']).shape[0] == picture.shape[0] - demo.LINE
 
 
+def test_a_long_row_title_widens_its_column_instead_of_covering_the_tiles():
+  tiles = [[np.zeros((8, 8, 3))]]
+  picture = demo.grid(tiles, ['a'], ['test view 100 of many'], scale=1)
+  left0 = demo.label_width(['test view 100 of many'])
+  assert left0 > demo.LABEL_WIDTH and picture.shape[1] == left0 + 8 + demo.GAP
+  assert (picture[demo.HEADER:demo.HEADER + 8, left0:left0 + 8] == 0).all()        # The tile, untouched by text.
+  assert (picture[demo.HEADER:demo.HEADER + 8, demo.LABEL_WIDTH:left0] < 255).any()  # The title's end, beside it.
+
+
 def test_side_by_side_rows_columns_and_shared_depth_range():
   h, w = 2, 3
   truth = [np.full((h, w, 3), .1 * v) for v in range(3)]

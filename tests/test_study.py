@@ -158,11 +158,13 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   h, w = 120, 160                                                         # 12 x 16 renders upscaled x10.
   for scene in ('object', 'forward'):
     with Image.open(dest / f'side_by_side_{scene}.png') as picture:    # Two views x (colour, depth) x (truth + 2).
-      assert picture.size == (demo.LABEL_WIDTH + 3 * (w + demo.GAP), demo.HEADER + 4 * (h + demo.GAP))
+      left0 = picture.size[0] - 3 * (w + demo.GAP)                       # The row titles fit their column.
+      assert left0 == demo.label_width(['depth'] + [f'test view {i}' for i in range(10)])
+      assert picture.size[1] == demo.HEADER + 4 * (h + demo.GAP)
       pixels = np.asarray(picture.convert('RGB'))
     depth_row = pixels[demo.HEADER + h + demo.GAP + h // 2]                # Blank under the truth, coloured beside.
-    truth_column = slice(demo.LABEL_WIDTH, demo.LABEL_WIDTH + w)
-    render_columns = slice(demo.LABEL_WIDTH + w + demo.GAP, None)
+    truth_column = slice(left0, left0 + w)
+    render_columns = slice(left0 + w + demo.GAP, None)
     assert (depth_row[truth_column] == 255).all() and (depth_row[render_columns] != 255).any(axis=-1).mean() > 0.5
 
 

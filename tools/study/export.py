@@ -176,11 +176,11 @@ def export(study: study_spec.Study, study_file: str, study_folder: str, dest: st
   with open(os.path.join(dest, TABLE_FILE), 'w') as f:
     f.write(markdown_table(finished))
   record = {'command': command, 'machine': provenance.machine(),
-                'study_file': {'path': os.path.relpath(os.path.abspath(study_file), REPO),
-                               'sha256': provenance.file_sha256(study_file)},
-                'cells': {c['cell']: {k: c.get(k) for k in ('commit', 'changed_files', 'machine', 'train_seconds',
-                                                            'eval_seconds', 'step')}
-                          for c in finished}}
+            'study_file': {'path': os.path.relpath(os.path.abspath(study_file), REPO),
+                           'sha256': provenance.file_sha256(study_file)},
+            'cells': {c['cell']: {k: c.get(k) for k in ('commit', 'changed_files', 'machine', 'train_seconds',
+                                                        'eval_seconds', 'step')}
+                      for c in finished}}
   with open(os.path.join(dest, PROVENANCE_FILE), 'w') as f:
     json.dump(record, f, indent=1)
   return pictures
