@@ -23,7 +23,7 @@ import numpy as np
 from internal import atomic
 from internal import cli
 from internal.datasets import cameras, colmap_model, dtu
-from tools import study_export
+from tools import provenance
 from tools.capture import CaptureError, __main__ as capture, photos, poses, sfm
 
 # The targets for the cup's 77 photos.
@@ -122,7 +122,7 @@ def main(argv=None) -> int:
   args = parser.parse_args(argv)
   rows = [run(args, matching) for matching in args.matching]
   record = {'command': ' '.join(['python -m tools.capture.bench'] + (sys.argv[1:] if argv is None else argv)),
-            'commit': study_export.git_commit(capture.REPO), 'machine': study_export.machine(),
+            'commit': provenance.git_commit(capture.REPO), 'machine': provenance.machine(),
             'pycolmap': sfm.require_pycolmap().__version__, 'targets': TARGETS, 'runs': rows}
   os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
   atomic.write_text(args.out, json.dumps(record, indent=1))
