@@ -262,6 +262,22 @@ def test_export_without_renders_warns_and_draws_no_picture(ran, tmp_path, capsys
   assert (tmp_path / 'x' / 'side_by_side_forward.png').is_file()
 
 
+def test_an_export_that_fails_half_way_leaves_no_folder_and_the_retry_succeeds(ran, tmp_path, monkeypatch):
+  _, out, path = ran
+  dest = tmp_path / 'export'
+
+  def fail(*_):
+    raise ValueError('Config.data_dir = \'x\' does not exist')
+  with monkeypatch.context() as patched:                    # Fails at the pictures, after the csv and cells.
+    patched.setattr(study_lib.study_export, '_scene_picture', fail)
+    with pytest.raises(ValueError, match='does not exist'):
+      study_lib.main([str(path), '--out', out, '--plots-only', '--export', str(dest)])
+  assert sorted(os.listdir(tmp_path)) == []                 # Neither dest nor its staging folder.
+  assert study_lib.main([str(path), '--out', out, '--plots-only', '--export', str(dest)]) == 0
+  assert (dest / 'provenance.json').is_file() and (dest / 'side_by_side_object.png').is_file()
+  assert sorted(os.listdir(tmp_path)) == ['export']
+
+
 def test_reuse_takes_the_exported_cells_with_the_same_settings(ran, tmp_path, capsys):
   _, out, path = ran
   export = tmp_path / 'export'

@@ -151,7 +151,27 @@ def _picture_cells(cells: List[dict], paths: Dict[str, str], seeds: list) -> Lis
 
 
 def export(study: study_spec.Study, study_file: str, study_folder: str, dest: str, command: str) -> List[str]:
-  """Copies the study's finished cells, results and plots into dest; returns the pictures written."""
+  """Copies the study's finished cells, results and plots into dest (absent or empty); returns the pictures written.
+
+  Written into a hidden folder beside dest and renamed to dest at the end, so that an export that fails half-way
+  leaves no partial dest behind (one that would block the retry, or pass for a whole export).
+  """
+  dest = os.path.normpath(dest)
+  staging = os.path.join(os.path.dirname(os.path.abspath(dest)), f'.{os.path.basename(dest)}.partial')
+  shutil.rmtree(staging, ignore_errors=True)
+  try:
+    pictures = _write(study, study_file, study_folder, staging, command)
+  except BaseException:
+    shutil.rmtree(staging, ignore_errors=True)
+    raise
+  if os.path.isdir(dest):
+    os.rmdir(dest)  # Empty: the runner refuses a dest with anything in it.
+  os.rename(staging, dest)
+  return [os.path.join(dest, os.path.relpath(path, staging)) for path in pictures]
+
+
+def _write(study: study_spec.Study, study_file: str, study_folder: str, dest: str, command: str) -> List[str]:
+  """The export itself, into dest; returns the pictures written."""
   os.makedirs(dest, exist_ok=True)
   for name in sorted(os.listdir(study_folder)):
     if name.endswith(('.csv', '.png', '.md')):
