@@ -3,6 +3,7 @@
 import math
 import re
 
+import matplotlib.pyplot as plt
 import numpy as np
 from PIL import Image
 import pytest
@@ -132,6 +133,19 @@ def test_statistics_files_and_plots(study, tmp_path):
   plots = study_plots.write_plots(study, rows, str(tmp_path))
   assert {p.rsplit('/', 1)[1] for p in plots} >= {'compare_psnr.png', 'compare_lpips.png'}
   assert Image.open(tmp_path / 'compare_psnr.png').size == (640, 440)
+
+
+def test_learning_curves_over_seeds_are_one_mean_line_per_setting(study):
+  rows = [{'method': 'freenerf', 'scene': 's1', 'seed': str(seed), 'step': step, 'psnr': step / 100. + seed}
+          for seed in range(3) for step in (100, 200)]
+  lines = study_plots._series(study, rows, 'step', 'psnr', None)
+  fig, ax = study_plots.curve_figure(study, lines)
+  try:
+    (mean,) = ax.containers                                 # One line: the mean with its error bars.
+    assert mean.get_label() == 'freenerf s1 (mean +-1 std, n=3)'
+    np.testing.assert_allclose(mean.lines[0].get_xydata(), [[100, 2.], [200, 3.]])
+  finally:
+    plt.close(fig)
 
 
 def test_seeds_are_placed_as_categories_in_their_order():

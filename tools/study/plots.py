@@ -138,8 +138,14 @@ def write_curve_plots(study: study_spec.Study, curve_rows: List[dict], out_dir: 
     lines = _series(study, curve_rows, 'step', metric, None)
     if lines:
       path = os.path.join(out_dir, f'{metric}_vs_step.png')
-      fig, ax = vis.line_figure(lines)
+      fig, ax = curve_figure(study, lines)
       vis.save_figure(fig, ax, 'training step', f'{metric} (learning-curve views)',
                       f'{study.name}: {metric} vs step', path)
       written.append(path)
   return written
+
+
+def curve_figure(study: study_spec.Study, lines: dict) -> tuple:
+  """(figure, axes) of learning curves {line: [(step, value)]}: with seeds a line's mean over them, each seed a
+  dot (one line through every seed's points would zigzag at each step)."""
+  return _seed_figure(lines, joined=True) if study.has_seeds else vis.line_figure(lines)
