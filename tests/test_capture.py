@@ -130,6 +130,7 @@ def test_report_summary_and_picture(cup_capture):
   folder, report, printed = cup_capture
   assert f'{folder}: 12 of 12 images registered' in printed and f'next: {report["next"]}' in printed
   assert set(report['seconds']) == {'inputs', 'extraction', 'matching', 'mapping', 'total'}
+  assert ('mapping run' in printed) == (report['mapping_attempts'] > 1) and report['mapping_attempts'] in (1, 2, 3)
   assert report['points'] > 100 and 0. < report['reprojection_error_px'] < 1.
   assert all({'check', 'images', 'message'} == set(f) for f in report['flags'])
   with Image.open(folder / 'cameras.png') as picture:

@@ -4,6 +4,7 @@ photo checks, camera scaling and video frames (tests/test_capture.py runs the wh
 import ast
 import os
 import pathlib
+import sqlite3
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ from PIL import Image, ImageFilter
 
 from conftest import SHARED_DATA
 from internal.datasets import cameras, colmap_model
-from tools.capture import CaptureError, bench, model, output, photos, poses, report, video
+from tools.capture import CaptureError, bench, model, output, photos, poses, report, sfm, video
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 CUP = SHARED_DATA / 'colmap' / 'cup'
@@ -224,3 +225,53 @@ def test_only_the_structure_from_motion_module_imports_pycolmap():
       if any(n.split('.')[0] == 'pycolmap' for n in names):
         importers.append(str(path.relative_to(ROOT)))
   assert sorted(set(importers)) == ['tools/capture/sfm.py']
+
+
+class _Model:
+  def __init__(self, n):
+    self.n = n
+
+  def num_reg_images(self):
+    return self.n
+
+
+class _Mapper:
+  """Stands in for pycolmap's mapping: the models each seed grows (their folders written as pycolmap does)."""
+
+  def __init__(self, sizes_by_seed):
+    self.sizes_by_seed, self.seeds = sizes_by_seed, []
+
+  def set_random_seed(self, seed):
+    self.seeds.append(seed)
+
+  class IncrementalPipelineOptions:
+    min_model_size = random_seed = None
+
+  def incremental_mapping(self, database, image_dir, folder, options):
+    del database, image_dir
+    models = dict(enumerate(_Model(n) for n in self.sizes_by_seed[options.random_seed]))
+    for k, m in models.items():
+      os.makedirs(os.path.join(folder, str(k)))
+      pathlib.Path(folder, str(k), 'size').write_text(str(m.n))
+    return models
+
+
+def _database(path, n_images):
+  with sqlite3.connect(path) as connection:
+    connection.execute('CREATE TABLE images (image_id INTEGER)')
+    connection.executemany('INSERT INTO images VALUES (?)', [(i,) for i in range(n_images)])
+  return str(path)
+
+
+@pytest.mark.parametrize('sizes_by_seed, kept, runs', [
+    ({0: [12, 3]}, [12, 3], 1),                          # Every image in the first model: mapped once.
+    ({0: [3, 2, 2], 1: [12, 2]}, [12, 2], 2),             # A fragment, then all: the second run kept.
+    ({0: [2], 1: [9, 3], 2: [5]}, [9, 3], 3),             # Never all: the largest of the three runs kept.
+    ({0: [], 1: [], 2: []}, [], 3),                       # No initial pair in any run.
+])
+def test_mapping_runs_again_while_images_are_left_out_and_keeps_the_largest(tmp_path, sizes_by_seed, kept, runs):
+  mapper = _Mapper(sizes_by_seed)
+  sizes, attempts = sfm._map_best(mapper, _database(tmp_path / 'db', 12), 'images', str(tmp_path / 'models'))
+  assert (sizes, attempts, mapper.seeds) == (kept, runs, list(range(runs)))
+  assert sorted(os.listdir(tmp_path / 'models')) == [str(k) for k in range(len(kept))]   # No run left behind.
+  assert [int((tmp_path / 'models' / str(k) / 'size').read_text()) for k in range(len(kept))] == kept

@@ -122,7 +122,7 @@ def run_sfm(args, found, output, kind: str) -> tuple:
                  'left_in_other_models': sorted(apart, key=photos.natural_key),
                  'registered': len(registered), 'unregistered': [p.name for p in found if p.name not in registered],
                  'points': len(sized.points), 'reprojection_error_px': model.reprojection_error(sized),
-                 'seconds': result.seconds}
+                 'mapping_attempts': result.mapping_attempts, 'seconds': result.seconds}
 
 
 def no_initial_pair(n_images: int, best: int) -> CaptureError:

@@ -98,7 +98,9 @@ def summary(report: dict) -> str:
            f'  trains as: {report["rig"]} rig; {len(report["views"]["train"])} training views '
            f'({", ".join(report["views"]["train"])}), {len(report["views"]["test"])} test views '
            f'({_names(report["views"]["test"])})',
-           '  seconds: ' + ', '.join(f'{k} {v:.1f}' for k, v in report['seconds'].items())]
+           '  seconds: ' + ', '.join(f'{k} {v:.1f}' for k, v in report['seconds'].items())
+           + (f' (mapping run {report["mapping_attempts"]} times: the first left images out)'
+              if report.get('mapping_attempts', 1) > 1 else '')]
   lines += [f'  check: {f["message"]}' for f in report['flags']] or ['  check: nothing flagged']
   lines.append(f'  picture: {report["picture"]} (cameras and points from above and from the side)')
   return '\n'.join(lines)
