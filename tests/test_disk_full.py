@@ -46,6 +46,10 @@ def test_orbax_reports_after_a_failed_save_are_dropped_and_others_kept(tmp_path,
     asyncio_logger.error('Future exception was never retrieved', exc_info=_orbax_write_on_a_full_disk())
     asyncio_logger.error('Task exception was never retrieved: something else')
     asyncio_logger.error('Future exception was never retrieved', exc_info=(OSError, NO_SPACE, None))  # Not orbax's.
+    for place in (tmp_path / 'checkpoints' / '6.orbax-checkpoint-tmp', tmp_path / 'elsewhere'):  # Tensorstore's:
+      failed = ValueError(f'RESOURCE_EXHAUSTED: Error writing "step/0" in OCDBT database at local file "{place}/": '
+                          f"Failed to write: No space left on device [os_error_code='{errno.ENOSPC}']")
+      asyncio_logger.error('Future exception was never retrieved', exc_info=(ValueError, failed, None))
     closed = types.SimpleNamespace(exc_value=RuntimeError('Event loop is closed'), object=None)
     other = types.SimpleNamespace(exc_value=RuntimeError('a bug'), object=None)
     sys.unraisablehook(closed)
@@ -53,8 +57,9 @@ def test_orbax_reports_after_a_failed_save_are_dropped_and_others_kept(tmp_path,
   finally:
     asyncio_logger.removeHandler(handler)
   assert [r.getMessage() for r in records] == ['Task exception was never retrieved: something else',
+                                               'Future exception was never retrieved',
                                                'Future exception was never retrieved']
-  assert records[1].exc_info[1] is NO_SPACE
+  assert records[1].exc_info[1] is NO_SPACE and 'elsewhere' in str(records[2].exc_info[1])
   assert passed_on == [other]
 
 

@@ -44,13 +44,20 @@ def _in_orbax(filename: str) -> bool:
   return os.path.abspath(filename).startswith(ORBAX_DIR + os.sep)
 
 
-def _drops_orbax_disk_full_records(record: logging.LogRecord) -> bool:
-  """A logging filter: False for orbax's records of a write that found the disk full (the DiskFullError says it):
-  logged by orbax, or of an error raised in orbax's code; True for every other record."""
-  err = record.exc_info[1] if record.exc_info else None
-  frames = [frame.f_code.co_filename for frame, _ in traceback.walk_tb(err.__traceback__)] if err else []
-  from_orbax = _in_orbax(record.pathname) or any(map(_in_orbax, frames))
-  return not (from_orbax and (_says_disk_full(record.getMessage()) or (err is not None and is_disk_full(err))))
+def _disk_full_record_filter(folder: str):
+  """A logging filter: False for the records of a write that found the disk full (the DiskFullError says it) made by
+  orbax: logged by orbax, of an error raised in orbax's code, or of an error naming a file in `folder` (the run's
+  checkpoints: tensorstore's writes for orbax fail in C++, their errors carry no Python frames); True otherwise."""
+  names = tuple({os.path.abspath(folder) + os.sep, os.path.realpath(folder) + os.sep})
+
+  def keep(record: logging.LogRecord) -> bool:
+    err = record.exc_info[1] if record.exc_info else None
+    frames = [frame.f_code.co_filename for frame, _ in traceback.walk_tb(err.__traceback__)] if err else []
+    texts = [record.getMessage()] + ([str(err)] if err is not None else [])
+    from_orbax = (_in_orbax(record.pathname) or any(map(_in_orbax, frames))
+                  or any(name in text for name in names for text in texts))
+    return not (from_orbax and (_says_disk_full(record.getMessage()) or (err is not None and is_disk_full(err))))
+  return keep
 
 
 def _orbax_unawaited_warnings() -> str:
@@ -67,16 +74,18 @@ def _is_closed_loop_error(unraisable) -> bool:
   return isinstance(unraisable.exc_value, RuntimeError) and str(unraisable.exc_value) == 'Event loop is closed'
 
 
-def _drop_failed_save_reports():
-  """Drops orbax's own reports of a write that found the disk full; returns the function that stops dropping them.
+def _drop_failed_save_reports(folder: str):
+  """Drops orbax's own reports of a write into `folder` that found the disk full; returns the function that stops
+  dropping them.
 
   They are the absl records of its save threads, asyncio's 'Future exception was never retrieved' (logged when
   the failed write is garbage collected, possibly at exit) and, from writes still running when the save failed,
   'Event loop is closed' errors that Python reports as unraisable.
   """
   loggers = [logging.getLogger(name) for name in ('absl', 'asyncio')]
+  keep = _disk_full_record_filter(folder)
   for logger in loggers:
-    logger.addFilter(_drops_orbax_disk_full_records)
+    logger.addFilter(keep)
   previous = sys.unraisablehook
 
   def hook(unraisable):
@@ -87,7 +96,7 @@ def _drop_failed_save_reports():
 
   def restore():
     for logger in loggers:
-      logger.removeFilter(_drops_orbax_disk_full_records)
+      logger.removeFilter(keep)
     if sys.unraisablehook is hook:
       sys.unraisablehook = previous
   return restore
@@ -103,7 +112,8 @@ def stop_when_disk_full(run_dir: str):
   were never awaited) are dropped for the one line, also after the block: some come when its abandoned writes end
   or are collected, as late as exit. What does not come from orbax is kept, and without a full disk nothing stays.
   """
-  restore = _drop_failed_save_reports()
+  folder = os.path.join(run_dir, checkpoints.CHECKPOINT_SUBDIR)
+  restore = _drop_failed_save_reports(folder)
   full = False
   try:
     yield
@@ -112,7 +122,6 @@ def stop_when_disk_full(run_dir: str):
     if not full:
       raise
     warnings.filterwarnings('ignore', message=_orbax_unawaited_warnings(), category=RuntimeWarning)
-    folder = os.path.join(run_dir, checkpoints.CHECKPOINT_SUBDIR)
     try:
       kept = f'the newest intact checkpoint, step {checkpoints.latest_step(run_dir)}, is kept'
     except checkpoints.NoCheckpointError:
