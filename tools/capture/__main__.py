@@ -80,12 +80,10 @@ def checked_inputs(source: str, kind: str, folder: str, names: list, skipped: li
     raise CaptureError(f'{source!r} holds {len(found)} distinct images; structure-from-motion needs at least '
                        f'{MIN_REGISTERED}, and registers them reliably from about 20 overlapping ones')
   if skipped:
-    warnings.warn(f'left out of {source!r}, not JPEG or PNG: {", ".join(skipped[:5])}'
-                  f'{f" and {len(skipped) - 5} more" if len(skipped) > 5 else ""}')
+    warnings.warn(f'left out of {source!r}, not JPEG or PNG: {report_lib.listed(skipped)}')
   if duplicates:
     warnings.warn('left out, byte-for-byte repeats of an earlier photo: '
-                  + ', '.join(f'{a} (= {b})' for a, b in list(duplicates.items())[:5])
-                  + (f' and {len(duplicates) - 5} more' if len(duplicates) > 5 else ''))
+                  + report_lib.listed([f'{a} (= {b})' for a, b in duplicates.items()]))
   return found, {'input': os.path.abspath(source), 'kind': kind, 'photos': len(found), 'skipped': skipped,
                  'duplicates': duplicates, 'rotated': [p.name for p in found if p.orientation != 1]}
 

@@ -58,34 +58,34 @@ def flags(report: dict, order: Dict[str, List[str]], observations: Dict[str, int
   if report['unregistered']:
     found.append({'check': 'unregistered', 'images': report['unregistered'], 'message':
                   f'{len(report["unregistered"])} of {report["photos"]} images are not in the model: '
-                  f'{_names(report["unregistered"])} (too little overlap with the others, blur, or plain surfaces)'})
+                  f'{listed(report["unregistered"])} (too little overlap with the others, blur, or plain surfaces)'})
   apart = report['left_in_other_models']
   if apart:
     found.append({'check': 'models', 'images': apart, 'message':
                   f'structure-from-motion split the capture into {len(report["models"])} models of '
                   f'{report["models"]} images: sparse/0 is the largest, {len(apart)} images are only in the others '
-                  f'(sfm/models/): {_names(apart)}; photos between the parts would join them'})
+                  f'(sfm/models/): {listed(apart)}; photos between the parts would join them'})
   median = float(np.median(list(observations.values())))
   few = sorted((n for n, count in observations.items() if count < FEW_POINTS * median), key=observations.get)
   if few:
     chosen = [f'{n} ({split})' for split, names in report['views'].items() for n in names if n in few]
     found.append({'check': 'few_points', 'images': few, 'message':
                   f'{len(few)} images are registered on few points (under {FEW_POINTS:.0%} of the median '
-                  f'{median:.0f}): {_names([f"{n} ({observations[n]})" for n in few])}; their cameras are the '
+                  f'{median:.0f}): {listed([f"{n} ({observations[n]})" for n in few])}; their cameras are the '
                   'least certain' + (f', and among the default views: {", ".join(chosen)} (choose others with '
                                      'Config.train_view_ids / test_view_ids if its camera is off in cameras.png)'
                                      if chosen else '')})
   if order['jumps'] or order['turns']:
     found.append({'check': 'order', 'images': [], 'message':
                   f'the cameras are out of order along the capture: the path jumps {len(order["jumps"])} times '
-                  f'({_names(order["jumps"])}) and turns back {len(order["turns"])} times ({_names(order["turns"])}); '
+                  f'({listed(order["jumps"])}) and turns back {len(order["turns"])} times ({listed(order["turns"])}); '
                   + ('a video is one sweep, so the cameras may be folded' if video else
                      'expected of photos taken in several passes or out of name order; if you took them in one '
                      'sweep, the cameras may be folded') + ': look at cameras.png'})
   return found
 
 
-def _names(items: List[str], shown: int = 5) -> str:
+def listed(items: List[str], shown: int = 5) -> str:
   """The first few items joined, with how many more."""
   return ', '.join(items[:shown]) + (f' and {len(items) - shown} more' if len(items) > shown else '') or 'none'
 
@@ -97,7 +97,7 @@ def summary(report: dict) -> str:
            f'reprojection error {error:.2f} px (structure-from-motion at {report["sfm_long_side"]} px)',
            f'  trains as: {report["rig"]} rig; {len(report["views"]["train"])} training views '
            f'({", ".join(report["views"]["train"])}), {len(report["views"]["test"])} test views '
-           f'({_names(report["views"]["test"])})',
+           f'({listed(report["views"]["test"])})',
            '  seconds: ' + ', '.join(f'{k} {v:.1f}' for k, v in report['seconds'].items())
            + (f' (mapping run {report["mapping_attempts"]} times: the first left images out)'
               if report.get('mapping_attempts', 1) > 1 else '')]

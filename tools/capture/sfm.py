@@ -101,8 +101,13 @@ def _map_best(pycolmap, database: str, image_dir: str, models_dir: str) -> tuple
 
 def image_count(database: str) -> int:
   """The images in a COLMAP database."""
+  return int(_scalar(database, 'SELECT COUNT(*) FROM images'))
+
+
+def _scalar(database: str, query: str, *args):
+  """The one value a query returns from a COLMAP database, opened read-only."""
   with sqlite3.connect(f'file:{database}?mode=ro', uri=True) as connection:
-    return int(connection.execute('SELECT COUNT(*) FROM images').fetchone()[0])
+    return connection.execute(query, args).fetchone()[0]
 
 
 def initial_pair_needs() -> tuple:
@@ -113,6 +118,4 @@ def initial_pair_needs() -> tuple:
 
 def best_pair(database: str) -> int:
   """The most verified matches any two images share in the database (0 without any)."""
-  with sqlite3.connect(f'file:{database}?mode=ro', uri=True) as connection:
-    row = connection.execute('SELECT MAX(rows) FROM two_view_geometries WHERE config >= ?', (VERIFIED,)).fetchone()
-  return int(row[0] or 0)
+  return int(_scalar(database, 'SELECT MAX(rows) FROM two_view_geometries WHERE config >= ?', VERIFIED) or 0)
