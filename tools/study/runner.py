@@ -128,15 +128,11 @@ def _train_and_evaluate(path: str) -> dict:
   """Trains (resuming) and evaluates the cell in folder path from its cell_spec.json; writes cell.json."""
   import gin  # pylint: disable=import-outside-toplevel
   # pylint: disable=import-outside-toplevel
-  from internal import config_loader
   from internal.evaluation import evaluate
   from internal.pipeline import loop
   from internal.run import checkpoints, flops
   commit, changed = provenance.git_commit(REPO), provenance.changed_files(REPO)  # The code it starts with.
-  with open(os.path.join(path, SPEC_FILE)) as f:
-    spec = json.load(f)
-  gin.clear_config()
-  config = config_loader.load_config(spec['gin_configs'], spec['gin_bindings'])
+  spec, config = _cell_config(path)
   try:
     start_step = checkpoints.latest_step(config.checkpoint_dir)
   except checkpoints.NoCheckpointError:
@@ -165,13 +161,18 @@ def _train_and_evaluate(path: str) -> dict:
 
 def measure_cell(path: str) -> dict:
   """The estimated {'train', 'eval'} seconds of the cell in folder path, measured on this machine."""
+  config = _cell_config(path)[1]
+  return study_cost.cell_seconds(config, study_cost.measure(config))
+
+
+def _cell_config(path: str) -> tuple:
+  """(cell_spec.json's contents, the Config its gin files and bindings give) of the cell in folder path."""
   import gin  # pylint: disable=import-outside-toplevel
   from internal import config_loader  # pylint: disable=import-outside-toplevel
   with open(os.path.join(path, SPEC_FILE)) as f:
     spec = json.load(f)
   gin.clear_config()
-  config = config_loader.load_config(spec['gin_configs'], spec['gin_bindings'])
-  return study_cost.cell_seconds(config, study_cost.measure(config))
+  return spec, config_loader.load_config(spec['gin_configs'], spec['gin_bindings'])
 
 
 def estimate(paths: List[str]) -> List[tuple]:
