@@ -10,6 +10,7 @@ from jax import random
 
 from internal.models import activations
 from internal.models import encoding
+from internal.models import fused_dense
 from internal.models import gaussians
 from internal.models import precision as precision_lib
 from internal.models import sampling
@@ -19,6 +20,7 @@ gin.config.external_configurable(nn.relu, name='relu', module='flax.nn')
 gin.config.external_configurable(nn.softplus, name='softplus', module='flax.nn')
 gin.config.external_configurable(nn.sigmoid, name='sigmoid', module='flax.nn')
 gin.config.external_configurable(activations.relu_from_output, name='relu_from_output')  # A step variant.
+DENSE_KERNELS = ('xla', 'pallas')
 
 
 def _dense_init(in_dim: int, out_dim: int):
@@ -74,15 +76,32 @@ class MLP(nn.Module):
   # The raw coordinates (the Gaussians' means) concatenated before the IPE: FreeNeRF's one change to mip-NeRF
   # (99 features). False drops them (96, as mip-NeRF and RegNeRF released), the xyz ablation.
   point_identity: bool = True
+  # How the trunk's hidden layers run: 'xla' (XLA's matmuls) or 'pallas' (internal/models/fused_dense.py: the
+  # bias, ReLU and its gradient fused into the products; a GPU step variant, interpreted on a CPU).
+  dense_kernel: str = 'xla'
   precision: str = 'float32'  # One of precision.PRECISIONS, set from Config.precision (not a gin binding).
 
   def setup(self):
     self.layers = {name: self.param(name, _dense_init(i, o)) for name, i, o in self.layer_shapes()}
     self.dtype, self.matmul_precision = precision_lib.settings(self.precision)
+    if self.dense_kernel not in DENSE_KERNELS:
+      raise ValueError(f'MLP.dense_kernel = {self.dense_kernel!r}; expected one of {list(DENSE_KERNELS)}')
+    if self.dense_kernel == 'pallas' and self.net_activation not in (nn.relu, activations.relu_from_output):
+      raise ValueError(f"MLP.dense_kernel = 'pallas' fuses ReLU into the layer; MLP.net_activation is "
+                       f'{getattr(self.net_activation, "__name__", self.net_activation)}, expected relu')
+    self.tiles = fused_dense.Tiles()  # Built here, so that gin's FusedDenseTiles bindings apply.
 
   def _dense(self, name: str, *parts):
     """Dense layer `name` of parts [..., d_i] at this MLP's matmul precision."""
     return dense(self.layers[name], *parts, precision=self.matmul_precision)
+
+  def _hidden(self, name: str, *parts):
+    """net_activation(dense layer `name`) [N, width] of parts [N, d_i], in the kernel MLP.dense_kernel names."""
+    if self.dense_kernel == 'xla':
+      return self.net_activation(self._dense(name, *parts))
+    layer = self.layers[name]
+    return fused_dense.dense_relu(jnp.concatenate(parts, axis=-1), layer['kernel'], layer['bias'],
+                                  self.matmul_precision, self.tiles, interpret=jax.default_backend() == 'cpu')
 
   def _skip_after(self, i: int) -> bool:
     return i % self.skip_layer == 0 and i > 0
@@ -117,7 +136,7 @@ class MLP(nn.Module):
     enc = enc.astype(self.dtype)  # The IPE (sines of large arguments) and its mask stay float32.
     x = (enc,)
     for i in range(self.net_depth):
-      x = (self.net_activation(self._dense(f'Dense_{i}', *x)),)
+      x = (self._hidden(f'Dense_{i}', *x),)
       if self._skip_after(i):
         x += (enc,)  # The skip connection re-uses the masked encoding.
     raw_density = self._dense(f'Dense_{self.net_depth}', *x)[:, 0].astype(jnp.float32) + noise

@@ -1,0 +1,160 @@
+"""The fused Pallas dense layer (MLP.dense_kernel = 'pallas'): relu(x @ W + b) and its gradients against float64
+references and against XLA's layer, in interpret mode on the CPU, and its lowering to Triton for an NVIDIA GPU."""
+
+import re
+
+import gin
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax import random
+
+from conftest import random_rays
+from internal.models import fused_dense
+from internal.models import mip_nerf
+
+SMALL = fused_dense.Tiles(rows=16, block=32, chunk=16, splits=2, num_warps=4, num_stages=2)
+HIGHEST = jax.lax.Precision.HIGHEST
+
+
+def _inputs(seed, rows, depth, width, dtype=jnp.float32):
+  """x [rows, depth], W [depth, width], b [width] (positive: padded rows would pass ReLU) and weights g."""
+  keys = random.split(random.PRNGKey(seed), 4)
+  return (random.normal(keys[0], (rows, depth)).astype(dtype),
+          random.normal(keys[1], (depth, width)) / np.sqrt(depth),
+          0.1 + jnp.abs(random.normal(keys[2], (width,))),
+          random.normal(keys[3], (rows, width)))
+
+
+def _reference(x, w, b, g):
+  """(y, dx, dW, db) in float64 (numpy) of relu(x @ W + b), differentiated against sum(y * g)."""
+  x, w, b, g = (np.asarray(a, np.float64) for a in (x, w, b, g))
+  y = np.maximum(x @ w + b, 0)
+  masked = g * (y > 0)
+  return y, masked @ w.T, x.T @ masked, masked.sum(0)
+
+
+def _fused(x, w, b, g, precision=HIGHEST, tiles=SMALL):
+  """(y, dx, dW, db) of the fused layer (interpret mode)."""
+  layer = lambda *a: fused_dense.dense_relu(*a, precision=precision, tiles=tiles, interpret=True)
+  y, pullback = jax.vjp(layer, x, w, b)
+  return (y,) + pullback(g.astype(y.dtype))
+
+
+def _relative(a, b):
+  a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+  return np.linalg.norm(a - b) / np.linalg.norm(b)
+
+
+@pytest.mark.parametrize('shape', [(200, 99, 64), (64, 355, 96), (16, 32, 32)])  # Ragged and whole tiles.
+def test_float32_values_and_gradients_equal_float64(shape):
+  x, w, b, g = _inputs(0, *shape)
+  fused, reference = _fused(x, w, b, g), _reference(x, w, b, g)
+  for name, ours, exact in zip(('y', 'dx', 'dW', 'db'), fused, reference):
+    assert ours.shape == exact.shape and ours.dtype == jnp.float32, name
+    assert _relative(ours, exact) < 1e-6, name
+  assert np.mean(reference[0] > 0) < 0.9  # ReLU clipped some outputs: the masks were exercised.
+
+
+def test_bfloat16_matches_float64_on_its_inputs_and_keeps_float32_weight_gradients():
+  x, w, b, g = _inputs(1, 200, 99, 64, jnp.bfloat16)
+  g = g.astype(jnp.bfloat16)
+  y, dx, dw, db = _fused(x, w, b, g, precision=None)
+  # The reference sees the layer's own operands: the kernel rounded to bfloat16, the output's ReLU mask.
+  exact = _reference(x, w.astype(jnp.bfloat16), b, g)
+  assert (y.dtype, dx.dtype, dw.dtype, db.dtype) == (jnp.bfloat16, jnp.bfloat16, jnp.float32, jnp.float32)
+  for name, ours, reference in zip(('y', 'dx', 'dW', 'db'), (y, dx, dw, db), exact):
+    assert _relative(ours, reference) < 1e-2, name
+  # Sums over 200 rows carry more than bfloat16's 8 bits: the float32 results are not rounded to it.
+  assert np.any(np.asarray(dw) != np.asarray(dw.astype(jnp.bfloat16).astype(jnp.float32)))
+  assert _relative(dw, exact[2]) < 1e-5 and _relative(db, exact[3]) < 1e-5
+
+
+def test_nonfinite_inputs_stay_in_their_rows_as_in_xla():
+  x, w, b, g = _inputs(2, 48, 32, 32)
+  x = x.at[3].set(jnp.nan).at[7, 0].set(jnp.inf)
+  layer = lambda *a: jnp.maximum(jnp.matmul(a[0], a[1], precision=HIGHEST) + a[2], 0)
+  y_xla, pullback = jax.vjp(layer, x, w, b)
+  fused = _fused(x, w, b, g)
+  np.testing.assert_array_equal(np.isnan(fused[0]), np.isnan(y_xla))
+  dx_xla = pullback(g)[0]
+  np.testing.assert_array_equal(np.isfinite(fused[1]), np.isfinite(dx_xla))
+  finite = np.isfinite(y_xla).all(axis=1)
+  np.testing.assert_allclose(fused[0][finite], y_xla[finite], rtol=1e-6, atol=1e-6)
+
+
+def test_every_tile_setting_gives_the_same_layer():
+  x, w, b, g = _inputs(3, 100, 70, 64)
+  first = _fused(x, w, b, g)
+  other = fused_dense.Tiles(rows=32, block=16, chunk=32, splits=3, num_warps=2, num_stages=1)
+  for a, c in zip(first, _fused(x, w, b, g, tiles=other)):
+    np.testing.assert_allclose(a, c, rtol=2e-5, atol=2e-6)
+
+
+def _model_outputs(kernel, precision='float32'):
+  """Fine rgb and weight gradients of the tiny model with MLP.dense_kernel = kernel."""
+  gin.clear_config()
+  gin.parse_config(['MLP.net_depth = 4', 'MLP.net_width = 32', 'MLP.skip_layer = 2', 'MLP.net_width_viewdirs = 16',
+                    'MipNerfModel.num_samples = 8', f"MLP.dense_kernel = '{kernel}'",
+                    'FusedDenseTiles.rows = 16', 'FusedDenseTiles.block = 32', 'FusedDenseTiles.chunk = 16',
+                    'FusedDenseTiles.splits = 2'])
+  rays = random_rays(4, 16)
+  model, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False, precision)
+  render = lambda p: model.apply({'params': p}, None, rays)[0][-1]['rgb']
+  rgb, pullback = jax.vjp(render, variables['params'])
+  return rgb, pullback(jnp.ones_like(rgb))[0]
+
+
+@pytest.mark.parametrize('precision, tolerance', [('float32', 1e-5), ('bfloat16', 3e-2)])
+def test_the_model_renders_and_trains_as_with_xla(precision, tolerance):
+  rgb, grads = _model_outputs('pallas', precision)
+  rgb_xla, grads_xla = _model_outputs('xla', precision)
+  assert _relative(rgb, rgb_xla) < tolerance
+  for name in ('Dense_0', 'Dense_3', 'Dense_4'):  # First, skip (two parts) and the density head after them.
+    for part in ('kernel', 'bias'):
+      assert grads['mlp'][name][part].dtype == jnp.float32
+      assert _relative(grads['mlp'][name][part], grads_xla['mlp'][name][part]) < tolerance, (name, part)
+
+
+def test_unknown_kernel_and_non_relu_activation_are_named():
+  with pytest.raises(ValueError, match=r"MLP.dense_kernel = 'triton'; expected one of \['xla', 'pallas'\]"):
+    _model_outputs('triton')
+  gin.clear_config()
+  gin.parse_config(["MLP.dense_kernel = 'pallas'", 'MLP.net_activation = @flax.nn.softplus'])
+  rays = random_rays(4, 4)
+  with pytest.raises(ValueError, match='MLP.net_activation is softplus, expected relu'):
+    mip_nerf.construct_model(random.PRNGKey(0), rays, False)
+  gin.clear_config()
+
+
+@pytest.mark.parametrize('depth', [99, 256, 355])  # The paper's first, hidden and skip layers.
+def test_the_paper_layer_lowers_to_three_triton_kernels_for_an_nvidia_gpu(depth):
+  loss = lambda x, w, b, g: jnp.sum(fused_dense.dense_relu(x, w, b).astype(jnp.float32) * g)
+  shapes = [((524288, depth), jnp.bfloat16), ((depth, 256), jnp.float32), ((256,), jnp.float32),
+            ((524288, 256), jnp.float32)]
+  traced = jax.jit(jax.grad(loss, argnums=(0, 1, 2))).trace(*(jax.ShapeDtypeStruct(*s) for s in shapes))
+  text = traced.lower(lowering_platforms=('cuda',)).as_text()
+  assert text.count('__gpu$xla.gpu.triton') == 3
+  assert sorted(re.findall(r'name = "(\w+)"', text)) == ['fused_dense_forward', 'fused_dense_input_gradient',
+                                                          'fused_dense_weight_gradients']
+
+
+def test_a_profile_counts_the_fused_kernels_apart_from_xlas_matmuls_and_fusions():
+  from bench import kernel_profile  # pylint: disable=import-outside-toplevel
+  expected = {'fused_dense_forward': 'fused dense (Pallas)', 'fused_dense_weight_gradients': 'fused dense (Pallas)',
+              'gemm_fusion_dot_60': 'matmul', 'nvjet_sm90_tst_128x160_64x5_2x1_v_bz_TNT': 'matmul',
+              'input_reduce_select_fusion_1': 'reduction', 'loop_add_fusion_3': 'element-wise fusion'}
+  assert {name: kernel_profile.kernel_kind(name, 'command_buffer_1') for name in expected} == expected
+
+
+@pytest.mark.skipif(jax.default_backend() != 'gpu', reason='the compiled Triton kernels need an NVIDIA GPU')
+@pytest.mark.parametrize('dtype, precision, tolerance', [(jnp.bfloat16, None, 1e-2), (jnp.float32, HIGHEST, 1e-5)])
+def test_on_a_gpu_the_compiled_kernels_equal_float64(dtype, precision, tolerance):
+  x, w, b, g = _inputs(5, 8192 + 100, 355, 256, dtype)
+  layer = jax.jit(lambda *a: jax.vjp(lambda *p: fused_dense.dense_relu(*p, precision=precision), *a[:3])[1](a[3]))
+  y = jax.jit(lambda *a: fused_dense.dense_relu(*a, precision=precision))(x, w, b)
+  exact = _reference(x, w.astype(dtype), b, g.astype(dtype))
+  for name, ours, reference in zip(('y', 'dx', 'dW', 'db'), (y,) + layer(x, w, b, g.astype(dtype)), exact):
+    assert np.all(np.isfinite(np.asarray(ours, np.float32))), name
+    assert _relative(ours, reference) < tolerance, name
