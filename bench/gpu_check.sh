@@ -11,8 +11,10 @@
 #   5. `bench.gpu_report`: the tables (variants, profiles, precision trade) and a picture, printed last.
 # Usage: bash bench/gpu_check.sh PACKED_SCENE OUT_DIR
 #   Environment: BUDGET (seconds for everything, default 540), RUNS (default below), BENCH=0 (skips stage 2),
-#   VARIANT_FLAGS (flags of bench.step_variants), EXTRA_BINDINGS (gin bindings for every run, one per line), RESUME_DIR, DTU_SCAN (the
-#   scan's Config.dtu_scan when packed, default scan24), PYTHON (default python3), RUN_ROOT (default
+#   VARIANT_FLAGS (flags of bench.step_variants; by default the fused Pallas layers against the plain step: the
+#   XLA flags' variants made no difference on the H100, results/gpu/h100_2026-11-26), EXTRA_BINDINGS (gin
+#   bindings for every run, one per line), RESUME_DIR, DTU_SCAN (the scan's Config.dtu_scan when packed, default
+#   scan24), PYTHON (default python3), RUN_ROOT (default
 #   /tmp/gpu_check_runs), TEST_FILES. PACKED_SCENE from `python -m tools.pack_scene` (docs/running.md).
 set -u
 scene=$1 out=$2 budget=${BUDGET:-540}
@@ -43,7 +45,8 @@ stage() {  # stage NAME MAX_SECONDS MIN_SECONDS COMMAND...: COMMAND within what 
 }
 
 stage env 60 10 "$py" train.py --env
-[ "${BENCH:-1}" = 1 ] && stage step_variants 240 60 "$py" -m bench.step_variants --out_dir "$out" ${VARIANT_FLAGS:-}
+[ "${BENCH:-1}" = 1 ] && stage step_variants 240 60 "$py" -m bench.step_variants --out_dir "$out" \
+  ${VARIANT_FLAGS:---variants base,relu_from_output,pallas,pallas_rows128,pallas_block64}
 
 for spec in $runs; do
   IFS=: read -r method precision steps <<<"$spec"
@@ -70,6 +73,7 @@ for spec in $runs; do
   fi
 done
 
-tests=${TEST_FILES:-tests/test_activations.py tests/test_precision.py tests/test_train_step.py tests/test_trig.py}
+tests=${TEST_FILES:-tests/test_activations.py tests/test_fused_dense.py tests/test_precision.py tests/test_train_step.py
+  tests/test_trig.py}
 stage tests 120 45 "$py" -m pytest -q -p no:cacheprovider $tests  # On every core (pytest.ini).
 "$py" -m bench.gpu_report "$out"

@@ -1,9 +1,10 @@
 """Where a compiled step's device time goes: a profiler trace of a few steps, per kind of kernel and per kernel.
 
 The trace's device lines (a GPU's streams) hold one event per kernel, named by the kernel and, for kernels XLA
-launched, carrying the HLO operation they run ('hlo_op'). A kernel's kind comes from those two names: matrix
-products (cuBLAS, cuBLASLt, Triton GEMM fusions), copies and transposes, reductions, other fusions (element-wise
-work), and the rest. On a CPU the trace has no device lines and the summary says so.
+launched, carrying the HLO operation they run ('hlo_op'). A kernel's kind comes from those two names: the fused
+dense layer's Pallas kernels, matrix products (cuBLAS, cuBLASLt, Triton GEMM fusions), copies and transposes,
+reductions, other fusions (element-wise work), and the rest. On a CPU the trace has no device lines and the summary
+says so.
 """
 
 import collections
@@ -18,7 +19,8 @@ import tempfile
 import jax
 
 # First match wins: a Triton GEMM fusion is a matmul, a transpose fusion a transpose, a reduce fusion a reduction.
-KINDS = (('matmul', r'gemm|xmma|cutlass|cublas|nvjet|gmma|\bdot'),
+KINDS = (('fused dense (Pallas)', r'fused_dense'),  # internal/models/fused_dense.py's kernels, by their names.
+         ('matmul', r'gemm|xmma|cutlass|cublas|nvjet|gmma|\bdot'),
          ('copy/transpose', r'copy|transpose|memcpy|memset|concatenate|dynamic.update.slice'),
          ('reduction', r'reduce|scatter'),
          ('element-wise fusion', r'fusion|triton'))

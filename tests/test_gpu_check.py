@@ -23,7 +23,7 @@ def test_gpu_check_runs_every_stage_and_reports_the_three_tables(tmp_path):
                   *PACK, '--out', str(scene)], cwd=ROOT, check=True, capture_output=True)
   env = dict(os.environ, PYTHON=sys.executable, DTU_SCAN='dtu_scan24', RUN_ROOT=str(tmp_path / 'runs'),
              RUNS='freenerf:bfloat16:20', EXTRA_BINDINGS='\n'.join(TINY), TEST_FILES='tests/test_activations.py',
-             VARIANT_FLAGS='--tiny --batch_size 64 --repeats 1 --precisions bfloat16 --variants relu_from_output '
+             VARIANT_FLAGS='--tiny --batch_size 64 --repeats 1 --precisions bfloat16 --variants relu_from_output,pallas '
                            '--profile_steps 1')
   out = tmp_path / 'out'
   result = subprocess.run(['bash', 'bench/gpu_check.sh', str(scene), str(out)], cwd=ROOT, env=env, text=True,
@@ -35,6 +35,7 @@ def test_gpu_check_runs_every_stage_and_reports_the_three_tables(tmp_path):
   assert json.loads((out / 'metrics_freenerf_bfloat16.json').read_text())['step'] == 20
   variants = json.loads((out / 'step_variants.json').read_text())['results']['bfloat16']
   assert variants['relu_from_output']['params_equal'] and 'profile' in variants['base']
+  assert abs(variants['pallas']['loss_difference']) < 1e-2 * variants['base']['loss']  # Interpreted on the CPU.
   report = (out / 'gpu_report.md').read_text()
   assert report in result.stdout  # Printed last.
   for heading in ('## Step variants', '## Kernel profiles', '## Precision trade', '| bfloat16 | freenerf | 20 |'):
