@@ -4,9 +4,10 @@
 #   1. `train.py --env`: the backend line and the environment;
 #   2. `bench.step_variants`: the step's variants timed side by side at each precision, with kernel profiles;
 #   3. the precision trade: DTU 3-view runs of the paper's model and batch on a packed scan, RUNS in order (each
-#      METHOD:PRECISION:STEPS; FreeNeRF's T = 0.9 x steps, the paper's ratio), each then evaluated on its test
-#      views; a run the budget cuts keeps its checkpoints in ckpt_METHOD_PRECISION.tar.gz, which RESUME_DIR
-#      gives back to a later call (the run resumes);
+#      METHOD:PRECISION:STEPS[:VARIANT]; FreeNeRF's T = 0.9 x steps, the paper's ratio; VARIANT a step variant
+#      of gin bindings, or `fastest`: the fastest such variant stage 2 measured at that precision, else base),
+#      each then evaluated on its test views; a run the budget cuts keeps its checkpoints in
+#      ckpt_RUN.tar.gz (RUN: METHOD_PRECISION[_VARIANT]), which RESUME_DIR gives back to a later call (it resumes);
 #   4. with time left, the numerics tests (TEST_FILES) on the device;
 #   5. `bench.gpu_report`: the tables (variants, profiles, precision trade) and a picture, printed last.
 # Usage: bash bench/gpu_check.sh PACKED_SCENE OUT_DIR
@@ -18,7 +19,7 @@
 #   /tmp/gpu_check_runs), TEST_FILES. PACKED_SCENE from `python -m tools.pack_scene` (docs/running.md).
 set -u
 scene=$1 out=$2 budget=${BUDGET:-540}
-runs=${RUNS:-freenerf:bfloat16:3100 freenerf:default:3100 mipnerf:bfloat16:3100 freenerf:float32:3100}
+runs=${RUNS:-freenerf:bfloat16:3100:fastest freenerf:default:3100 mipnerf:bfloat16:3100 freenerf:float32:3100}
 root=${RUN_ROOT:-/tmp/gpu_check_runs} py=${PYTHON:-python3}
 reserve=30  # Seconds kept for the report and for a stopped stage's 20 s of grace.
 export PYTHONUNBUFFERED=1 XLA_PYTHON_CLIENT_PREALLOCATE=false
@@ -49,8 +50,16 @@ stage env 60 10 "$py" train.py --env
   ${VARIANT_FLAGS:---variants base,relu_from_output,pallas,pallas_rows128,pallas_block64}
 
 for spec in $runs; do
-  IFS=: read -r method precision steps <<<"$spec"
-  run=${method}_$precision dir=$root/${method}_$precision
+  IFS=: read -r method precision steps variant <<<"$spec"
+  measured=$out/step_variants.json  # A resuming call without stage 2 picks what the cut call measured.
+  [ -f "$measured" ] || measured=${RESUME_DIR:-/nonexistent}/step_variants.json
+  if ! picked=$("$py" -m bench.step_variants --bindings "${variant:-base}" --precisions "$precision" \
+                 --measured "$measured" 2>&1); then
+    echo "== $spec: not run: $picked" && continue
+  fi
+  mapfile -t chosen <<<"$picked"  # The variant's name, then its gin bindings.
+  run=${method}_$precision && [ "${chosen[0]}" != base ] && run+=_${chosen[0]}
+  dir=$root/$run
   if [ -f "${RESUME_DIR:-/nonexistent}/ckpt_$run.tar.gz" ]; then
     mkdir -p "$dir" && tar xzf "$RESUME_DIR/ckpt_$run.tar.gz" -C "$dir" && echo "== $run: resuming"
   fi
@@ -58,6 +67,7 @@ for spec in $runs; do
             "Config.checkpoint_dir = '$dir'" "Config.precision = '$precision'"
             "Config.max_steps = $steps" "Config.freq_reg_end = $((steps * 9 / 10))"
             "Config.dtu_mask_path = ''" "Config.allow_missing_test_views = True" "Config.compute_lpips = False")
+  bindings+=("${chosen[@]:1}")
   [ -n "${EXTRA_BINDINGS:-}" ] && mapfile -t -O ${#bindings[@]} bindings <<<"$EXTRA_BINDINGS"
   stage "train_$run" 420 60 "$py" train.py --gin_configs="configs/$method/dtu3_$method.gin" \
     --gin_bindings "${bindings[@]}" || true

@@ -4,8 +4,9 @@ Usage: python -m bench.gpu_report OUT_DIR
 
 Reads what gpu_check.sh left in OUT_DIR (stages.tsv, step_variants.json, train_<run>.log, metrics_<run>.json,
 test_preds_<run>/) and writes gpu_report.md (printed too) and test_views.png (per run a row of test views, colour
-over depth). A run is METHOD_PRECISION; its step time is the training's own rate once warm, its minutes the
-training stage's wall time (start-up and compilation included), its paper-length minutes 43,945 steps at that rate.
+over depth). A run is METHOD_PRECISION[_VARIANT] (the step variant it trained with); its step time is the
+training's own rate once warm, its minutes the training stage's wall time (start-up and compilation included), its
+paper-length minutes 43,945 steps at that rate.
 """
 
 import csv
@@ -53,12 +54,13 @@ def trade_rows(out_dir: str):
     if not name.startswith('train_'):
       continue
     run = name[len('train_'):]
-    method, precision = run.split('_', 1)
+    method, precision, *variant = run.split('_', 2)
     log = os.path.join(out_dir, f'{name}.log')
     last, rate = step_rate(open(log).read()) if os.path.isfile(log) else (0, None)
     metrics_file = os.path.join(out_dir, f'metrics_{run}.json')
     means = json.load(open(metrics_file))['means'] if os.path.isfile(metrics_file) else {}
-    rows.append({'run': run, 'method': method, 'precision': precision, 'status': status, 'steps': last,
+    rows.append({'run': run, 'method': method, 'precision': precision, 'variant': (variant or ['base'])[0],
+                 'status': status, 'steps': last,
                  'step_ms': 1e3 / rate if rate else None, 'minutes': seconds / 60,
                  'paper_minutes': PAPER_DTU_STEPS / rate / 60 if rate else None, **means})
   return rows
@@ -70,13 +72,14 @@ def _cell(value, spec):
 
 def trade_table(rows) -> str:
   """Markdown of trade_rows."""
-  lines = ['| precision | method | steps | step ms | minutes | paper-length min | PSNR | SSIM | object PSNR | '
-           'object SSIM |', '|---|---|---|---|---|---|---|---|---|---|']
+  lines = ['| precision | method | variant | steps | step ms | minutes | paper-length min | PSNR | SSIM | '
+           'object PSNR | object SSIM |', '|---|---|---|---|---|---|---|---|---|---|---|']
   for r in rows:
+    head = f"| {r['precision']} | {r['method']} | {r['variant']} |"
     if r['status'] == 'skipped':
-      lines.append(f"| {r['precision']} | {r['method']} | not run: the budget ran out |" + ' |' * 7)
+      lines.append(f'{head} not run: the budget ran out |' + ' |' * 7)
       continue
-    lines.append(f"| {r['precision']} | {r['method']} | {r['steps']} | {_cell(r['step_ms'], '.1f')} | "
+    lines.append(f"{head} {r['steps']} | {_cell(r['step_ms'], '.1f')} | "
                  f"{r['minutes']:.1f} | {_cell(r['paper_minutes'], '.1f')} | {_cell(r.get('psnr'), '.2f')} | "
                  f"{_cell(r.get('ssim'), '.3f')} | {_cell(r.get('psnr_masked'), '.2f')} | "
                  f"{_cell(r.get('ssim_masked'), '.3f')} |")

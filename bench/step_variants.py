@@ -3,6 +3,7 @@
 Usage: python -m bench.step_variants [--precisions bfloat16,default] [--variants base,cublaslt,...]
                                      [--method freenerf] [--batch_size 4096] [--repeats 5] [--profile_steps 5]
                                      [--out_dir DIR] [--tiny]
+       python -m bench.step_variants --bindings VARIANT|fastest [--measured step_variants.json --precisions P]
 
 A variant is a gin binding of the model (which the user sets the same way) and/or XLA compiler options (which a
 user sets through XLA_FLAGS, e.g. XLA_FLAGS=--xla_gpu_enable_cublaslt=true). Per precision, every variant's step
@@ -10,8 +11,12 @@ is compiled from the same state, run once (its loss and parameters after that st
 step's), then all are timed interleaved (A, B, C, A, B, C, ...) and the median reported with the rate of the
 step's matmul flops (bench.roofline) and of XLA's count of the traced step (which misses the Pallas variants'
 kernels: read their matmul rate). An option this XLA does not know, or a kernel that does not build, is reported as
-unavailable, not an error. With --profile_steps, the plain step and the fastest variant of each precision are traced (bench.kernel_profile): kernels per kind and the longest kernels, trace files in --out_dir.
+unavailable, not an error. With --profile_steps, the plain step and the fastest variant of each precision are
+traced (bench.kernel_profile): kernels per kind and the longest kernels, trace files in --out_dir.
 The tables print (and step_variants.json is written) after each precision.
+--bindings prints a variant's name and then its gin bindings, one a line (bench/gpu_check.sh trains with them);
+`fastest` names the fastest variant a run can take (gin bindings only, its first step's loss within 1e-3 of the
+plain step's) measured at one precision in --measured, or base when none is faster or nothing was measured.
 """
 
 import argparse
@@ -44,6 +49,37 @@ VARIANTS = {'base': ((), {}),
             'pallas': (PALLAS, {}),
             'pallas_rows128': (PALLAS + ('FusedDenseTiles.rows = 128',), {}),
             'pallas_block64': (PALLAS + ('FusedDenseTiles.block = 64', 'FusedDenseTiles.num_warps = 4'), {})}
+
+
+def model_bindings(variant: str) -> tuple:
+  """The gin bindings of a variant a run can train with (ValueError for one that sets XLA options)."""
+  bindings, options = VARIANTS[variant]
+  if options:
+    raise ValueError(f'step variant {variant!r} sets XLA options {sorted(options)}; a run takes gin bindings only '
+                     '(set XLA options through XLA_FLAGS)')
+  return bindings
+
+
+def fastest(report: dict, precision_name: str) -> str:
+  """The fastest variant of report at a precision that a run can take and that kept the first step's loss."""
+  figures = report['results'].get(precision_name, {})
+  if 'step_seconds' not in figures.get('base', {}):
+    return 'base'
+  tolerance = 1e-3 * abs(figures['base']['loss'])
+  times = {variant: f['step_seconds'] for variant, f in figures.items()
+           if 'step_seconds' in f and not VARIANTS[variant][1] and abs(f.get('loss_difference', 0)) <= tolerance}
+  return min(times, key=times.get)
+
+
+def print_bindings(variant: str, measured: str, precisions) -> None:
+  """Prints a variant's name (fastest: resolved from the measured file) and its gin bindings, one a line."""
+  if variant == 'fastest':
+    if len(precisions) != 1:
+      raise ValueError(f'--bindings fastest: --precisions must name one precision, not {precisions}')
+    variant = fastest(json.load(open(measured)), precisions[0]) if os.path.isfile(measured) else 'base'
+  elif variant not in VARIANTS:
+    raise ValueError(f"--bindings {variant!r}: expected 'fastest' or one of {list(VARIANTS)}")
+  print('\n'.join((variant,) + model_bindings(variant)))
 
 
 def build(variant: str, precision_name: str, args, batch):
@@ -130,8 +166,12 @@ def main(argv=None):
   parser.add_argument('--profile_steps', type=int, default=5, help='0: no profile')
   parser.add_argument('--out_dir', default='', help='step_variants.json and the traces go here')
   parser.add_argument('--tiny', action='store_true', help='a 2 x 32 MLP with 8 samples (for tests)')
+  parser.add_argument('--bindings', default='', help='VARIANT or fastest: print its name and gin bindings')
+  parser.add_argument('--measured', default='', help="a step_variants.json for --bindings fastest")
   args = parser.parse_args(argv)
   names = common.names_of(args.precisions, precision.PRECISIONS, '--precisions')
+  if args.bindings:
+    return print_bindings(args.bindings, args.measured, names)
   args.variants = common.names_of(args.variants, VARIANTS, '--variants')
   if 'base' not in args.variants:
     args.variants.insert(0, 'base')

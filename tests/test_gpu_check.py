@@ -8,6 +8,7 @@ import sys
 import pytest
 
 from bench import device
+from bench import step_variants
 from conftest import SHARED_DATA
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -22,23 +23,54 @@ def test_gpu_check_runs_every_stage_and_reports_the_three_tables(tmp_path):
                   '--gin_bindings', f"Config.data_dir = '{SHARED_DATA / 'dtu'}'", "Config.dtu_scan = 'dtu_scan24'",
                   *PACK, '--out', str(scene)], cwd=ROOT, check=True, capture_output=True)
   env = dict(os.environ, PYTHON=sys.executable, DTU_SCAN='dtu_scan24', RUN_ROOT=str(tmp_path / 'runs'),
-             RUNS='freenerf:bfloat16:20', EXTRA_BINDINGS='\n'.join(TINY), TEST_FILES='tests/test_activations.py',
+             RUNS='freenerf:bfloat16:20:pallas', EXTRA_BINDINGS='\n'.join(TINY),
+             TEST_FILES='tests/test_activations.py',
              VARIANT_FLAGS='--tiny --batch_size 64 --repeats 1 --precisions bfloat16 --variants relu_from_output,pallas '
                            '--profile_steps 1')
   out = tmp_path / 'out'
   result = subprocess.run(['bash', 'bench/gpu_check.sh', str(scene), str(out)], cwd=ROOT, env=env, text=True,
                           capture_output=True, timeout=600)
   assert result.returncode == 0, result.stdout + result.stderr
-  for stage in ('env', 'step_variants', 'train_freenerf_bfloat16', 'eval_freenerf_bfloat16', 'tests'):
+  for stage in ('env', 'step_variants', 'train_freenerf_bfloat16_pallas', 'eval_freenerf_bfloat16_pallas', 'tests'):
     assert f'== {stage}: status 0' in result.stdout, result.stdout
   assert 'jax backend: cpu' in (out / 'env.log').read_text()
-  assert json.loads((out / 'metrics_freenerf_bfloat16.json').read_text())['step'] == 20
+  assert json.loads((out / 'metrics_freenerf_bfloat16_pallas.json').read_text())['step'] == 20
+  assert "MLP.dense_kernel = 'pallas'" in (tmp_path / 'runs' / 'freenerf_bfloat16_pallas' / 'config.gin').read_text()
   variants = json.loads((out / 'step_variants.json').read_text())['results']['bfloat16']
   assert variants['relu_from_output']['params_equal'] and 'profile' in variants['base']
   assert abs(variants['pallas']['loss_difference']) < 1e-2 * variants['base']['loss']  # Interpreted on the CPU.
   report = (out / 'gpu_report.md').read_text()
   assert report in result.stdout  # Printed last.
-  for heading in ('## Step variants', '## Kernel profiles', '## Precision trade', '| bfloat16 | freenerf | 20 |'):
+  for heading in ('## Step variants', '## Kernel profiles', '## Precision trade',
+                  '| bfloat16 | freenerf | pallas | 20 |'):
     assert heading in report
   assert (out / 'test_views.png').stat().st_size > 0 and (out / 'trace_bfloat16_base.json.gz').is_file()
 
+
+
+def _measured(base_ms, **variants):
+  """A step_variants report at bfloat16: base and {variant: (step ms, first-step loss difference)}."""
+  results = {'base': {'step_seconds': base_ms / 1e3, 'loss': 0.5}}
+  results.update({name: {'step_seconds': ms / 1e3, 'loss_difference': gap} for name, (ms, gap) in variants.items()})
+  return {'results': {'bfloat16': results}}
+
+
+def test_runs_pick_the_fastest_variant_that_takes_gin_bindings_and_kept_the_loss():
+  assert step_variants.fastest(_measured(28, pallas=(15, 1e-4), pallas_rows128=(14, 1e-4)), 'bfloat16') == \
+      'pallas_rows128'
+  # An XLA option is no run's binding; a variant whose first step moved the loss is not trusted.
+  assert step_variants.fastest(_measured(28, cublaslt=(10, 0), pallas=(12, 0.01)), 'bfloat16') == 'base'
+  assert step_variants.fastest(_measured(28, pallas=(30, 0)), 'bfloat16') == 'base'
+  assert step_variants.fastest(_measured(28, pallas=(15, 0)), 'default') == 'base'  # Not measured there.
+
+
+def test_bindings_print_the_variant_then_its_gin_lines(tmp_path, capsys):
+  measured = tmp_path / 'step_variants.json'
+  measured.write_text(json.dumps(_measured(28, pallas_block64=(15, 0))))
+  step_variants.main(['--bindings', 'fastest', '--precisions', 'bfloat16', '--measured', str(measured)])
+  assert capsys.readouterr().out.splitlines() == ['pallas_block64', "MLP.dense_kernel = 'pallas'",
+                                                  'FusedDenseTiles.block = 64', 'FusedDenseTiles.num_warps = 4']
+  step_variants.main(['--bindings', 'fastest', '--precisions', 'bfloat16', '--measured', str(tmp_path / 'none')])
+  assert capsys.readouterr().out == 'base\n'
+  with pytest.raises(ValueError, match=r"step variant 'cublaslt' sets XLA options \['xla_gpu_enable_cublaslt'\]"):
+    step_variants.main(['--bindings', 'cublaslt'])
