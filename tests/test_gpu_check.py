@@ -25,8 +25,8 @@ def test_gpu_check_runs_every_stage_and_reports_the_three_tables(tmp_path):
   env = dict(os.environ, PYTHON=sys.executable, DTU_SCAN='dtu_scan24', RUN_ROOT=str(tmp_path / 'runs'),
              RUNS='freenerf:bfloat16:20:pallas', EXTRA_BINDINGS='\n'.join(TINY),
              TEST_FILES='tests/test_activations.py',
-             VARIANT_FLAGS='--tiny --batch_size 64 --repeats 1 --precisions bfloat16 --variants relu_from_output,pallas '
-                           '--profile_steps 1')
+             VARIANT_FLAGS='--tiny --batch_size 64 --repeats 1 --precisions bfloat16 '
+                           '--variants relu_from_output,pallas --profile_steps 1')
   out = tmp_path / 'out'
   result = subprocess.run(['bash', 'bench/gpu_check.sh', str(scene), str(out)], cwd=ROOT, env=env, text=True,
                           capture_output=True, timeout=600)
