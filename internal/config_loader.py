@@ -127,6 +127,9 @@ def validate(config: Config) -> None:
   _check_ranges(config)
   _check_generated_size(config.generated_size)
   _check_model_sizes(config.model)
+  for gin_name, module in registry.gin_modules(config.model):
+    if gin_name == 'MLP':  # Its fused kernel's settings, before any data is read.
+      module.check_dense_kernel()
   if config.far <= config.near:
     raise ValueError(f'Config.far = {config.far} must exceed Config.near = {config.near}')
   if loader.ndc(config) is False and config.near <= 0.:

@@ -21,7 +21,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 @pytest.mark.parametrize('binding, fragment', [
     ('MipNerfModel.num_samples = 0', 'MipNerfModel.num_samples = 0; expected an integer >= 1'),
     ('Config.generated_size = (0, 0)', 'Config.generated_size = (0, 0); expected two positive integers'),
-    ('Config.factor = -2', 'Config.factor = -2; expected >= 0')])
+    ('Config.factor = -2', 'Config.factor = -2; expected >= 0'),
+    ('FusedDenseTiles.rows = 48', 'FusedDenseTiles.rows = 48; expected a power of two >= 16')])
 def test_settings_that_crashed_or_trained_are_one_line_errors(tmp_path, monkeypatch, capsys, binding, fragment):
   status, errout = _cli(monkeypatch, capsys, train_script.main, *TINY, 'Config.max_steps = 3', binding,
                         f"Config.data_dir = '{tmp_path / 'scene'}'", f"Config.checkpoint_dir = '{tmp_path / 'run'}'")

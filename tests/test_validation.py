@@ -54,10 +54,23 @@ def _load(*bindings):
     ('MipNerfModel.num_levels = 0', r'^MipNerfModel.num_levels = 0; expected an integer >= 1'),
     ('MLP.net_width = 0', r'^MLP.net_width = 0; expected an integer >= 1'),
     ('MLP.net_depth_viewdirs = 0', r'^MLP.net_depth_viewdirs = 0; expected an integer >= 1'),
+    ("MLP.dense_kernel = 'triton'", r"^MLP.dense_kernel = 'triton'; expected one of \['xla', 'pallas'\]"),
+    ('FusedDenseTiles.rows = 48', r'^FusedDenseTiles.rows = 48; expected a power of two >= 16'),
+    ('FusedDenseTiles.chunk = 8', r'^FusedDenseTiles.chunk = 8; expected a power of two >= 16'),
+    ('FusedDenseTiles.num_warps = 0', r'^FusedDenseTiles.num_warps = 0; expected a power of two >= 1'),
+    ('FusedDenseTiles.splits = 0', r'^FusedDenseTiles.splits = 0; expected an integer >= 1'),
 ])
 def test_bad_settings_raise_value_errors_naming_them(binding, message):
   with pytest.raises(ValueError, match=message):
     _load(binding)
+
+
+def test_the_fused_layer_refuses_an_activation_it_does_not_fuse():
+  with pytest.raises(ValueError, match="^MLP.dense_kernel = 'pallas' fuses ReLU into the layer; MLP.net_activation "
+                                       'is softplus, expected relu$'):
+    _load("MLP.dense_kernel = 'pallas'", 'MLP.net_activation = @flax.nn.softplus')
+  for relu in ('@relu_from_output', '@flax.nn.relu'):
+    _load("MLP.dense_kernel = 'pallas'", f'MLP.net_activation = {relu}')
 
 
 def test_sizes_of_the_nerf_model_are_checked_when_it_is_the_model():

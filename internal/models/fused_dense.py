@@ -32,6 +32,16 @@ class Tiles:
   num_warps: int = 8
   num_stages: int = 3
 
+  def __post_init__(self):
+    for name in ('rows', 'block', 'chunk', 'num_warps'):
+      value, least = getattr(self, name), 1 if name == 'num_warps' else 16  # Triton's products take 16 or more.
+      if isinstance(value, bool) or not isinstance(value, int) or value < least or value & (value - 1):
+        raise ValueError(f'FusedDenseTiles.{name} = {value!r}; expected a power of two >= {least}')
+    for name in ('splits', 'num_stages'):
+      value = getattr(self, name)
+      if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f'FusedDenseTiles.{name} = {value!r}; expected an integer >= 1')
+
 
 def dense_relu(x, kernel, bias, precision=None, tiles: Tiles = None, interpret: bool = False):
   """relu(x [M, K] @ kernel [K, N] + bias [N]) [M, N] in x's dtype; gradients of kernel and bias in float32.

@@ -84,12 +84,19 @@ class MLP(nn.Module):
   def setup(self):
     self.layers = {name: self.param(name, _dense_init(i, o)) for name, i, o in self.layer_shapes()}
     self.dtype, self.matmul_precision = precision_lib.settings(self.precision)
+    self.tiles = self.check_dense_kernel()
+
+  @nn.nowrap
+  def check_dense_kernel(self) -> fused_dense.Tiles:
+    """The fused layer's tiles as gin binds them; ValueError naming MLP.dense_kernel or .net_activation if it
+    cannot run (a bad FusedDenseTiles setting is named by Tiles)."""
     if self.dense_kernel not in DENSE_KERNELS:
       raise ValueError(f'MLP.dense_kernel = {self.dense_kernel!r}; expected one of {list(DENSE_KERNELS)}')
-    if self.dense_kernel == 'pallas' and self.net_activation not in (nn.relu, activations.relu_from_output):
+    relu = {self.net_activation, getattr(self.net_activation, '__wrapped__', None)}  # gin's @name wraps it.
+    if self.dense_kernel == 'pallas' and not relu & {nn.relu, activations.relu_from_output}:
       raise ValueError(f"MLP.dense_kernel = 'pallas' fuses ReLU into the layer; MLP.net_activation is "
                        f'{getattr(self.net_activation, "__name__", self.net_activation)}, expected relu')
-    self.tiles = fused_dense.Tiles()  # Built here, so that gin's FusedDenseTiles bindings apply.
+    return fused_dense.Tiles()
 
   def _dense(self, name: str, *parts):
     """Dense layer `name` of parts [..., d_i] at this MLP's matmul precision."""
