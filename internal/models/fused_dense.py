@@ -6,6 +6,8 @@ H100 profile, results/gpu). Here the forward kernel adds the bias and applies Re
 before its only store. Backward, both kernels mask the output gradient by y > 0 as they load it, so no masked
 copy is ever written: one makes dx = (g * [y > 0]) @ kernel^T, the other the kernel's gradient x^T @ (g * [y > 0])
 and the bias's, both accumulated and returned in float32 (partial sums over row splits, added after).
+Each grid lists first the axis of the tiles that read the same rows: Triton launches the first axis fastest, so
+those tiles run side by side and all but the first read the rows from L2, not memory.
 The products run at the layer's matmul precision; unlike XLA's bfloat16 path the bias is added before the single
 rounding to bfloat16, not after the product's. On a CPU the kernels run in Pallas's interpret mode (the tests);
 on an NVIDIA GPU through Triton. A step variant, timed by bench.step_variants.
@@ -121,11 +123,11 @@ def _forward(x, w, b, precision, tiles: Tiles, interpret: bool):
   """relu(x [M, K] @ w [K, N] + b [N]) [M, N] in x's dtype."""
   (m, k), n = x.shape, w.shape[1]
   body = functools.partial(_forward_body, chunk=tiles.chunk, precision=precision)
-  return _call(body, (m // tiles.rows, n // tiles.block),
-               [pl.BlockSpec((tiles.rows, k), lambda i, j: (i, 0)),
-                pl.BlockSpec((k, tiles.block), lambda i, j: (0, j)),
-                pl.BlockSpec((tiles.block,), lambda i, j: (j,))],
-               pl.BlockSpec((tiles.rows, tiles.block), lambda i, j: (i, j)),
+  return _call(body, (n // tiles.block, m // tiles.rows),
+               [pl.BlockSpec((tiles.rows, k), lambda j, i: (i, 0)),
+                pl.BlockSpec((k, tiles.block), lambda j, i: (0, j)),
+                pl.BlockSpec((tiles.block,), lambda j, i: (j,))],
+               pl.BlockSpec((tiles.rows, tiles.block), lambda j, i: (i, j)),
                jax.ShapeDtypeStruct((m, n), x.dtype), tiles, interpret)(x, w, b)
 
 
@@ -142,10 +144,10 @@ def _input_gradient(g, y, w, precision, tiles: Tiles, interpret: bool):
   """dx [M, K] in g's dtype of output gradients g and outputs y [M, N], kernel w [K, N]."""
   (m, n), k = g.shape, w.shape[0]
   body = functools.partial(_input_gradient_body, chunk=tiles.chunk, precision=precision)
-  rows = pl.BlockSpec((tiles.rows, n), lambda i, j: (i, 0))
-  return _call(body, (m // tiles.rows, k // tiles.block),
-               [rows, rows, pl.BlockSpec((tiles.block, n), lambda i, j: (j, 0))],
-               pl.BlockSpec((tiles.rows, tiles.block), lambda i, j: (i, j)),
+  rows = pl.BlockSpec((tiles.rows, n), lambda j, i: (i, 0))
+  return _call(body, (k // tiles.block, m // tiles.rows),
+               [rows, rows, pl.BlockSpec((tiles.block, n), lambda j, i: (j, 0))],
+               pl.BlockSpec((tiles.rows, tiles.block), lambda j, i: (i, j)),
                jax.ShapeDtypeStruct((m, k), g.dtype), tiles, interpret)(g, y, w)
 
 
@@ -160,7 +162,7 @@ def _weight_gradients_body(x_ref, g_ref, y_ref, dw_ref, db_ref, *, rows, precisi
                                     (jnp.zeros(dw_ref.shape, jnp.float32), jnp.zeros(db_ref.shape, jnp.float32)))
   dw_ref[...] = weights
 
-  @pl.when(pl.program_id(1) == 0)  # Every tile of a column block sums the same bias gradient; one stores it.
+  @pl.when(pl.program_id(0) == 0)  # Every tile of a column block sums the same bias gradient; one stores it.
   def _():
     db_ref[...] = bias
 
@@ -170,10 +172,10 @@ def _weight_gradients(x, g, y, precision, tiles: Tiles, interpret: bool):
   (m, k), n, splits = x.shape, g.shape[1], tiles.splits
   per_split = m // splits
   body = functools.partial(_weight_gradients_body, rows=tiles.rows, precision=precision)
-  columns = pl.BlockSpec((per_split, tiles.block), lambda s, i, j: (s, j))
-  return _call(body, (splits, k // tiles.block, n // tiles.block),
-               [pl.BlockSpec((per_split, tiles.block), lambda s, i, j: (s, i)), columns, columns],
-               [pl.BlockSpec((None, tiles.block, tiles.block), lambda s, i, j: (s, i, j)),
-                pl.BlockSpec((None, tiles.block), lambda s, i, j: (s, j))],
+  columns = pl.BlockSpec((per_split, tiles.block), lambda i, j, s: (s, j))
+  return _call(body, (k // tiles.block, n // tiles.block, splits),
+               [pl.BlockSpec((per_split, tiles.block), lambda i, j, s: (s, i)), columns, columns],
+               [pl.BlockSpec((None, tiles.block, tiles.block), lambda i, j, s: (s, i, j)),
+                pl.BlockSpec((None, tiles.block), lambda i, j, s: (s, j))],
                [jax.ShapeDtypeStruct((splits, k, n), jnp.float32), jax.ShapeDtypeStruct((splits, n), jnp.float32)],
                tiles, interpret)(x, g, y)
