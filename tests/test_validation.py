@@ -6,6 +6,7 @@ import os
 import re
 
 import gin
+import jax
 import numpy as np
 import pytest
 
@@ -71,6 +72,13 @@ def test_the_fused_layer_refuses_an_activation_it_does_not_fuse():
     _load("MLP.dense_kernel = 'pallas'", 'MLP.net_activation = @flax.nn.softplus')
   for relu in ('@relu_from_output', '@flax.nn.relu'):
     _load("MLP.dense_kernel = 'pallas'", f'MLP.net_activation = {relu}')
+
+
+def test_the_fused_layer_refuses_several_devices(monkeypatch):
+  monkeypatch.setattr(jax, 'device_count', lambda: 2)
+  with pytest.raises(ValueError, match="^MLP.dense_kernel = 'pallas' runs on one device; this run has 2, "):
+    _load("MLP.dense_kernel = 'pallas'")
+  _load()  # XLA's layers split over any number.
 
 
 def test_sizes_of_the_nerf_model_are_checked_when_it_is_the_model():

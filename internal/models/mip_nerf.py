@@ -92,6 +92,9 @@ class MLP(nn.Module):
     cannot run (a bad FusedDenseTiles setting is named by Tiles)."""
     if self.dense_kernel not in DENSE_KERNELS:
       raise ValueError(f'MLP.dense_kernel = {self.dense_kernel!r}; expected one of {list(DENSE_KERNELS)}')
+    if self.dense_kernel == 'pallas' and jax.device_count() > 1:
+      raise ValueError(f"MLP.dense_kernel = 'pallas' runs on one device; this run has {jax.device_count()}, over "
+                       "which XLA cannot split a custom kernel (use one, e.g. CUDA_VISIBLE_DEVICES=0, or 'xla')")
     relu = {self.net_activation, getattr(self.net_activation, '__wrapped__', None)}  # gin's @name wraps it.
     if self.dense_kernel == 'pallas' and not relu & {nn.relu, activations.relu_from_output}:
       raise ValueError(f"MLP.dense_kernel = 'pallas' fuses ReLU into the layer; MLP.net_activation is "
