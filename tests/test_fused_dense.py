@@ -12,6 +12,7 @@ from jax import random
 
 from conftest import random_rays
 from internal.models import fused_dense
+from internal.run import flops
 from internal.models import mip_nerf
 
 SMALL = fused_dense.Tiles(rows=16, block=32, chunk=16, splits=2, num_warps=4, num_stages=2)
@@ -37,7 +38,7 @@ def _reference(x, w, b, g):
 
 def _fused(x, w, b, g, precision=HIGHEST, tiles=SMALL):
   """(y, dx, dW, db) of the fused layer (interpret mode)."""
-  layer = lambda *a: fused_dense.dense_relu(*a, precision=precision, tiles=tiles, interpret=True)
+  layer = lambda *a: fused_dense.dense_relu(*a, precision=precision, tiles=tiles)
   y, pullback = jax.vjp(layer, x, w, b)
   return (y,) + pullback(g.astype(y.dtype))
 
@@ -92,15 +93,20 @@ def test_every_tile_setting_gives_the_same_layer():
     np.testing.assert_allclose(a, c, rtol=2e-5, atol=2e-6)
 
 
-def _model_outputs(kernel, precision='float32'):
-  """Fine rgb and weight gradients of the tiny model with MLP.dense_kernel = kernel."""
+def _tiny_model(kernel, precision='float32'):
+  """(model, variables, rays) of the tiny model (4 hidden layers, the skip into the fourth) with MLP.dense_kernel."""
   gin.clear_config()
   gin.parse_config(['MLP.net_depth = 4', 'MLP.net_width = 32', 'MLP.skip_layer = 2', 'MLP.net_width_viewdirs = 16',
                     'MipNerfModel.num_samples = 8', f"MLP.dense_kernel = '{kernel}'",
                     'FusedDenseTiles.rows = 16', 'FusedDenseTiles.block = 32', 'FusedDenseTiles.chunk = 16',
                     'FusedDenseTiles.splits = 2'])
   rays = random_rays(4, 16)
-  model, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False, precision)
+  return mip_nerf.construct_model(random.PRNGKey(0), rays, False, precision) + (rays,)
+
+
+def _model_outputs(kernel, precision='float32'):
+  """Fine rgb and weight gradients of the tiny model with MLP.dense_kernel = kernel."""
+  model, variables, rays = _tiny_model(kernel, precision)
   render = lambda p: model.apply({'params': p}, None, rays)[0][-1]['rgb']
   rgb, pullback = jax.vjp(render, variables['params'])
   return rgb, pullback(jnp.ones_like(rgb))[0]
@@ -126,6 +132,19 @@ def test_unknown_kernel_and_non_relu_activation_are_named():
   with pytest.raises(ValueError, match='MLP.net_activation is softplus, expected relu'):
     mip_nerf.construct_model(random.PRNGKey(0), rays, False)
   gin.clear_config()
+
+
+def test_the_platform_lowered_for_picks_triton_or_the_interpreter():
+  """A GPU run's flop count lowers its step for the CPU (internal/run/flops.py): the kernel must follow the
+  platform lowered for, not the process's backend."""
+  model, variables, rays = _tiny_model('pallas', 'bfloat16')
+  loss = jax.jit(jax.grad(lambda p: jnp.sum(model.apply({'params': p}, None, rays)[0][-1]['rgb'])))
+  traced = loss.trace(variables['params'])
+  on_gpu, on_cpu = (traced.lower(lowering_platforms=(p,)).as_text() for p in ('cuda', 'cpu'))
+  assert set(re.findall(r'name = "(fused_dense_\w+)"', on_gpu)) == {
+      'fused_dense_forward', 'fused_dense_input_gradient', 'fused_dense_weight_gradients'}
+  assert 'triton' not in on_cpu and 'fused_dense' not in on_cpu and 'while' in on_cpu
+  assert flops.lowered_flops(loss, variables['params']) > 0
 
 
 @pytest.mark.parametrize('depth', [99, 256, 355])  # The paper's first, hidden and skip layers.

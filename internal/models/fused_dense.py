@@ -9,8 +9,9 @@ and the bias's, both accumulated and returned in float32 (partial sums over row 
 Each grid lists first the axis of the tiles that read the same rows: Triton launches the first axis fastest, so
 those tiles run side by side and all but the first read the rows from L2, not memory.
 The products run at the layer's matmul precision; unlike XLA's bfloat16 path the bias is added before the single
-rounding to bfloat16, not after the product's. On a CPU the kernels run in Pallas's interpret mode (the tests);
-on an NVIDIA GPU through Triton. A step variant, timed by bench.step_variants.
+rounding to bfloat16, not after the product's. On an NVIDIA (or AMD) GPU Triton compiles the kernels; on any
+other platform they run in Pallas's interpret mode (the tests, on the CPU). A step variant, timed by
+bench.step_variants.
 """
 
 import dataclasses
@@ -45,18 +46,16 @@ class Tiles:
         raise ValueError(f'FusedDenseTiles.{name} = {value!r}; expected an integer >= 1')
 
 
-def dense_relu(x, kernel, bias, precision=None, tiles: Tiles = None, interpret: bool = False):
+def dense_relu(x, kernel, bias, precision=None, tiles: Tiles = None):
   """relu(x [M, K] @ kernel [K, N] + bias [N]) [M, N] in x's dtype; gradients of kernel and bias in float32.
-
-  tiles: None for Tiles() as gin binds it (FusedDenseTiles.*); interpret: Pallas's interpret mode (any backend).
-  """
+  tiles: None for Tiles() as gin binds them (FusedDenseTiles.*)."""
   tiles = tiles or Tiles()
   rows, depth, width = (_round_up(x.shape[0], tiles.rows * tiles.splits),
                         _round_up(x.shape[1], max(tiles.block, tiles.chunk)), _round_up(kernel.shape[1], tiles.block))
   # Zero padding is inert: padded inputs and kernel rows add nothing, and the gradients of padded rows and
   # columns (relu(bias) > 0 there) are zero because the slice below passes them none.
   padded = _fused(_pad(x, rows, depth), _pad(kernel, depth, width), jnp.pad(bias, (0, width - bias.shape[0])),
-                  precision, tiles, interpret)
+                  precision, tiles)
   return padded[:x.shape[0], :kernel.shape[1]]
 
 
@@ -69,34 +68,40 @@ def _pad(a, rows: int, cols: int):
   return jnp.pad(a, ((0, rows - a.shape[0]), (0, cols - a.shape[1])))
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(3, 4, 5))
-def _fused(x, kernel, bias, precision, tiles, interpret):
+@functools.partial(jax.custom_vjp, nondiff_argnums=(3, 4))
+def _fused(x, kernel, bias, precision, tiles):
   """dense_relu on shapes that are whole tiles."""
-  return _forward(x, kernel.astype(x.dtype), bias, precision, tiles, interpret)
+  return _forward(x, kernel.astype(x.dtype), bias, precision, tiles)
 
 
-def _fused_forward(x, kernel, bias, precision, tiles, interpret):
+def _fused_forward(x, kernel, bias, precision, tiles):
   low = kernel.astype(x.dtype)
-  y = _forward(x, low, bias, precision, tiles, interpret)
+  y = _forward(x, low, bias, precision, tiles)
   return y, (x, low, y)
 
 
-def _fused_backward(precision, tiles, interpret, residuals, g):
+def _fused_backward(precision, tiles, residuals, g):
   x, low, y = residuals
-  dx = _input_gradient(g, y, low, precision, tiles, interpret)
-  kernel_parts, bias_parts = _weight_gradients(x, g, y, precision, tiles, interpret)
+  dx = _input_gradient(g, y, low, precision, tiles)
+  kernel_parts, bias_parts = _weight_gradients(x, g, y, precision, tiles)
   return dx, jnp.sum(kernel_parts, axis=0), jnp.sum(bias_parts, axis=0)
 
 
 _fused.defvjp(_fused_forward, _fused_backward)
 
 
-def _call(body, grid, in_specs, out_specs, out_shape, tiles: Tiles, interpret: bool):
-  """pallas_call of body over grid with the tiles' launch settings, its kernel named fused_dense_<body's name>."""
+def _call(body, grid, in_specs, out_specs, out_shape, tiles: Tiles):
+  """pallas_call of body over grid with the tiles' launch settings, its kernel named fused_dense_<body's name>:
+  compiled by Triton for an NVIDIA or AMD GPU, interpreted for any other platform."""
   params = pallas_triton.CompilerParams(num_warps=tiles.num_warps, num_stages=tiles.num_stages)
   name = 'fused_dense_' + body.func.__name__.strip('_').removesuffix('_body')  # A profile's kernel name.
-  return pl.pallas_call(body, out_shape=out_shape, grid=grid, in_specs=in_specs, out_specs=out_specs,
-                        interpret=interpret, compiler_params=params, name=name)
+  kernel = lambda interpret: pl.pallas_call(body, out_shape=out_shape, grid=grid, in_specs=in_specs,
+                                            out_specs=out_specs, interpret=interpret, compiler_params=params,
+                                            name=name)
+  # Chosen by the platform the step is lowered for, not the default backend: a GPU run's flop count lowers the
+  # same step for the CPU (internal/run/flops.py), where only the interpreter runs.
+  return lambda *args: jax.lax.platform_dependent(*args, cuda=kernel(False), rocm=kernel(False),
+                                                  default=kernel(True))
 
 
 def _masked(g, y):
@@ -119,7 +124,7 @@ def _forward_body(x_ref, w_ref, b_ref, y_ref, *, chunk, precision):
   y_ref[...] = jnp.maximum(total + b_ref[...].astype(jnp.float32)[None, :], 0).astype(y_ref.dtype)
 
 
-def _forward(x, w, b, precision, tiles: Tiles, interpret: bool):
+def _forward(x, w, b, precision, tiles: Tiles):
   """relu(x [M, K] @ w [K, N] + b [N]) [M, N] in x's dtype."""
   (m, k), n = x.shape, w.shape[1]
   body = functools.partial(_forward_body, chunk=tiles.chunk, precision=precision)
@@ -128,7 +133,7 @@ def _forward(x, w, b, precision, tiles: Tiles, interpret: bool):
                 pl.BlockSpec((k, tiles.block), lambda j, i: (0, j)),
                 pl.BlockSpec((tiles.block,), lambda j, i: (j,))],
                pl.BlockSpec((tiles.rows, tiles.block), lambda j, i: (i, j)),
-               jax.ShapeDtypeStruct((m, n), x.dtype), tiles, interpret)(x, w, b)
+               jax.ShapeDtypeStruct((m, n), x.dtype), tiles)(x, w, b)
 
 
 def _input_gradient_body(g_ref, y_ref, w_ref, dx_ref, *, chunk, precision):
@@ -140,7 +145,7 @@ def _input_gradient_body(g_ref, y_ref, w_ref, dx_ref, *, chunk, precision):
   dx_ref[...] = total.astype(dx_ref.dtype)
 
 
-def _input_gradient(g, y, w, precision, tiles: Tiles, interpret: bool):
+def _input_gradient(g, y, w, precision, tiles: Tiles):
   """dx [M, K] in g's dtype of output gradients g and outputs y [M, N], kernel w [K, N]."""
   (m, n), k = g.shape, w.shape[0]
   body = functools.partial(_input_gradient_body, chunk=tiles.chunk, precision=precision)
@@ -148,7 +153,7 @@ def _input_gradient(g, y, w, precision, tiles: Tiles, interpret: bool):
   return _call(body, (k // tiles.block, m // tiles.rows),
                [rows, rows, pl.BlockSpec((tiles.block, n), lambda j, i: (j, 0))],
                pl.BlockSpec((tiles.rows, tiles.block), lambda j, i: (i, j)),
-               jax.ShapeDtypeStruct((m, k), g.dtype), tiles, interpret)(g, y, w)
+               jax.ShapeDtypeStruct((m, k), g.dtype), tiles)(g, y, w)
 
 
 def _weight_gradients_body(x_ref, g_ref, y_ref, dw_ref, db_ref, *, rows, precision):
@@ -167,7 +172,7 @@ def _weight_gradients_body(x_ref, g_ref, y_ref, dw_ref, db_ref, *, rows, precisi
     db_ref[...] = bias
 
 
-def _weight_gradients(x, g, y, precision, tiles: Tiles, interpret: bool):
+def _weight_gradients(x, g, y, precision, tiles: Tiles):
   """Per row split: kernel gradients [splits, K, N] and bias gradients [splits, N] in float32."""
   (m, k), n, splits = x.shape, g.shape[1], tiles.splits
   per_split = m // splits
@@ -178,4 +183,4 @@ def _weight_gradients(x, g, y, precision, tiles: Tiles, interpret: bool):
                [pl.BlockSpec((None, tiles.block, tiles.block), lambda i, j, s: (s, i, j)),
                 pl.BlockSpec((None, tiles.block), lambda i, j, s: (s, j))],
                [jax.ShapeDtypeStruct((splits, k, n), jnp.float32), jax.ShapeDtypeStruct((splits, n), jnp.float32)],
-               tiles, interpret)(x, g, y)
+               tiles)(x, g, y)

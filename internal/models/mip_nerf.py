@@ -111,7 +111,7 @@ class MLP(nn.Module):
       return self.net_activation(self._dense(name, *parts))
     layer = self.layers[name]
     return fused_dense.dense_relu(jnp.concatenate(parts, axis=-1), layer['kernel'], layer['bias'],
-                                  self.matmul_precision, self.tiles, interpret=jax.default_backend() == 'cpu')
+                                  self.matmul_precision, self.tiles)
 
   def _skip_after(self, i: int) -> bool:
     return i % self.skip_layer == 0 and i > 0
