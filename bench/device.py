@@ -17,7 +17,6 @@ import argparse
 import json
 import os
 import resource
-import shlex
 import sys
 
 import gin
@@ -121,7 +120,7 @@ def main(argv=None):
   bindings = TINY if args.tiny else []
   report = {'device': jax.devices()[0].device_kind, 'platform': jax.devices()[0].platform,
             'jax_version': jax.__version__,
-            'command': shlex.join(['python', '-m', 'bench.device'] + list(sys.argv[1:] if argv is None else argv)),
+            'command': cli.command_line('bench.device', argv),
             'batch_size': args.batch_size, 'repeats': args.repeats, 'render_rays': args.render_rays,
             'tiny': args.tiny, 'results': {}}
   print(f'{report["device"]} ({report["platform"]}), jax {report["jax_version"]}: {report["command"]}')

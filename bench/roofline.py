@@ -17,7 +17,6 @@ import argparse
 import dataclasses
 import json
 import os
-import shlex
 import sys
 
 from bench import common
@@ -145,7 +144,7 @@ def main(argv=None):
     config = common.gin_config([args.gin_configs], [], batch_size=batch_size)
     return step_layers(config, registry.build(config.model, white_background=config.white_background))
   layers = layers_of(args.batch_size)
-  command = shlex.join(['python', '-m', 'bench.roofline'] + list(sys.argv[1:] if argv is None else argv))
+  command = cli.command_line('bench.roofline', argv)
   text = (f'`{command}`\n\n{sum(l.flops() for l in layers) / args.batch_size / 1e9:.3f} GFLOP of matmuls a ray, '
           f'batch {args.batch_size}:\n\n' + table(layers, GPUS))
   if args.measured:

@@ -22,7 +22,6 @@ plain step's) measured at one precision in --measured, or base when none is fast
 import argparse
 import json
 import os
-import shlex
 import sys
 
 import jax
@@ -180,8 +179,7 @@ def main(argv=None):
   batch = common.dtu_like_batch(args.batch_size)
   report = {'device': jax.devices()[0].device_kind, 'platform': jax.devices()[0].platform,
             'jax_version': jax.__version__,
-            'command': shlex.join(['python', '-m', 'bench.step_variants']
-                                  + list(sys.argv[1:] if argv is None else argv)),
+            'command': cli.command_line('bench.step_variants', argv),
             'method': args.method, 'batch_size': args.batch_size, 'repeats': args.repeats, 'tiny': args.tiny,
             'results': {}}
   for name in names:  # Written after each precision: a run stopped part way keeps what it measured.

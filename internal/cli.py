@@ -16,6 +16,8 @@ environment shows the traceback of user errors too. Warnings print as one line `
 
 import argparse
 import os
+import re
+import shlex
 import signal
 import sys
 import warnings
@@ -100,6 +102,18 @@ def run(main) -> int:
 
 
 MULTI_VALUE_FLAGS = ('--gin_configs', '--gin_bindings')
+
+
+def quoted(words) -> str:
+  """Words as one shell line a user can paste: plain words bare, others in double quotes (a gin binding's 'strings'
+  stay readable), or shell-quoted where double quotes would expand them."""
+  return ' '.join(w if re.fullmatch(r'[\w@%+=:,./-]+', w) else f'"{w}"' if not re.search(r'["$`\\!]', w)
+                  else shlex.quote(w) for w in words)
+
+
+def command_line(module: str, argv=None) -> str:
+  """The line that ran `python -m module` with argv (default: this process's arguments), quoted."""
+  return quoted(['python', '-m', module] + list(sys.argv[1:] if argv is None else argv))
 
 
 def split_flag_values(argv):

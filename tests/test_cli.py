@@ -26,6 +26,15 @@ def test_every_form_of_the_multi_value_flags(argv):
   assert args.gin_configs == ['x.gin', 'y.gin'] and args.gin_bindings == ['A = 1', 'B = 2']
 
 
+def test_recorded_command_lines_give_the_shell_back_the_same_words():
+  words = ['--gin_bindings', "Config.data_dir = 'my scans'", "--gin_bindings=Config.near='a'", 'a$HOME', 'say "hi"',
+           '', 'plain/path-1.gin', "it's"]
+  line = cli.command_line('tools.study', words)
+  assert line.startswith('python -m tools.study --gin_bindings "Config.data_dir = \'my scans\'" ')
+  echoed = subprocess.run(['bash', '-c', f'printf "%s\\n" {line}'], capture_output=True, text=True, check=True)
+  assert echoed.stdout.split('\n')[:-1] == ['python', '-m', 'tools.study'] + words
+
+
 def test_other_flags_keep_their_equals_form():
   parser = cli.flag_parser('test')
   parser.add_argument('--stop_at_step', type=int, default=0)

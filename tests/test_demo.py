@@ -12,6 +12,7 @@ import numpy as np
 from PIL import Image
 import pytest
 
+from internal import cli
 from internal import config_loader
 from internal import demo
 from internal.evaluation import evaluate
@@ -183,7 +184,7 @@ def test_the_recorded_results_are_the_demo_over_several_seeds():
   seeds = [r['seed'] for r in records]
   assert len(seeds) >= 2 and demo_seeds.DEFAULT_SEED in seeds, seeds
   for record in records:  # Made by the demo's own commands, with no setting but the seed changed.
-    assert record['demo']['command'] == provenance.quoted(
+    assert record['demo']['command'] == cli.quoted(
         ['python', 'train.py'] + (['--gin_bindings', *demo_seeds.seed_bindings(record['seed'])]
                                   if record['seed'] != demo_seeds.DEFAULT_SEED else []))
     assert '+dirty' not in record['provenance']['commit'] and '--gin_bindings' not in record['provenance']['command']

@@ -59,7 +59,7 @@ def commands(seed: int, extra=()) -> dict:
 
 def shown(argv: list) -> str:
   """A command as a user types it in the repository: python, paths relative to it."""
-  return provenance.quoted(['python'] + [a[len(ROOT) + 1:] if a.startswith(ROOT + os.sep) else a for a in argv[1:]])
+  return cli.quoted(['python'] + [a[len(ROOT) + 1:] if a.startswith(ROOT + os.sep) else a for a in argv[1:]])
 
 
 def run_timed(argv_list: list, cwd: str, log: str) -> float:

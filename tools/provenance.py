@@ -8,6 +8,8 @@ import subprocess
 import sys
 from typing import Dict, List, Optional
 
+from internal import cli
+
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -63,11 +65,6 @@ def machine() -> Dict[str, object]:
           'devices': f'{len(devices)} x {devices[0].device_kind}'}
 
 
-def quoted(words) -> str:
-  """Words joined as a shell line, those with spaces in double quotes."""
-  return ' '.join(f'"{w}"' if ' ' in w else w for w in words)
-
-
 def cpu_model(cpuinfo: str = '/proc/cpuinfo') -> str:
   """The CPU's model name (Linux), else the platform's processor name."""
   try:
@@ -80,6 +77,6 @@ def cpu_model(cpuinfo: str = '/proc/cpuinfo') -> str:
 def record(command_words) -> dict:
   """{'command', 'commit' (HEAD, '+dirty' when tracked files differ), 'changed_files' (those files), 'machine'
   (versions, CPU), 'date'}."""
-  return {'command': quoted(command_words), 'commit': git_commit(ROOT), 'changed_files': changed_files(ROOT),
+  return {'command': cli.quoted(command_words), 'commit': git_commit(ROOT), 'changed_files': changed_files(ROOT),
           'machine': dict(machine(), cpu=cpu_model()),
           'date': datetime.datetime.now().isoformat(timespec='seconds')}

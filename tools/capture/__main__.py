@@ -227,7 +227,7 @@ def main(argv=None) -> int:
     raise CaptureError(f'{err} (what was written so far stays in {args.out!r}; add --overwrite to replace it)'
                        ) from err
   report['seconds']['total'] = time.perf_counter() - start
-  report['command'] = ' '.join(['python -m tools.capture'] + (sys.argv[1:] if argv is None else list(argv)))
+  report['command'] = cli.command_line('tools.capture', argv)
   with open(output.claim('report.json'), 'w', encoding='utf-8') as f:
     json.dump(report, f, indent=1)
   print(report_lib.summary(report))

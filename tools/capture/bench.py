@@ -121,7 +121,7 @@ def main(argv=None) -> int:
   parser.add_argument('--max_size', type=int, default=capture.MAX_SIZE)
   args = parser.parse_args(argv)
   rows = [run(args, matching) for matching in args.matching]
-  record = {'command': ' '.join(['python -m tools.capture.bench'] + (sys.argv[1:] if argv is None else argv)),
+  record = {'command': cli.command_line('tools.capture.bench', argv),
             'commit': provenance.git_commit(capture.REPO), 'machine': provenance.machine(),
             'pycolmap': sfm.require_pycolmap().__version__, 'targets': TARGETS, 'runs': rows}
   os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)

@@ -12,7 +12,6 @@ maxima and the first Ray cell (a worker starting) with the machine and versions 
 import argparse
 import json
 import os
-import platform
 import statistics
 import sys
 import tempfile
@@ -73,10 +72,9 @@ def main(argv=None) -> int:
       times['ray'].append(timed(ray_executor, path))
   local.close()
   ray_executor.close()
-  record = {'command': ' '.join(['python -m tools.study.overhead'] + list(sys.argv[1:] if argv is None else argv)),
+  record = {'command': cli.command_line('tools.study.overhead', argv),
             'commit': provenance.git_commit(study_schedule.REPO), 'date': time.strftime('%Y-%m-%d %H:%M %z'),
-            'machine': {'platform': platform.platform(), 'cpu_count': os.cpu_count(),
-                        'python': sys.version.split()[0], 'ray': ray_executor.ray.__version__},
+            'machine': dict(provenance.machine(), ray=ray_executor.ray.__version__),
             'cluster': args.address or 'local (started by the command)',
             'local': summary(times['local']), 'ray': summary(times['ray'][1:]),
             'ray_first_cell_overhead_s': times['ray'][0]['outer'] - times['ray'][0]['inner'], 'per_cell': times}

@@ -476,7 +476,7 @@ def main(argv=None) -> int:
 def _export(study: study_spec.Study, args, argv) -> None:
   """--export: copies the study's results into args.export, recording this command."""
   if args.export:
-    command = ' '.join(['python -m tools.study'] + list(sys.argv[1:] if argv is None else argv))
+    command = cli.command_line('tools.study', argv)
     for path in study_export.export(study, args.study, study_dir(study, args.out), args.export, command):
       print(path)
 
