@@ -322,6 +322,8 @@ def test_a_dirty_commit_names_the_files_that_differ(tmp_path):
   assert not provenance.git_commit(str(tmp_path)).endswith('+dirty')
   (tmp_path / 'b.py').write_text('x = 2\n')
   (tmp_path / 'untracked.py').write_text('')
-  assert provenance.changed_files(str(tmp_path)) == ['b.py']
-  assert provenance.git_commit(str(tmp_path)).endswith('+dirty')
+  commit, changed = provenance.code_state(str(tmp_path))
+  assert changed == provenance.changed_files(str(tmp_path)) == ['b.py']
+  assert commit.endswith('+dirty') and commit == provenance.git_commit(str(tmp_path))
   assert provenance.changed_files(str(tmp_path / 'nowhere')) == []
+  assert provenance.code_state(str(tmp_path / 'nowhere')) == ('unknown', [])

@@ -6,7 +6,7 @@ import os
 import platform
 import subprocess
 import sys
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, Tuple
 
 from internal import cli
 
@@ -28,12 +28,19 @@ def changed_files(repo: str) -> List[str]:
   return sorted(line[3:] for line in (status or '').splitlines() if line.strip())
 
 
-def git_commit(repo: str) -> str:
-  """HEAD of the repository, with '+dirty' when tracked files differ from it ('unknown' outside git)."""
+def code_state(repo: str) -> Tuple[str, List[str]]:
+  """(HEAD of the repository with '+dirty' when tracked files differ from it, those files), from one git status;
+  ('unknown', []) outside git."""
   head = _git(repo, 'rev-parse', 'HEAD')
   if head is None:
-    return 'unknown'
-  return head.strip() + ('+dirty' if changed_files(repo) else '')
+    return 'unknown', []
+  changed = changed_files(repo)
+  return head.strip() + ('+dirty' if changed else ''), changed
+
+
+def git_commit(repo: str) -> str:
+  """HEAD of the repository, with '+dirty' when tracked files differ from it ('unknown' outside git)."""
+  return code_state(repo)[0]
 
 
 def file_sha256(path: str) -> str:
@@ -77,6 +84,7 @@ def cpu_model(cpuinfo: str = '/proc/cpuinfo') -> str:
 def record(command_words) -> dict:
   """{'command', 'commit' (HEAD, '+dirty' when tracked files differ), 'changed_files' (those files), 'machine'
   (versions, CPU), 'date'}."""
-  return {'command': cli.quoted(command_words), 'commit': git_commit(ROOT), 'changed_files': changed_files(ROOT),
+  commit, changed = code_state(ROOT)
+  return {'command': cli.quoted(command_words), 'commit': commit, 'changed_files': changed,
           'machine': dict(machine(), cpu=cpu_model()),
           'date': datetime.datetime.now().isoformat(timespec='seconds')}

@@ -131,7 +131,7 @@ def _train_and_evaluate(path: str) -> dict:
   from internal.evaluation import evaluate
   from internal.pipeline import loop
   from internal.run import checkpoints, flops
-  commit, changed = provenance.git_commit(REPO), provenance.changed_files(REPO)  # The code it starts with.
+  commit, changed = provenance.code_state(REPO)  # The code it starts with.
   spec, config = _cell_config(path)
   try:
     start_step = checkpoints.latest_step(config.checkpoint_dir)
