@@ -90,6 +90,12 @@ def _fused_backward(precision, tiles, residuals, g):
 _fused.defvjp(_fused_forward, _fused_backward)
 
 
+def _step_size(size: int, dtype) -> int:
+  """A loop step of `size` 2-byte elements, kept to the same bytes for wider types (>= 16): Triton holds
+  num_stages steps of every operand in shared memory, which float32 at the bfloat16 sizes would overflow."""
+  return max(16, size * 2 // jnp.dtype(dtype).itemsize)
+
+
 def _call(body, grid, in_specs, out_specs, out_shape, tiles: Tiles):
   """pallas_call of body over grid with the tiles' launch settings, its kernel named fused_dense_<body's name>:
   compiled by Triton for an NVIDIA or AMD GPU, interpreted for any other platform."""
@@ -127,7 +133,7 @@ def _forward_body(x_ref, w_ref, b_ref, y_ref, *, chunk, precision):
 def _forward(x, w, b, precision, tiles: Tiles):
   """relu(x [M, K] @ w [K, N] + b [N]) [M, N] in x's dtype."""
   (m, k), n = x.shape, w.shape[1]
-  body = functools.partial(_forward_body, chunk=tiles.chunk, precision=precision)
+  body = functools.partial(_forward_body, chunk=_step_size(tiles.chunk, x.dtype), precision=precision)
   return _call(body, (n // tiles.block, m // tiles.rows),
                [pl.BlockSpec((tiles.rows, k), lambda j, i: (i, 0)),
                 pl.BlockSpec((k, tiles.block), lambda j, i: (0, j)),
@@ -148,7 +154,7 @@ def _input_gradient_body(g_ref, y_ref, w_ref, dx_ref, *, chunk, precision):
 def _input_gradient(g, y, w, precision, tiles: Tiles):
   """dx [M, K] in g's dtype of output gradients g and outputs y [M, N], kernel w [K, N]."""
   (m, n), k = g.shape, w.shape[0]
-  body = functools.partial(_input_gradient_body, chunk=tiles.chunk, precision=precision)
+  body = functools.partial(_input_gradient_body, chunk=_step_size(tiles.chunk, g.dtype), precision=precision)
   rows = pl.BlockSpec((tiles.rows, n), lambda j, i: (i, 0))
   return _call(body, (k // tiles.block, m // tiles.rows),
                [rows, rows, pl.BlockSpec((tiles.block, n), lambda j, i: (j, 0))],
@@ -176,7 +182,7 @@ def _weight_gradients(x, g, y, precision, tiles: Tiles):
   """Per row split: kernel gradients [splits, K, N] and bias gradients [splits, N] in float32."""
   (m, k), n, splits = x.shape, g.shape[1], tiles.splits
   per_split = m // splits
-  body = functools.partial(_weight_gradients_body, rows=tiles.rows, precision=precision)
+  body = functools.partial(_weight_gradients_body, rows=_step_size(tiles.rows, x.dtype), precision=precision)
   columns = pl.BlockSpec((per_split, tiles.block), lambda i, j, s: (s, j))
   return _call(body, (k // tiles.block, n // tiles.block, splits),
                [pl.BlockSpec((per_split, tiles.block), lambda i, j, s: (s, i)), columns, columns],
