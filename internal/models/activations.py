@@ -22,8 +22,13 @@ def _forward(x):
   return y, y
 
 
+def gradient_from_output(y, g):
+  """ReLU's gradient [...]: g [...] where its output y [...] > 0, else 0 (NaN outputs pass none, as jax's relu)."""
+  return jnp.where(y > 0, g, jnp.zeros_like(g))
+
+
 def _backward(y, g):
-  return (jnp.where(y > 0, g, jnp.zeros_like(g)),)
+  return (gradient_from_output(y, g),)
 
 
 relu_from_output.defvjp(_forward, _backward)

@@ -23,6 +23,8 @@ import jax.numpy as jnp
 from jax.experimental import pallas as pl
 from jax.experimental.pallas import triton as pallas_triton
 
+from internal.models import activations
+
 
 @gin.configurable('FusedDenseTiles')
 @dataclasses.dataclass(frozen=True)
@@ -110,11 +112,6 @@ def _call(body, grid, in_specs, out_specs, out_shape, tiles: Tiles):
                                                   default=kernel(True))
 
 
-def _masked(g, y):
-  """ReLU's gradient: g where the output y > 0, else 0 (NaN outputs pass none, as jax's relu)."""
-  return jnp.where(y > 0, g, jnp.zeros_like(g))
-
-
 def _product(a, b, contract, precision):
   """a @ b contracting dimension contract[0] of a with contract[1] of b, accumulated in float32."""
   return jax.lax.dot_general(a, b, (((contract[0],), (contract[1],)), ((), ())), precision=precision,
@@ -146,7 +143,8 @@ def _input_gradient_body(g_ref, y_ref, w_ref, dx_ref, *, chunk, precision):
   """One [rows, block] tile of dx = (g * [y > 0]) @ w^T, the outputs in chunks."""
   def step(n, total):
     span = pl.ds(n * chunk, chunk)
-    return total + _product(_masked(g_ref[:, span], y_ref[:, span]), w_ref[:, span], (1, 1), precision)
+    masked = activations.gradient_from_output(y_ref[:, span], g_ref[:, span])
+    return total + _product(masked, w_ref[:, span], (1, 1), precision)
   total = jax.lax.fori_loop(0, g_ref.shape[1] // chunk, step, jnp.zeros(dx_ref.shape, jnp.float32))
   dx_ref[...] = total.astype(dx_ref.dtype)
 
@@ -166,7 +164,7 @@ def _weight_gradients_body(x_ref, g_ref, y_ref, dw_ref, db_ref, *, rows, precisi
   """One row split's [block, block] tile of x^T @ (g * [y > 0]) and its [block] of the bias gradient."""
   def step(r, totals):
     span = pl.ds(r * rows, rows)
-    masked = _masked(g_ref[span, :], y_ref[span, :])
+    masked = activations.gradient_from_output(y_ref[span, :], g_ref[span, :])
     return (totals[0] + _product(x_ref[span, :], masked, (0, 0), precision),
             totals[1] + jnp.sum(masked.astype(jnp.float32), axis=0))
   weights, bias = jax.lax.fori_loop(0, x_ref.shape[0] // rows, step,
