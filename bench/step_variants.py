@@ -122,8 +122,8 @@ def measure_precision(precision_name: str, args, batch):
     if base and 'step_seconds' in base:
       figures.update(numerics_against(figures, base), vs_base=seconds / times['base'])
   if args.profile_steps:
-    fastest = min(times, key=times.get)
-    for variant in [v for v in dict.fromkeys(('base', fastest)) if v in runners]:
+    quickest = min(times, key=times.get)
+    for variant in [v for v in dict.fromkeys(('base', quickest)) if v in runners]:
       trace_file = os.path.join(args.out_dir, f'trace_{precision_name}_{variant}.json.gz') if args.out_dir else ''
       trace = kernel_profile.record(runners[variant], args.profile_steps, trace_file)
       results[variant]['profile'] = kernel_profile.summarise(kernel_profile.device_kernels(trace), args.profile_steps)
