@@ -126,10 +126,7 @@ def validate(config: Config) -> None:
   _check_types(config)
   _check_ranges(config)
   _check_generated_size(config.generated_size)
-  _check_model_sizes(config.model)
-  for gin_name, module in registry.gin_modules(config.model):
-    if gin_name == 'MLP':  # Its fused kernel's settings, before any data is read.
-      module.check_dense_kernel()
+  _check_model_settings(config.model)
   if config.far <= config.near:
     raise ValueError(f'Config.far = {config.far} must exceed Config.near = {config.near}')
   if loader.ndc(config) is False and config.near <= 0.:
@@ -192,13 +189,16 @@ MODEL_MINIMUMS = {'MipNerfModel': (('num_samples', 1), ('num_levels', 1)),
                   'NerfMLP': (('net_width', 1), ('net_width_viewdirs', 1))}
 
 
-def _check_model_sizes(model: str) -> None:
-  """Raises a ValueError naming the binding (e.g. MipNerfModel.num_samples) of a model size out of range."""
+def _check_model_settings(model: str) -> None:
+  """Raises a ValueError naming the binding (e.g. MipNerfModel.num_samples) of a model size out of range, or of
+  mip-NeRF's MLP's fused kernel settings that cannot run."""
   for gin_name, module in registry.gin_modules(model):
     for name, minimum in MODEL_MINIMUMS.get(gin_name, ()):
       value = getattr(module, name)
       if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise ValueError(f'{gin_name}.{name} = {value!r}; expected an integer >= {minimum}')
+    if isinstance(module, mip_nerf.MLP):
+      module.check_dense_kernel()
 
 
 def _check_ndc_near_far(config: Config) -> None:
