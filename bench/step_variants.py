@@ -37,6 +37,7 @@ from internal import cli
 from internal.models import mip_nerf
 from internal.models import precision
 from internal.training import train_step as ts
+from tools import provenance
 
 RELU_FROM_OUTPUT = ('MLP.net_activation = @relu_from_output',)
 PALLAS = ("MLP.dense_kernel = 'pallas'",)
@@ -47,9 +48,11 @@ VARIANTS = {'base': ((), {}),
             'cublaslt_relu_from_output': (RELU_FROM_OUTPUT, CUBLASLT),
             'triton_gemm_off': ((), {'xla_gpu_enable_triton_gemm': False}),
             'triton_gemm_any': ((), {'xla_gpu_triton_gemm_any': True}),
-            # The hidden layers as fused Pallas kernels (internal/models/fused_dense.py), at three tilings.
+            # The hidden layers as fused Pallas kernels (internal/models/fused_dense.py), at four tilings; longer
+            # row tiles re-read the weights less (the 256-row dx tile's steps halved to fit shared memory).
             'pallas': (PALLAS, {}),
             'pallas_rows128': (PALLAS + ('FusedDenseTiles.rows = 128',), {}),
+            'pallas_rows256': (PALLAS + ('FusedDenseTiles.rows = 256', 'FusedDenseTiles.chunk = 32'), {}),
             'pallas_block64': (PALLAS + ('FusedDenseTiles.block = 64', 'FusedDenseTiles.num_warps = 4'), {})}
 
 
@@ -280,6 +283,8 @@ def main(argv=None):
   report = {'device': jax.devices()[0].device_kind, 'platform': jax.devices()[0].platform,
             'jax_version': jax.__version__,
             'command': cli.command_line('bench.step_variants', argv),
+            'provenance': provenance.record(['python', '-m', 'bench.step_variants'] +
+                                            list(sys.argv[1:] if argv is None else argv)),
             'method': args.method, 'batch_size': args.batch_size, 'repeats': args.repeats, 'tiny': args.tiny,
             'results': {}}
   for name in names:  # Written after each precision: a run stopped part way keeps what it measured.

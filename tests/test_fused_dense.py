@@ -1,6 +1,7 @@
 """The fused Pallas dense layer (MLP.dense_kernel = 'pallas'): relu(x @ W + b) and its gradients against float64
 references and against XLA's layer, in interpret mode on the CPU, and its lowering to Triton for an NVIDIA GPU."""
 
+import math
 import re
 
 import gin
@@ -9,7 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax import random
+from jax._src.interpreters import mlir  # The Triton kernels' IR, read back below (no public API reads it).
+from jax._src.lib import triton
+from jax._src.lib.mlir import ir
 
+from bench import step_variants
 from conftest import random_rays
 from internal.models import fused_dense
 from internal.run import flops
@@ -88,8 +93,9 @@ def test_nonfinite_inputs_stay_in_their_rows_as_in_xla():
 def test_every_tile_setting_gives_the_same_layer():
   x, w, b, g = _inputs(3, 100, 70, 64)
   first = _fused(x, w, b, g)
-  other = fused_dense.Tiles(rows=32, block=16, chunk=32, splits=3, num_warps=2, num_stages=1)
-  for tiles in (other, fused_dense.Tiles()):  # The defaults halve their loop steps for float32.
+  others = (fused_dense.Tiles(rows=32, block=16, chunk=32, dw_rows=16, splits=3, num_warps=2, num_stages=1),
+            fused_dense.Tiles(rows=16, block=32, chunk=16, dw_rows=32, splits=2))  # Weight-gradient steps > rows.
+  for tiles in others + (fused_dense.Tiles(),):  # The defaults halve their loop steps for float32.
     for a, c in zip(first, _fused(x, w, b, g, tiles=tiles)):
       np.testing.assert_allclose(a, c, rtol=2e-5, atol=2e-6)
 
@@ -135,29 +141,101 @@ def test_unknown_kernel_and_non_relu_activation_are_named():
   gin.clear_config()
 
 
+def _for_an_h100():
+  """A context in which jax lowers for CUDA without a GPU: jax >= 0.11 lowers Pallas's Triton kernels only for a GPU
+  it recognises, here an abstract H100 (jax 0.10 assumed one)."""
+  h100 = jax.sharding.AbstractDevice(device_kind='NVIDIA H100 80GB HBM3', num_cores=None, platform='gpu')
+  mesh = jax.sharding.AbstractMesh((1,), ('batch',), (jax.sharding.AxisType.Auto,), abstract_device=h100)
+  return jax.sharding.use_abstract_mesh(mesh)
+
+
 def test_the_platform_lowered_for_picks_triton_or_the_interpreter():
   """A GPU run's flop count lowers its step for the CPU (internal/run/flops.py): the kernel must follow the
   platform lowered for, not the process's backend."""
   model, variables, rays = _tiny_model('pallas', 'bfloat16')
   loss = jax.jit(jax.grad(lambda p: jnp.sum(model.apply({'params': p}, None, rays)[0][-1]['rgb'])))
-  traced = loss.trace(variables['params'])
-  on_gpu, on_cpu = (traced.lower(lowering_platforms=(p,)).as_text() for p in ('cuda', 'cpu'))
+  with _for_an_h100():
+    traced = loss.trace(variables['params'])
+    on_gpu, on_cpu = (traced.lower(lowering_platforms=(p,)).as_text() for p in ('cuda', 'cpu'))
   assert set(re.findall(r'name = "(fused_dense_\w+)"', on_gpu)) == {
       'fused_dense_forward', 'fused_dense_input_gradient', 'fused_dense_weight_gradients'}
   assert 'triton' not in on_cpu and 'fused_dense' not in on_cpu and 'while' in on_cpu
   assert flops.lowered_flops(loss, variables['params']) > 0
 
 
+def _lowered_for_an_h100(rows, depth, dtype, precision=None, tiles=None):
+  """The gradient of the fused layer [rows, depth] -> [rows, 256] in dtype, lowered for CUDA (an abstract H100)."""
+  loss = lambda x, w, b, g: jnp.sum(fused_dense.dense_relu(x, w, b, precision, tiles).astype(jnp.float32) * g)
+  shapes = [((rows, depth), dtype), ((depth, 256), jnp.float32), ((256,), jnp.float32), ((rows, 256), jnp.float32)]
+  with _for_an_h100():
+    traced = jax.jit(jax.grad(loss, argnums=(0, 1, 2))).trace(*(jax.ShapeDtypeStruct(*s) for s in shapes))
+    return traced.lower(lowering_platforms=('cuda',))
+
+
 @pytest.mark.parametrize('depth', [99, 256, 355])  # The paper's first, hidden and skip layers.
 def test_the_paper_layer_lowers_to_three_triton_kernels_for_an_nvidia_gpu(depth):
-  loss = lambda x, w, b, g: jnp.sum(fused_dense.dense_relu(x, w, b).astype(jnp.float32) * g)
-  shapes = [((524288, depth), jnp.bfloat16), ((depth, 256), jnp.float32), ((256,), jnp.float32),
-            ((524288, 256), jnp.float32)]
-  traced = jax.jit(jax.grad(loss, argnums=(0, 1, 2))).trace(*(jax.ShapeDtypeStruct(*s) for s in shapes))
-  text = traced.lower(lowering_platforms=('cuda',)).as_text()
+  text = _lowered_for_an_h100(524288, depth, jnp.bfloat16).as_text()
   assert text.count('__gpu$xla.gpu.triton') == 3
-  assert sorted(re.findall(r'name = "(\w+)"', text)) == ['fused_dense_forward', 'fused_dense_input_gradient',
-                                                          'fused_dense_weight_gradients']
+  assert sorted(re.findall(r'name = "(fused_dense_\w+)"', text)) == [
+      'fused_dense_forward', 'fused_dense_input_gradient', 'fused_dense_weight_gradients']
+
+
+def _operations(operation):
+  """Every operation nested in an MLIR operation, depth first."""
+  for region in operation.regions:
+    for block in region.blocks:
+      for inner in block.operations:
+        yield inner.operation
+        yield from _operations(inner.operation)
+
+
+def _loop_loads(lowered):
+  """{kernel name: (num_stages, [(shape, dtype) of each load inside its loop])} of the Triton kernels of a lowered
+  program: the loads Triton's pipeliner keeps num_stages copies of in shared memory."""
+  context = mlir.JaxIrContext()
+  context.append_dialect_registry(mlir.upstream_dialects)
+  triton.dialect.register_dialect(context)
+  context.load_all_available_dialects()
+  kernels = {}
+  for call in _operations(lowered.compiler_ir('stablehlo').operation):
+    if call.name == 'stablehlo.custom_call' and 'gpu.triton' in str(call.attributes['call_target_name']):
+      config = call.attributes['mhlo.backend_config']
+      with context:
+        module = ir.Module.parse(ir.StringAttr(config['ir']).value_bytes)
+        loads = [str(load.results[0].type) for loop in _operations(module.operation) if loop.name == 'scf.for'
+                 for load in _operations(loop) if load.name == 'tt.load']
+      kernels[ir.StringAttr(config['name']).value] = (
+          ir.IntegerAttr(config['num_stages']).value,
+          [(tuple(int(n) for n in shape.split('x')), dtype)
+           for shape, dtype in (re.fullmatch(r'tensor<([\dx]+)x(\w+)>', load).groups() for load in loads)])
+  return kernels
+
+
+H100_SHARED_MEMORY = 227 * 1024  # Bytes a block may use (Triton's limit for sm_90).
+
+
+@pytest.mark.parametrize('variant', [v for v, (bindings, _) in step_variants.VARIANTS.items()
+                                     if step_variants.PALLAS[0] in bindings])
+def test_each_tiling_fits_an_h100s_shared_memory_float32_taking_half_steps(variant):
+  gin.parse_config(step_variants.VARIANTS[variant][0])
+  tiles = fused_dense.Tiles()
+  sizes = {'bf16': 2, 'f32': 4}
+  stages = {}
+  for dtype, precision in ((jnp.bfloat16, None), (jnp.float32, HIGHEST)):
+    kernels = _loop_loads(_lowered_for_an_h100(8192, 355, dtype, precision, tiles))
+    stages[dtype] = {name: (num_stages, loads) for name, (num_stages, loads) in kernels.items()}
+    for name, (num_stages, loads) in kernels.items():
+      assert num_stages == tiles.num_stages and loads, name
+      pipelined = num_stages * sum(math.prod(shape) * sizes[element] for shape, element in loads)
+      assert pipelined <= H100_SHARED_MEMORY, (variant, name, dtype.dtype.name, pipelined)
+  # float32 steps through half the rows (weight gradient) or depth (forward, dx) of bfloat16's, in the same bytes.
+  wide = {shape for shape, _ in stages[jnp.bfloat16]['fused_dense_weight_gradients'][1]}
+  assert wide == {(tiles.dw_rows, tiles.block)}
+  assert {shape for shape, _ in stages[jnp.float32]['fused_dense_weight_gradients'][1]} == {
+      (tiles.dw_rows // 2, tiles.block)}
+  for name, (_, loads) in stages[jnp.float32].items():
+    halved = sorted(math.prod(shape) * 2 for shape, _ in loads)
+    assert halved == sorted(math.prod(shape) for shape, _ in stages[jnp.bfloat16][name][1]), name
 
 
 def test_a_profile_counts_the_fused_kernels_apart_from_xlas_matmuls_and_fusions():

@@ -58,6 +58,7 @@ def _load(*bindings):
     ("MLP.dense_kernel = 'triton'", r"^MLP.dense_kernel = 'triton'; expected one of \['xla', 'pallas'\]"),
     ('FusedDenseTiles.rows = 48', r'^FusedDenseTiles.rows = 48; expected a power of two >= 16'),
     ('FusedDenseTiles.chunk = 8', r'^FusedDenseTiles.chunk = 8; expected a power of two >= 16'),
+    ('FusedDenseTiles.dw_rows = 40', r'^FusedDenseTiles.dw_rows = 40; expected a power of two >= 16'),
     ('FusedDenseTiles.num_warps = 0', r'^FusedDenseTiles.num_warps = 0; expected a power of two >= 1'),
     ('FusedDenseTiles.splits = 0', r'^FusedDenseTiles.splits = 0; expected an integer >= 1'),
 ])

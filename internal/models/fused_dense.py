@@ -30,15 +30,18 @@ from internal.models import activations
 @dataclasses.dataclass(frozen=True)
 class Tiles:
   """Tile sizes (powers of two, >= 16) and launch settings of the fused kernels."""
-  rows: int = 64  # Rows of a forward / dx tile, and of each step through a row split for the weight gradient.
+  rows: int = 64  # Rows of a forward / dx tile: each tile reads a [K, block] weight block, so more rows re-read less.
   block: int = 128  # Output columns of a forward tile, inputs of a dx tile, each side of a weight-gradient tile.
   chunk: int = 64  # The depth of one product step of the forward and dx kernels' loops.
+  # Rows of one step of the weight-gradient loop through a row split. Apart from rows: its three operands' steps
+  # are what num_stages holds in shared memory (3 x 96 KB at 128 rows, over an H100's 227 KB).
+  dw_rows: int = 64
   splits: int = 32  # Row splits of the weight gradient, each summing its own partial product.
   num_warps: int = 8
   num_stages: int = 3
 
   def __post_init__(self):
-    for name in ('rows', 'block', 'chunk', 'num_warps'):
+    for name in ('rows', 'block', 'chunk', 'dw_rows', 'num_warps'):
       value, least = getattr(self, name), 1 if name == 'num_warps' else 16  # Triton's products take 16 or more.
       if isinstance(value, bool) or not isinstance(value, int) or value < least or value & (value - 1):
         raise ValueError(f'FusedDenseTiles.{name} = {value!r}; expected a power of two >= {least}')
@@ -52,7 +55,7 @@ def dense_relu(x, kernel, bias, precision=None, tiles: Tiles = None):
   """relu(x [M, K] @ kernel [K, N] + bias [N]) [M, N] in x's dtype; gradients of kernel and bias in float32.
   tiles: None for Tiles() as gin binds them (FusedDenseTiles.*)."""
   tiles = tiles or Tiles()
-  rows, depth, width = (_round_up(x.shape[0], tiles.rows * tiles.splits),
+  rows, depth, width = (_round_up(x.shape[0], max(tiles.rows, tiles.dw_rows) * tiles.splits),
                         _round_up(x.shape[1], max(tiles.block, tiles.chunk)), _round_up(kernel.shape[1], tiles.block))
   # Zero padding is inert: padded inputs and kernel rows add nothing, and the gradients of padded rows and
   # columns (relu(bias) > 0 there) are zero because the slice below passes them none.
@@ -180,7 +183,7 @@ def _weight_gradients(x, g, y, precision, tiles: Tiles):
   """Per row split: kernel gradients [splits, K, N] and bias gradients [splits, N] in float32."""
   (m, k), n, splits = x.shape, g.shape[1], tiles.splits
   per_split = m // splits
-  body = functools.partial(_weight_gradients_body, rows=_step_size(tiles.rows, x.dtype), precision=precision)
+  body = functools.partial(_weight_gradients_body, rows=_step_size(tiles.dw_rows, x.dtype), precision=precision)
   columns = pl.BlockSpec((per_split, tiles.block), lambda i, j, s: (s, j))
   return _call(body, (k // tiles.block, n // tiles.block, splits),
                [pl.BlockSpec((per_split, tiles.block), lambda i, j, s: (s, i)), columns, columns],
