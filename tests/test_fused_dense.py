@@ -198,14 +198,13 @@ def test_the_passes_it_leaves_out_change_no_number_in_float32():
 
 
 def test_on_a_cpu_the_fused_layer_warns_in_one_line_that_it_is_interpreted():
-  if jax.default_backend() == 'gpu':
-    with warnings.catch_warnings():
-      warnings.simplefilter('error')
-      _tiny_model('pallas')
-    return
-  with pytest.warns(UserWarning) as caught:
+  with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter('always')
     _tiny_model('pallas')
   messages = {str(w.message) for w in caught if 'interprets' in str(w.message)}
+  if jax.default_backend() == 'gpu':  # Compiled there: nothing to warn of.
+    assert not messages
+    return
   assert messages == {"MLP.dense_kernel = 'pallas' on a cpu: Pallas interprets the fused kernels on any platform "
                       "but an NVIDIA or AMD GPU, and a step takes several times as long as with 'xla' "
                       '(docs/benchmarks.md)'}
