@@ -8,7 +8,6 @@ import sys
 import pytest
 
 from bench import device
-from bench import step_variants
 from conftest import SHARED_DATA
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -45,32 +44,3 @@ def test_gpu_check_runs_every_stage_and_reports_the_three_tables(tmp_path):
                   '| bfloat16 | freenerf | pallas | 20 |'):
     assert heading in report
   assert (out / 'test_views.png').stat().st_size > 0 and (out / 'trace_bfloat16_base.json.gz').is_file()
-
-
-
-def _measured(base_ms, **variants):
-  """A step_variants report at bfloat16: base and {variant: (step ms, first-step loss difference)}."""
-  results = {'base': {'step_seconds': base_ms / 1e3, 'loss': 0.5}}
-  results.update({name: {'step_seconds': ms / 1e3, 'loss_difference': gap} for name, (ms, gap) in variants.items()})
-  return {'results': {'bfloat16': results}}
-
-
-def test_runs_pick_the_fastest_variant_that_takes_gin_bindings_and_kept_the_loss():
-  assert step_variants.fastest(_measured(28, pallas=(15, 1e-4), pallas_rows128=(14, 1e-4)), 'bfloat16') == \
-      'pallas_rows128'
-  # An XLA option is no run's binding; a variant whose first step moved the loss is not trusted.
-  assert step_variants.fastest(_measured(28, cublaslt=(10, 0), pallas=(12, 0.01)), 'bfloat16') == 'base'
-  assert step_variants.fastest(_measured(28, pallas=(30, 0)), 'bfloat16') == 'base'
-  assert step_variants.fastest(_measured(28, pallas=(15, 0)), 'default') == 'base'  # Not measured there.
-
-
-def test_bindings_print_the_variant_then_its_gin_lines(tmp_path, capsys):
-  measured = tmp_path / 'step_variants.json'
-  measured.write_text(json.dumps(_measured(28, pallas_block64=(15, 0))))
-  step_variants.main(['--bindings', 'fastest', '--precisions', 'bfloat16', '--measured', str(measured)])
-  assert capsys.readouterr().out.splitlines() == ['pallas_block64', "MLP.dense_kernel = 'pallas'",
-                                                  'FusedDenseTiles.block = 64', 'FusedDenseTiles.num_warps = 4']
-  step_variants.main(['--bindings', 'fastest', '--precisions', 'bfloat16', '--measured', str(tmp_path / 'none')])
-  assert capsys.readouterr().out == 'base\n'
-  with pytest.raises(ValueError, match=r"step variant 'cublaslt' sets XLA options \['xla_gpu_enable_cublaslt'\]"):
-    step_variants.main(['--bindings', 'cublaslt'])

@@ -192,3 +192,53 @@ def test_model_and_released_equivalent_mlp_take_the_mlp_bindings_and_their_degre
   with jax.default_matmul_precision('highest'):  # Ours is true float32; the released graph, the backend default.
     theirs = released.apply(variables, None, rays, *masks, mutable=['intermediates'])[0][0][-1]['rgb']
   np.testing.assert_allclose(theirs, ours, atol=1e-5)
+
+
+def test_a_bias_folded_into_its_kernel_as_a_row_equals_float64_and_passes_the_ones_column_on():
+  rng = np.random.default_rng(3)
+  hidden, enc, g = (rng.normal(size=s).astype(np.float32) for s in ((50, 16), (50, 7), (50, 12)))
+  layer = {'kernel': jnp.asarray(rng.normal(size=(23, 12)), jnp.float32),
+           'bias': jnp.asarray(rng.normal(size=12), jnp.float32)}
+
+  def folded(layer, hidden, enc):  # The skip layer's form: the ones column after the hidden part, then enc.
+    kernel = mip_nerf.folded_kernel(layer, 16, ones_out=True)
+    return jax.nn.relu(sum(mip_nerf.matmuls(kernel, mip_nerf.with_ones(hidden), enc, precision='highest')))
+  out, pullback = jax.vjp(folded, layer, jnp.asarray(hidden), jnp.asarray(enc))
+  grads, dhidden, _ = pullback(jnp.concatenate([g, jnp.full((50, mip_nerf.FOLD_PAD), 5.)], axis=-1))
+  x = np.concatenate([hidden, enc], axis=-1).astype(np.float64)
+  kernel, bias = (np.asarray(layer[k], np.float64) for k in ('kernel', 'bias'))
+  pre = x @ kernel + bias
+  masked = g * (pre > 0)
+  assert out.shape == (50, 12 + mip_nerf.FOLD_PAD)
+  np.testing.assert_allclose(out[:, :12], np.maximum(pre, 0), rtol=1e-6, atol=1e-6)
+  np.testing.assert_array_equal(out[:, 12:], np.tile([1.] + [0.] * (mip_nerf.FOLD_PAD - 1), (50, 1)))
+  np.testing.assert_allclose(grads['kernel'], x.T @ masked, rtol=1e-6, atol=1e-5)
+  np.testing.assert_allclose(grads['bias'], masked.sum(0), rtol=1e-6, atol=1e-5)  # The kernel's ones row.
+  np.testing.assert_allclose(dhidden, (masked @ kernel.T)[:, :16], rtol=1e-6, atol=1e-5)
+
+
+def _rendered(kernel, precision, bindings=()):
+  """Fine rgb, weight gradients and coarse normals of a model with 3 hidden layers, the skip into the third."""
+  gin.parse_config(TINY + ['MLP.net_depth = 3', 'MLP.skip_layer = 1', f"MLP.dense_kernel = '{kernel}'",
+                           *bindings])
+  rays = random_rays(6, 8)
+  model, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False, precision)
+  render = lambda p: model.apply({'params': p}, None, rays, compute_normals=True)[0]
+  renderings, pullback = jax.vjp(lambda p: [r['rgb'] for r in render(p)], variables['params'])
+  gin.clear_config()
+  return renderings[-1], pullback([jnp.ones_like(r) for r in renderings])[0], render(variables['params'])[0]
+
+
+@pytest.mark.parametrize('precision, tolerance, bindings', [
+    ('float32', 1e-5, ()), ('bfloat16', 3e-2, ()), ('float32', 1e-5, ('MLP.use_viewdirs = False',))])
+def test_the_folded_bias_model_renders_trains_and_finds_normals_as_xla(precision, tolerance, bindings):
+  rgb, grads, coarse = _rendered('folded_bias', precision, bindings)
+  rgb_xla, grads_xla, coarse_xla = _rendered('xla', precision, bindings)
+  relative = lambda a, b: np.linalg.norm(np.float64(a) - np.float64(b)) / np.linalg.norm(np.float64(b))
+  assert relative(rgb, rgb_xla) < tolerance
+  assert relative(coarse['normals'], coarse_xla['normals']) < tolerance
+  for path, grad in jax.tree_util.tree_leaves_with_path(grads):
+    reference = grads_xla
+    for key in path:
+      reference = reference[key.key]
+    assert grad.dtype == jnp.float32 and relative(grad, reference) < tolerance, path

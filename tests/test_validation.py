@@ -55,9 +55,11 @@ def _load(*bindings):
     ('MipNerfModel.num_levels = 0', r'^MipNerfModel.num_levels = 0; expected an integer >= 1'),
     ('MLP.net_width = 0', r'^MLP.net_width = 0; expected an integer >= 1'),
     ('MLP.net_depth_viewdirs = 0', r'^MLP.net_depth_viewdirs = 0; expected an integer >= 1'),
-    ("MLP.dense_kernel = 'triton'", r"^MLP.dense_kernel = 'triton'; expected one of \['xla', 'pallas'\]"),
+    ("MLP.dense_kernel = 'triton'",
+     r"^MLP.dense_kernel = 'triton'; expected one of \['xla', 'pallas', 'folded_bias'\]"),
     ('FusedDenseTiles.rows = 48', r'^FusedDenseTiles.rows = 48; expected a power of two >= 16'),
     ('FusedDenseTiles.chunk = 8', r'^FusedDenseTiles.chunk = 8; expected a power of two >= 16'),
+    ('FusedDenseTiles.dw_rows = 40', r'^FusedDenseTiles.dw_rows = 40; expected a power of two >= 16'),
     ('FusedDenseTiles.num_warps = 0', r'^FusedDenseTiles.num_warps = 0; expected a power of two >= 1'),
     ('FusedDenseTiles.splits = 0', r'^FusedDenseTiles.splits = 0; expected an integer >= 1'),
 ])
@@ -72,6 +74,11 @@ def test_the_fused_layer_refuses_an_activation_it_does_not_fuse():
     _load("MLP.dense_kernel = 'pallas'", 'MLP.net_activation = @flax.nn.softplus')
   for relu in ('@relu_from_output', '@flax.nn.relu'):
     _load("MLP.dense_kernel = 'pallas'", f'MLP.net_activation = {relu}')
+  with pytest.raises(ValueError, match="^MLP.dense_kernel = 'folded_bias' passes its ones column through ReLU; "
+                                       'MLP.net_activation is softplus, expected relu$'):
+    _load("MLP.dense_kernel = 'folded_bias'", 'MLP.net_activation = @flax.nn.softplus')
+  with pytest.raises(ValueError, match='^FusedDensePasses.two_inputs = 1; expected True or False'):
+    _load("MLP.dense_kernel = 'pallas'", 'FusedDensePasses.two_inputs = 1')
 
 
 def test_the_fused_layer_refuses_several_devices(monkeypatch):

@@ -20,7 +20,8 @@ gin.config.external_configurable(nn.relu, name='relu', module='flax.nn')
 gin.config.external_configurable(nn.softplus, name='softplus', module='flax.nn')
 gin.config.external_configurable(nn.sigmoid, name='sigmoid', module='flax.nn')
 gin.config.external_configurable(activations.relu_from_output, name='relu_from_output')  # A step variant.
-DENSE_KERNELS = ('xla', 'pallas')
+DENSE_KERNELS = ('xla', 'pallas', 'folded_bias')
+FOLD_PAD = 8  # 'folded_bias' widens activations by a ones column and zeros, to keep their rows 16-byte aligned.
 
 
 def _dense_init(in_dim: int, out_dim: int):
@@ -43,15 +44,44 @@ def add_bias(x, bias):
   return x + bias if x.dtype == bias.dtype else precision_lib.add_low_precision_bias(x, bias)
 
 
-def dense(layer, *parts, precision=None):
-  """Dense layer {'kernel', 'bias'} of the concatenation of parts [..., d_i], never materialized."""
+def matmuls(kernel, *parts, precision=None):
+  """[part @ its rows of kernel] of parts [..., d_i]: their concatenation @ kernel, the concatenation never made."""
   products, start = [], 0
   for part in parts:
-    products.append(matmul(part, layer['kernel'][start:start + part.shape[-1]], precision))
+    products.append(matmul(part, kernel[start:start + part.shape[-1]], precision))
     start += part.shape[-1]
+  return products
+
+
+def dense(layer, *parts, precision=None):
+  """Dense layer {'kernel', 'bias'} of the concatenation of parts [..., d_i], never materialized."""
+  products = matmuls(layer['kernel'], *parts, precision=precision)
   if parts[0].dtype == layer['bias'].dtype:  # The released order of the float32 sums: bias first.
     return sum(products, layer['bias'])
   return add_bias(sum(products[1:], products[0]), layer['bias'])
+
+
+def with_ones(x):
+  """x [N, K] widened to [N, K + FOLD_PAD]: a ones column, then zeros ('folded_bias' layers read the bias there)."""
+  fill = jnp.zeros((x.shape[0], FOLD_PAD), x.dtype).at[:, 0].set(1)
+  return jnp.concatenate([x, fill], axis=-1)
+
+
+def folded_kernel(layer, width: int, ones_out: bool):
+  """The kernel [K + FOLD_PAD, N (+ FOLD_PAD)] of a dense layer {'kernel' [K, N], 'bias' [N]} whose input's first
+  part has `width` columns and then with_ones' columns: the bias is the row the ones column meets. With
+  ones_out it passes that column on as its own output's (ReLU keeps 1), so the next layer can fold its bias too."""
+  kernel, bias = layer['kernel'], layer['bias']
+  columns = kernel.shape[1]
+  folded = jnp.concatenate([kernel[:width], bias[None], jnp.zeros((FOLD_PAD - 1, columns)), kernel[width:]])
+  if not ones_out:
+    return folded
+  return jnp.concatenate([folded, jnp.zeros((folded.shape[0], FOLD_PAD)).at[width, 0].set(1)], axis=1)
+
+
+def _sum(products):
+  """The sum of a list of arrays, in their dtype."""
+  return sum(products[1:], products[0])
 
 
 @gin.configurable(denylist=['precision'])
@@ -76,42 +106,59 @@ class MLP(nn.Module):
   # The raw coordinates (the Gaussians' means) concatenated before the IPE: FreeNeRF's one change to mip-NeRF
   # (99 features). False drops them (96, as mip-NeRF and RegNeRF released), the xyz ablation.
   point_identity: bool = True
-  # How the trunk's hidden layers run: 'xla' (XLA's matmuls) or 'pallas' (internal/models/fused_dense.py: the
-  # bias, ReLU and its gradient fused into the products; a GPU step variant, interpreted on a CPU).
+  # How the trunk's hidden layers run: 'xla' (XLA's matmuls), 'pallas' (internal/models/fused_dense.py: the
+  # bias, ReLU and its gradient fused into the products; a GPU step variant, interpreted on a CPU) or
+  # 'folded_bias' (XLA's matmuls with each bias folded into its kernel as a row, met by a ones column the
+  # activations carry: no bias pass or bias-gradient reduction left; a step variant).
   dense_kernel: str = 'xla'
   precision: str = 'float32'  # One of precision.PRECISIONS, set from Config.precision (not a gin binding).
 
   def setup(self):
     self.layers = {name: self.param(name, _dense_init(i, o)) for name, i, o in self.layer_shapes()}
     self.dtype, self.matmul_precision = precision_lib.settings(self.precision)
-    self.tiles = self.check_dense_kernel()
+    self.tiles, self.passes = self.check_dense_kernel()
 
   @nn.nowrap
-  def check_dense_kernel(self) -> fused_dense.Tiles:
-    """The fused layer's tiles as gin binds them; ValueError naming MLP.dense_kernel or .net_activation if it
-    cannot run (a bad FusedDenseTiles setting is named by Tiles)."""
+  def check_dense_kernel(self):
+    """(Tiles, Passes) of the fused layer as gin binds them; ValueError naming MLP.dense_kernel or
+    .net_activation if it cannot run (a bad FusedDenseTiles or FusedDensePasses setting is named by them); a
+    one-line warning where the fused kernels would run interpreted."""
     if self.dense_kernel not in DENSE_KERNELS:
       raise ValueError(f'MLP.dense_kernel = {self.dense_kernel!r}; expected one of {list(DENSE_KERNELS)}')
     if self.dense_kernel == 'pallas' and jax.device_count() > 1:
       raise ValueError(f"MLP.dense_kernel = 'pallas' runs on one device; this run has {jax.device_count()}, over "
                        "which XLA cannot split a custom kernel (use one, e.g. CUDA_VISIBLE_DEVICES=0, or 'xla')")
     relu = {self.net_activation, getattr(self.net_activation, '__wrapped__', None)}  # gin's @name wraps it.
-    if self.dense_kernel == 'pallas' and not relu & {nn.relu, activations.relu_from_output}:
-      raise ValueError(f"MLP.dense_kernel = 'pallas' fuses ReLU into the layer; MLP.net_activation is "
+    if self.dense_kernel != 'xla' and not relu & {nn.relu, activations.relu_from_output}:
+      why = 'fuses ReLU into the layer' if self.dense_kernel == 'pallas' else 'passes its ones column through ReLU'
+      raise ValueError(f"MLP.dense_kernel = {self.dense_kernel!r} {why}; MLP.net_activation is "
                        f'{getattr(self.net_activation, "__name__", self.net_activation)}, expected relu')
-    return fused_dense.Tiles()
+    if self.dense_kernel == 'pallas':
+      fused_dense.warn_if_interpreted()
+    return fused_dense.Tiles(), fused_dense.Passes()
 
-  def _dense(self, name: str, *parts):
-    """Dense layer `name` of parts [..., d_i] at this MLP's matmul precision."""
-    return dense(self.layers[name], *parts, precision=self.matmul_precision)
+  def _dense(self, name: str, *parts, ones: bool = False):
+    """Dense layer `name` of parts [..., d_i] at this MLP's matmul precision; ones: parts[0] carries with_ones'
+    columns (MLP.dense_kernel = 'folded_bias'), which meet the bias folded into the kernel."""
+    if not ones:
+      return dense(self.layers[name], *parts, precision=self.matmul_precision)
+    kernel = folded_kernel(self.layers[name], parts[0].shape[-1] - FOLD_PAD, ones_out=False)
+    return _sum(matmuls(kernel, *parts, precision=self.matmul_precision))
 
-  def _hidden(self, name: str, *parts):
-    """net_activation(dense layer `name`) [N, width] of parts [N, d_i], in the kernel MLP.dense_kernel names."""
+  def _hidden(self, i: int, *parts):
+    """net_activation(dense layer i) [N, width] of parts [N, d_i], in the kernel MLP.dense_kernel names (with
+    'folded_bias', parts[0] and the output [N, width + FOLD_PAD] carry with_ones' columns)."""
+    layer = self.layers[f'Dense_{i}']
     if self.dense_kernel == 'xla':
-      return self.net_activation(self._dense(name, *parts))
-    layer = self.layers[name]
-    return fused_dense.dense_relu(jnp.concatenate(parts, axis=-1), layer['kernel'], layer['bias'],
-                                  self.matmul_precision, self.tiles)
+      return self.net_activation(self._dense(f'Dense_{i}', *parts))
+    if self.dense_kernel == 'folded_bias':
+      kernel = folded_kernel(layer, parts[0].shape[-1] - FOLD_PAD, ones_out=True)
+      return self.net_activation(_sum(matmuls(kernel, *parts, precision=self.matmul_precision)))
+    # Each hidden layer's output feeds the next one only, which can then mask its gradient (mask_at_store).
+    masks = self.passes.mask_at_store
+    return fused_dense.dense_relu(parts, layer['kernel'], layer['bias'], self.matmul_precision, self.tiles,
+                                  two_inputs=self.passes.two_inputs, mask_input_gradient=masks and i > 0,
+                                  gradient_masked=masks and i < self.net_depth - 1)
 
   def _skip_after(self, i: int) -> bool:
     return i % self.skip_layer == 0 and i > 0
@@ -144,19 +191,21 @@ class MLP(nn.Module):
     if mask_point is not None:
       enc = enc * mask_point
     enc = enc.astype(self.dtype)  # The IPE (sines of large arguments) and its mask stay float32.
-    x = (enc,)
+    ones = self.dense_kernel == 'folded_bias'
+    x = (with_ones(enc) if ones else enc,)
     for i in range(self.net_depth):
-      x = (self._hidden(f'Dense_{i}', *x),)
+      x = (self._hidden(i, *x),)
       if self._skip_after(i):
         x += (enc,)  # The skip connection re-uses the masked encoding.
-    raw_density = self._dense(f'Dense_{self.net_depth}', *x)[:, 0].astype(jnp.float32) + noise
+    raw_density = self._dense(f'Dense_{self.net_depth}', *x, ones=ones)[:, 0].astype(jnp.float32) + noise
     return self.density_activation(raw_density + self.density_bias), x
 
   def _colour(self, features, view, num_samples: int):
     """rgb [B*S, 3] from trunk features (parts [B*S, ...]) and encoded view directions [B, V]."""
     names = iter(name for name, _, _ in self.layer_shapes()[self.net_depth + 1:])  # The heads after density.
+    ones = self.dense_kernel == 'folded_bias'  # The trunk's features carry with_ones' columns.
     if self.use_viewdirs:
-      bottleneck = self._dense(next(names), *features)
+      bottleneck = self._dense(next(names), *features, ones=ones)
       layer = self.layers[next(names)]
       # [bottleneck, view] @ kernel, with the view term computed once per ray, not per sample.
       width = bottleneck.shape[-1]
@@ -166,7 +215,8 @@ class MLP(nn.Module):
       features = (self.net_activation(x.reshape(per_sample.shape)),)
       for _ in range(self.net_depth_viewdirs - 1):
         features = (self.net_activation(self._dense(next(names), *features)),)
-    rgb = self.rgb_activation(self._dense(next(names), *features).astype(jnp.float32))
+      ones = False
+    rgb = self.rgb_activation(self._dense(next(names), *features, ones=ones).astype(jnp.float32))
     return rgb * (1 + 2 * self.rgb_padding) - self.rgb_padding
 
   def _noise(self, key, shape):
