@@ -14,6 +14,9 @@ all-views PSNR and the wall times. A seed already recorded in <out> is refused, 
 commands recorded show them.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import dataclasses
 import glob
