@@ -117,3 +117,11 @@ def test_the_fields_set_into_the_model_are_refused_as_its_gin_bindings(name):
 
 def test_the_seeds_are_those_metrics_json_records():
   assert configs.declared(configs.SEED) == ('jax_rng_seed', 'np_rng_seed')  # Its "seeds": [jax, np].
+
+
+@pytest.mark.parametrize('value', [-1, 2**63, 1180591620717411303424])
+@pytest.mark.parametrize('name', configs.declared(configs.SEED))
+def test_a_seed_no_random_generator_takes_is_refused_naming_it(name, value):
+  with pytest.raises(ValueError, match=re.escape(f'Config.{name} = {value}; expected a whole number in [0, 2^63)')):
+    config_loader.validate(dataclasses.replace(Config(), **{name: value}))
+  config_loader.validate(dataclasses.replace(Config(), **{name: 2**63 - 1}))
