@@ -230,6 +230,21 @@ def test_resources_no_node_offers_are_an_error_here_and_a_warning_on_a_cluster(c
   assert 'warning: a cell asks for 1 GPU' in capsys.readouterr().err
 
 
+@pytest.mark.parametrize('address, env', [('127.0.0.1:{port}', {}), ('auto', {'RAY_ADDRESS': '127.0.0.1:{port}'})])
+def test_an_address_where_nothing_answers_is_one_line_naming_it_within_seconds(tmp_path, address, env):
+  """Nothing listens there (auto: as after `ray start` on a cluster that is gone): Ray alone retries for minutes."""
+  pytest.importorskip('ray', reason=NO_RAY)
+  port = _free_port()
+  address, env = address.format(port=port), {k: v.format(port=port) for k, v in env.items()}
+  command = _study_command(_study(tmp_path), tmp_path / 'out', '--executor', 'ray', '--address', address)
+  result = subprocess.run(command, cwd=REPO, env={**ENV, **env}, capture_output=True, text=True, timeout=120,
+                          check=False)
+  assert result.returncode == 2, result.stderr[-3000:]
+  assert result.stderr.startswith(f'error: --address {address}: nothing answers at ') and result.stderr.endswith(
+      'within 10 s (Connection refused); expected the address that `ray start --head` printed, e.g. 10.0.0.1:6379\n')
+  assert f':{port}' in result.stderr and not (tmp_path / 'out').exists()
+
+
 def test_ray_missing_is_one_line_naming_the_extra(capsys, monkeypatch, tmp_path):
   from internal import cli  # pylint: disable=import-outside-toplevel
   from tools.study import runner as study_lib  # pylint: disable=import-outside-toplevel

@@ -12,6 +12,7 @@ stopped at the end. Ray is an optional extra: requirements-cluster.txt.
 import contextlib
 import logging
 import os
+import socket
 import sys
 import time
 
@@ -20,6 +21,8 @@ from tools.study import schedule as study_schedule
 from tools.study import spec as study_spec
 
 CANCEL_WAIT_SECONDS = 120.  # Ctrl-C: how long the cancelled cells get to save a checkpoint and stop.
+# --address: how long the cluster's port gets to answer. Ray itself retries a silent address for minutes.
+CONNECT_SECONDS = 10.
 
 
 def _cell_task(path: str, job: str, cwd: str):
@@ -43,6 +46,33 @@ def _import_ray():
     raise ValueError('--executor ray needs Ray, which is not installed; expected the cluster extra: pip install '
                      '-r requirements-cluster.txt') from None
   return ray
+
+
+def _resolved(ray, address: str) -> str:
+  """The host:port that ray.init(address) connects to: 'auto' is the cluster Ray finds on this machine
+  (RAY_ADDRESS, the last `ray start`); ValueError naming --address when it finds none."""
+  try:
+    from ray._private import services  # pylint: disable=import-outside-toplevel  (Ray's own resolution)
+  except ImportError:
+    return address
+  try:
+    return services.canonicalize_bootstrap_address(address) or address
+  except ConnectionError as e:
+    raise ValueError(f'--address {address}: no Ray cluster answered ({e}); expected the address that `ray start '
+                     '--head` printed, e.g. 10.0.0.1:6379') from None
+
+
+def check_answers(address: str, resolved: str, seconds: float = CONNECT_SECONDS) -> None:
+  """ValueError naming --address unless something answers at resolved (host:port) within seconds."""
+  host, _, port = resolved.rpartition(':')
+  if not port.isdigit() or '://' in resolved:  # A Ray Client address (ray://...): ray.init reaches it itself.
+    return
+  try:
+    socket.create_connection((host.strip('[]'), int(port)), timeout=seconds).close()
+  except OSError as e:
+    where = resolved if resolved == address else f'{resolved} (where Ray looks for {address})'
+    raise ValueError(f'--address {address}: nothing answers at {where} within {seconds:g} s ({e.strerror or e}); '
+                     'expected the address that `ray start --head` printed, e.g. 10.0.0.1:6379') from None
 
 
 def _node_fits(resources: study_spec.Resources, node: dict) -> bool:
@@ -71,6 +101,7 @@ class RayExecutor:
     self.ray, self.job, self.submitted = _import_ray(), job, {}
     if address is not None:
       _token_auth_if_token()
+      check_answers(address, _resolved(self.ray, address))
     try:
       self.ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False,
                     runtime_env={'env_vars': {'PYTHONPATH': study_schedule.python_path()}})
