@@ -112,7 +112,7 @@ def test_overwrite_of_a_run_deletes_everything_it_wrote_and_nothing_else(tmp_pat
   evaluate.evaluate(config)
   render_path.render(config)
   outputs = [os.path.basename(f(str(run), 2)) for f in (evaluate.output_dir, render_path.output_dir)]
-  owned = sorted(p.name for p in run.iterdir() if p.is_dir())  # Every folder the run writes into, a user's file in each.
+  owned = sorted(p.name for p in run.iterdir() if p.is_dir())  # Every folder the run writes into: a user file in each.
   assert owned == sorted(['checkpoints', 'tensorboard', *outputs])
   user = {'notes.txt': 'mine', **{os.path.join(name, 'README'): f'mine, in {name}' for name in owned}}
   for name, text in user.items():

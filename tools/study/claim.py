@@ -8,15 +8,16 @@ HEARTBEAT_SECONDS while it works and removes it when it stops. With the claim ta
 cell with cell.json is finished and is neither trained nor written again.
 
 A claim is stale, and the next runner that finds it takes it over, when its process is gone (a holder on the same
-host: checked at once), when its file has not been touched for STALE_SECONDS (any host: a node that died; the
-hosts' clocks must agree within a minute, as NTP keeps them) or when its file holds no holder record (garbage: a
-claim appears complete, so that is no live runner's; taken over at once). A runner takes a stale claim over under a takeover
-lock (<cell>/claim.json.takeover, created like a claim): it removes the claim only if it is still the stale one it
-saw, then claims the cell like any runner, so of several runners that find one claim stale a single one takes it
-(a takeover lock older than TAKEOVER_STALE_SECONDS was left by a taker that died and is removed). A cell process of the same job that finds a
-live claim waits for it (a retried Ray task whose first attempt is still saving its checkpoint); one of another
-job stops with Held and its runner looks at the cell again later. A runner stopped by Ctrl-C asks its cells'
-processes to stop through <cell>/claim.stop (they save a checkpoint and release their claims), wherever they run.
+host: checked at once), when its file has not been touched for STALE_SECONDS (any host: a node that died; the hosts'
+clocks must agree within a minute, as NTP keeps them) or when its file holds no holder record (garbage: a claim
+appears complete, so that is no live runner's; taken over at once). A runner takes a stale claim over under a
+takeover lock (<cell>/claim.json.takeover, created like a claim): it removes the claim only if it is still the stale
+one it saw, then claims the cell like any runner, so of several runners that find one claim stale a single one takes
+it (a takeover lock older than TAKEOVER_STALE_SECONDS was left by a taker that died and is removed). A cell process
+of the same job that finds a live claim waits for it (a retried Ray task whose first attempt is still saving its
+checkpoint); one of another job stops with Held and its runner looks at the cell again later. A runner stopped by
+Ctrl-C asks its cells' processes to stop through <cell>/claim.stop (they save a checkpoint and release their
+claims), wherever they run.
 """
 
 import contextlib
