@@ -6,6 +6,7 @@ import csv
 import json
 import os
 import pathlib
+import re
 import shutil
 import signal
 import socket
@@ -174,16 +175,65 @@ def test_a_killed_worker_is_retried_from_its_checkpoint_and_ctrl_c_stops_cleanly
       (cell / study_claim.CLAIM_FILE).read_text())['pid'] != first['pid'], 'the retry')
   killed_at = _latest_step(cell / 'run')
   _wait_for(lambda: (_latest_step(cell / 'run') or 0) > killed_at, 'the retry to train on')
-  driver.send_signal(signal.SIGINT)                                 # Ctrl-C: the cell stops, its checkpoint saved.
+  for _ in range(4):  # Ctrl-C, and again while the cell saves: the cell stops once, its stop checkpoint complete.
+    driver.send_signal(signal.SIGINT)
+    time.sleep(0.5)
   output = driver.communicate(timeout=300)[0]
   assert driver.returncode == 128 + signal.SIGINT and 'interrupted:' in output, output[-3000:]
-  assert not (cell / study_claim.CLAIM_FILE).exists() and not (cell / 'cell.json').exists()
-  stopped_at = _latest_step(cell / 'run')
+  assert 'still stopping: the cells save their checkpoints' in output, output[-3000:]
+  assert 'Traceback' not in output and not (cell / 'cell.json').exists(), output[-3000:]
+  stopped_at = _stopped_cleanly(cell)
+  assert stopped_at > killed_at, (stopped_at, killed_at)
+  _resumed_from(command, cell, stopped_at)
+
+
+STOPPED = re.compile(r'stopped by signal 2 at step (\d+) with a checkpoint saved; the study run again resumes it$')
+
+
+def _stopped_cleanly(cell) -> int:
+  """The step at which the cell's process stopped, after checking that its log ends in its one stop line (no
+  traceback, no interrupted save) and that its newest checkpoint, complete, is that step."""
+  log = (cell / 'log.txt').read_text()
+  assert not re.search('Traceback|KeyboardInterrupt|interrupted:|thread failed|Failed to run', log), log[-3000:]
+  match = STOPPED.search(log.strip().splitlines()[-1])
+  assert match, log[-3000:]
+  step = int(match.group(1))
+  assert _latest_step(cell / 'run') == step and not any('tmp' in n for n in os.listdir(cell / 'run' / 'checkpoints'))
+  assert not (cell / study_claim.CLAIM_FILE).exists() and not (cell / study_claim.STOP_FILE).exists()
+  return step
+
+
+def _resumed_from(command, cell, step: int) -> None:
+  """Runs the study again: its cell resumes from step and finishes."""
   rerun = subprocess.run(command, cwd=REPO, env=ENV, capture_output=True, text=True, timeout=600, check=False)
   assert rerun.returncode == 0, rerun.stdout[-3000:] + rerun.stderr[-3000:]
   record = json.loads((cell / 'cell.json').read_text())
-  assert record['step'] == 4000 and record['steps_trained'] == 4000 - stopped_at
-  assert record['resumed_from_step'] == stopped_at > killed_at, (record['resumed_from_step'], stopped_at, killed_at)
+  assert record['resumed_from_step'] == step and record['step'] == record['steps_trained'] + step
+
+
+def test_a_cell_sent_signal_after_signal_stops_once_saving_the_step_it_stopped_at(tmp_path):
+  """SIGINT and SIGTERM every 5 ms to a cell process of the local executor from its first checkpoint on, through
+  its stop checkpoint, until it exits: the first stops it, the others find it stopping (as when Ray, its claim's
+  stop request, its runner and a user all ask)."""
+  path = _study(tmp_path, steps=2000, every=50, one_cell=True)
+  out, cell = tmp_path / 'out', tmp_path / 'out' / 'mini' / 'freenerf__object'
+  command = _study_command(path, out)
+  runner = subprocess.Popen(command, cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+  _wait_for(lambda: (_latest_step(cell / 'run') or 0) >= 50, 'the first checkpoint')
+  process = os.pidfd_open(json.loads((cell / study_claim.CLAIM_FILE).read_text())['pid'])
+  sent = 0
+  try:
+    while True:
+      signal.pidfd_send_signal(process, (signal.SIGINT, signal.SIGTERM)[sent % 2])
+      sent += 1
+      time.sleep(0.005)
+  except ProcessLookupError:  # It has exited.
+    os.close(process)
+  output = runner.communicate(timeout=300)[0]
+  assert sent > 20 and 'exit status 130' in output, output[-3000:]  # Signalled before its stop and after it.
+  step = _stopped_cleanly(cell)
+  assert 50 <= step < 2000
+  _resumed_from(command, cell, step)
 
 
 def test_the_sbatch_script_runs_a_study_on_a_one_node_allocation(tmp_path):

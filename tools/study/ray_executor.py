@@ -12,9 +12,9 @@ stopped at the end. Ray is an optional extra: requirements-cluster.txt.
 import contextlib
 import logging
 import os
+import signal
 import socket
 import sys
-import time
 
 from tools.study import claim as study_claim
 from tools.study import schedule as study_schedule
@@ -93,6 +93,13 @@ def check_fits(resources: study_spec.Resources, nodes: list, address) -> None:
   print(f'warning: {message}; the cells wait until such a node joins (Ctrl-C stops)', file=sys.stderr, flush=True)
 
 
+def _still_stopping(signum, frame) -> None:
+  """The driver's SIGINT handler once it stops: says so instead of leaving before its cells (or Ray) are done."""
+  del signum, frame
+  print(f'still stopping: the cells save their checkpoints and end (up to {CANCEL_WAIT_SECONDS:g} s), then the '
+        'driver leaves Ray', file=sys.stderr, flush=True)
+
+
 class RayExecutor:
   """Submits cells as Ray tasks with the given resources; every cell is submitted at once (Ray queues them)."""
   slots = sys.maxsize
@@ -119,19 +126,24 @@ class RayExecutor:
     return future
 
   def cancel(self, futures) -> None:
-    """Cancels the cells: queued ones never start; running ones are asked to stop (each saves a checkpoint and
-    releases its claim, waited for), then their tasks are ended."""
+    """Cancels the cells, each asked once: a running one (its claim held for this job) through its stop request,
+    wherever it runs (it saves a checkpoint, releases its claim and exits, and its task ends); the others through
+    Ray (a queued one never starts, a starting one gets SIGINT from its task). The tasks are waited for, up to
+    CANCEL_WAIT_SECONDS; tasks still running then are ended. Called as the driver stops, it leaves further Ctrl-C
+    only reported from then on: a driver that left would take its tasks' processes down with it, in the middle of
+    their checkpoints."""
+    signal.signal(signal.SIGINT, _still_stopping)
     cancelled = [self.submitted[f] for f in futures]
     for ref, path in cancelled:
-      self.ray.cancel(ref)
       if (study_claim.live_holder(path) or {}).get('job') == self.job:
         study_claim.request_stop(path, self.job)
-    deadline = time.monotonic() + CANCEL_WAIT_SECONDS
-    while time.monotonic() < deadline and any(
-        (study_claim.live_holder(path) or {}).get('job') == self.job for _, path in cancelled):
-      time.sleep(0.2)
-    for ref, path in cancelled:
+      else:
+        self.ray.cancel(ref)
+    refs = [ref for ref, _ in cancelled]
+    _, running = self.ray.wait(refs, num_returns=len(refs), timeout=CANCEL_WAIT_SECONDS) if refs else ([], [])
+    for ref in running:
       self.ray.cancel(ref, force=True)
+    for _, path in cancelled:
       with contextlib.suppress(FileNotFoundError):
         os.remove(os.path.join(path, study_claim.STOP_FILE))
 
