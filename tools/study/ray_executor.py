@@ -21,8 +21,11 @@ from tools.study import schedule as study_schedule
 from tools.study import spec as study_spec
 
 CANCEL_WAIT_SECONDS = 120.  # Ctrl-C: how long the cancelled cells get to save a checkpoint and stop.
-# --address: how long the cluster's port gets to answer. Ray itself retries a silent address for minutes.
+# --address: how long the cluster's port gets to answer. Ray itself retries a silent address, or one where another
+# server answers, for many minutes.
 CONNECT_SECONDS = 10.
+# A cluster's address is its GCS, a gRPC server: it answers HTTP/2's client preface with a SETTINGS frame (type 4).
+HTTP2_PREFACE = b'PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n' + bytes(3) + b'\x04' + bytes(5)  # + an empty SETTINGS frame
 
 
 def _cell_task(path: str, job: str, cwd: str):
@@ -63,16 +66,27 @@ def _resolved(ray, address: str) -> str:
 
 
 def check_answers(address: str, resolved: str, seconds: float = CONNECT_SECONDS) -> None:
-  """ValueError naming --address unless something answers at resolved (host:port) within seconds."""
+  """ValueError naming --address unless a gRPC server (as a cluster's GCS) answers at resolved (host:port) within
+  seconds (with TLS, RAY_USE_TLS: any server)."""
   host, _, port = resolved.rpartition(':')
   if not port.isdigit() or '://' in resolved:  # A Ray Client address (ray://...): ray.init reaches it itself.
     return
+  where = resolved if resolved == address else f'{resolved} (where Ray looks for {address})'
+  expected = 'expected the address that `ray start --head` printed, e.g. 10.0.0.1:6379'
   try:
-    socket.create_connection((host.strip('[]'), int(port)), timeout=seconds).close()
+    with socket.create_connection((host.strip('[]'), int(port)), timeout=seconds) as connection:
+      if os.environ.get('RAY_USE_TLS', '0') not in ('', '0'):
+        return
+      connection.sendall(HTTP2_PREFACE)
+      answer = connection.recv(9)
+  except socket.timeout:
+    answer = b''
   except OSError as e:
-    where = resolved if resolved == address else f'{resolved} (where Ray looks for {address})'
     raise ValueError(f'--address {address}: nothing answers at {where} within {seconds:g} s ({e.strerror or e}); '
-                     'expected the address that `ray start --head` printed, e.g. 10.0.0.1:6379') from None
+                     f'{expected}') from None
+  if len(answer) < 4 or answer[3] != 4:
+    raise ValueError(f'--address {address}: the server at {where} is no Ray cluster (no gRPC answer within '
+                     f'{seconds:g} s; is it the dashboard\'s port?); {expected}')
 
 
 def _node_fits(resources: study_spec.Resources, node: dict) -> bool:

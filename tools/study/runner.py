@@ -364,7 +364,7 @@ def _parser() -> argparse.ArgumentParser:
   parser.add_argument('--executor', choices=('local', 'ray'), default='local',
                       help='where cells run: processes on this machine, or Ray tasks (docs/cluster.md)')
   parser.add_argument('--address', help='with --executor ray: the Ray cluster (default: start a local one); '
-                      'an address where nothing answers within 10 s is an error')
+                      'an address where no cluster answers within 10 s is an error')
   parser.add_argument('--num-gpus', type=float, help='with --executor ray: GPUs per cell ([resources] num_gpus)')
   parser.add_argument('--num-cpus', type=float, help='with --executor ray: CPUs per cell ([resources] num_cpus)')
   parser.add_argument('--max-retries', type=int, help='with --executor ray: retries of a cell whose worker or '
