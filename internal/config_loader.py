@@ -125,6 +125,7 @@ def validate(config: Config) -> None:
     base.check_choice(f'MipNerfModel.{name}', getattr(model, name), options, ValueError)
   _check_types(config)
   _check_ranges(config)
+  _check_seeds(config)
   _check_generated_size(config.generated_size)
   _check_model_settings(config.model)
   if config.far <= config.near:
@@ -152,6 +153,19 @@ def _check_ranges(config: Config) -> None:
       if expected:
         hint = f' ({field.metadata["hint"]})' if field.metadata['hint'] else ''
         raise ValueError(f'Config.{name} = {value}; expected {expected}{hint}')
+
+
+# Seeds jax.random.PRNGKey (int64) and numpy's generators (non-negative) both take.
+SEED_LIMIT = 2**63
+
+
+def _check_seeds(config: Config) -> None:
+  """Raises a ValueError naming the first seed (configs.SEED) that no random generator takes."""
+  for name in configs.declared(configs.SEED):
+    value = getattr(config, name)
+    if not 0 <= value < SEED_LIMIT:
+      raise ValueError(f'Config.{name} = {value}; expected a whole number in [0, 2^63) (a seed of jax\'s and '
+                       'numpy\'s random generators)')
 
 
 def _outside(kind: str, value, floats: bool) -> str:

@@ -106,6 +106,16 @@ def _steps_done(chunks, total: int) -> int:
   return max([int(k) for k in re.findall(rf'(\d+)/{total}\b', ''.join(chunks))] + [0])
 
 
+def test_the_first_stop_signal_is_kept_and_later_ones_find_the_process_stopping():
+  flag = loop.StopFlag()
+  with pytest.raises(KeyboardInterrupt):  # Before training stopped: Ctrl-C as ever.
+    flag.raise_unless_stopped(signal.SIGINT, None)
+  flag(signal.SIGINT, None)
+  flag(signal.SIGTERM, None)
+  assert flag.signum == signal.SIGINT
+  flag.raise_unless_stopped(signal.SIGTERM, None)  # Stopping already: nothing more.
+
+
 def test_sigterm_saves_a_checkpoint_and_exits_cleanly(tmp_path, scene_dir):
   total = 100000
   bindings = TINY + [f"Config.data_dir = '{scene_dir}'", f"Config.checkpoint_dir = '{tmp_path / 'run'}'",

@@ -53,22 +53,36 @@ def test_every_field_declares_its_properties_with_setting():
     configs.setting(1, 'postive')
 
 
+F, P, NN = configs.FINITE, configs.POSITIVE, configs.NON_NEGATIVE
+# Every Config field with a range and the ranges it must have, written out here rather than read from the
+# declarations, so that a range dropped from (or added to) a declaration fails.
+EXPECTED_RANGES = {
+    'checkpoint_every': {P}, 'checkpoint_keep': {P}, 'print_every': {P}, 'render_chunk_size': {P},
+    'factor': {NN}, 'render_factor': {NN}, 'n_input_views': {NN}, 'batch_size': {P}, 'near': {F}, 'far': {F},
+    'render_path_frames': {P}, 'precrop_steps': {NN}, 'max_steps': {P}, 'lr_init': {F, P}, 'lr_final': {F, P},
+    'lr_delay_steps': {NN}, 'max_skipped_steps': {P}, 'stuck_warning_steps': {NN}, 'freq_reg_end': {NN},
+    'occ_reg_range': {NN}, 'occ_wb_range': {NN}, 'n_random_poses': {P}, 'anneal_nearfar_steps': {P},
+    'eval_factor': {P}, 'curve_every': {NN}, 'curve_spread_views': {NN}, 'curve_factor': {P}}
+
+
+def test_each_field_declares_exactly_the_ranges_the_table_expects():
+  declared = {f.name: set(f.metadata['properties']) & set(configs.RANGES) for f in FIELDS}
+  assert {name: ranges for name, ranges in declared.items() if ranges} == EXPECTED_RANGES
+
+
 def _out_of_range(kind: str, default):
-  return {configs.FINITE: math.inf, configs.NON_NEGATIVE: -1}.get(kind, 0. if isinstance(default, float) else 0)
+  return {F: math.inf, NN: -1}.get(kind, 0. if isinstance(default, float) else 0)
 
 
-@pytest.mark.parametrize('kind', configs.RANGES)
-def test_validate_refuses_each_value_outside_the_range_its_field_declares(kind):
-  expected = {configs.FINITE: 'a finite number', configs.NON_NEGATIVE: '>= 0'}
-  for field in FIELDS:
-    if kind in field.metadata['properties']:
-      value = _out_of_range(kind, field.default)
-      why = expected.get(kind, '> 0' if isinstance(field.default, float) else 'a positive integer')
-      hint = f' ({field.metadata["hint"]})' if field.metadata['hint'] else ''
-      with pytest.raises(ValueError, match='^' + re.escape(f'Config.{field.name} = {value}; expected {why}{hint}')
-                         + '$'):
-        config_loader.validate(dataclasses.replace(Config(), **{field.name: value}))
-  assert configs.declared(kind)  # Each range is declared somewhere.
+@pytest.mark.parametrize('name, kind', [(n, k) for n, kinds in EXPECTED_RANGES.items() for k in sorted(kinds)])
+def test_a_value_outside_each_fields_range_is_refused_naming_it(name, kind):
+  field = next(f for f in FIELDS if f.name == name)
+  value = _out_of_range(kind, field.default)
+  why = {F: 'a finite number', NN: '>= 0'}.get(kind, '> 0' if isinstance(field.default, float) else
+                                                 'a positive integer')
+  hint = f' ({field.metadata["hint"]})' if field.metadata['hint'] else ''
+  with pytest.raises(ValueError, match='^' + re.escape(f'Config.{name} = {value}; expected {why}{hint}') + '$'):
+    config_loader.validate(dataclasses.replace(Config(), **{name: value}))
 
 
 def _other_value(field):
@@ -117,3 +131,11 @@ def test_the_fields_set_into_the_model_are_refused_as_its_gin_bindings(name):
 
 def test_the_seeds_are_those_metrics_json_records():
   assert configs.declared(configs.SEED) == ('jax_rng_seed', 'np_rng_seed')  # Its "seeds": [jax, np].
+
+
+@pytest.mark.parametrize('value', [-1, 2**63, 1180591620717411303424])
+@pytest.mark.parametrize('name', configs.declared(configs.SEED))
+def test_a_seed_no_random_generator_takes_is_refused_naming_it(name, value):
+  with pytest.raises(ValueError, match=re.escape(f'Config.{name} = {value}; expected a whole number in [0, 2^63)')):
+    config_loader.validate(dataclasses.replace(Config(), **{name: value}))
+  config_loader.validate(dataclasses.replace(Config(), **{name: 2**63 - 1}))

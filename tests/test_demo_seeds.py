@@ -67,3 +67,17 @@ def test_a_failed_command_names_itself_and_its_log(tmp_path):
   with pytest.raises(RuntimeError, match=r"python -c .*failed in .*; its output is in .*log.txt"):
     demo_seeds.run_timed([[sys.executable, '-c', 'print("why"); raise SystemExit(3)']], str(tmp_path), str(log))
   assert log.read_text() == 'why\n'
+
+
+@pytest.mark.parametrize('seeds, message', [
+    (['abc'], "--seeds 'abc': expected whole numbers (values of Config.jax_rng_seed)"),
+    (['1180591620717411303424'], '--seeds 1180591620717411303424: Config.jax_rng_seed = 1180591620717411303424; '
+                                 'expected a whole number in [0, 2^63)'),
+    (['5', '5'], '--seeds 5 5: seed 5 is given twice; expected each seed once')])
+def test_a_bad_seed_is_one_line_before_any_work_and_leaves_nothing(tmp_path, monkeypatch, capsys, seeds, message):
+  monkeypatch.setattr(demo_seeds, 'run_seed', lambda *args: pytest.fail('a demo ran before the seeds were checked'))
+  out, work = tmp_path / 'out', tmp_path / 'work'
+  assert cli.run(lambda: demo_seeds.main(['--seeds', *seeds, '--out', str(out), '--work', str(work)])) == 2
+  err = capsys.readouterr().err
+  assert err.startswith(f'error: {message}') and err.count('\n') == 1, err
+  assert not out.exists() and not work.exists()

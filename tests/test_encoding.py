@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from internal.models import encoding
+from internal.models import trig
 
 
 def test_lengths():
@@ -120,6 +121,37 @@ def test_interleaved_pos_enc_of_extreme_inputs_equals_jnp_sin_and_cos():
   scaled = jnp.asarray(EXTREME)[:, None, :] * 2.**jnp.arange(10.)[:, None]  # [N, degree, coord], some inf.
   bands = np.stack([jnp.sin(scaled), jnp.cos(scaled)], axis=2).reshape(len(EXTREME), -1)
   np.testing.assert_allclose(ours, np.concatenate([EXTREME, bands], -1), rtol=0, atol=1.5e-7)
+
+
+def _below_the_guard(top_degree: int, n: int = 30_000) -> np.ndarray:
+  """Coordinates [n, 3] whose arguments at 2^top_degree fill [EXACT_SIN_LIMIT / 2, EXACT_SIN_LIMIT - 2) (+ pi/2
+  stays below the limit), so that every argument takes trig's own reduction (the whole array is below its guard)."""
+  limit = trig.EXACT_SIN_LIMIT
+  y = np.random.default_rng(1).uniform(limit / 2, limit - 2., (n, 3)) * np.random.default_rng(2).choice([-1, 1], (n, 3))
+  return (y / 2.**top_degree).astype(np.float32)
+
+
+def _exact_sin(arguments: np.ndarray) -> np.ndarray:
+  """sin of float32 arguments in float64, asserting that they are below trig's guard."""
+  assert np.max(np.abs(arguments)) < trig.EXACT_SIN_LIMIT
+  return np.sin(arguments.astype(np.float64))
+
+
+def test_pos_enc_of_arrays_below_the_guard_is_within_float32_rounding_of_exact():
+  x = _below_the_guard(15)
+  ours = np.asarray(jax.jit(lambda x: encoding.pos_enc(x, 0, 16))(x))
+  scaled = (x[:, None, :] * 2.**np.arange(16)[:, None]).astype(np.float32).reshape(len(x), -1)  # Exact products.
+  shifted = scaled + np.float32(0.5 * np.pi)  # float32 additions, as the encoding's.
+  np.testing.assert_allclose(ours, np.concatenate([x, _exact_sin(scaled), _exact_sin(shifted)], -1), rtol=0,
+                             atol=1.2e-7)
+
+
+def test_interleaved_pos_enc_of_arrays_below_the_guard_is_within_float32_rounding_of_exact():
+  x = _below_the_guard(9)
+  ours = np.asarray(jax.jit(lambda x: encoding.interleaved_pos_enc(x, 10))(x))
+  scaled = (x[:, None, :] * 2.**np.arange(10)[:, None]).astype(np.float32)  # [N, degree, coord]
+  bands = np.stack([_exact_sin(scaled), np.cos(scaled.astype(np.float64))], axis=2).reshape(len(x), -1)
+  np.testing.assert_allclose(ours, np.concatenate([x, bands], -1), rtol=0, atol=1.2e-7)
 
 
 def test_safe_sin_large_arguments():

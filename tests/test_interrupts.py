@@ -1,5 +1,5 @@
 """Ctrl-C during eval.py and render.py: one line and exit status 130, as training stopped by SIGINT; the rerun
-finishes the work."""
+finishes the work. Ctrl-C while a script or a tool imports: the same line."""
 
 import os
 import signal
@@ -116,12 +116,14 @@ sys.meta_path.insert(0, SigintAtJax())
 '''
 
 
-@pytest.mark.parametrize('script', ['eval.py', 'train.py', 'render.py'])
-def test_ctrl_c_while_a_script_imports_is_one_line(script, tmp_path):
+@pytest.mark.parametrize('script', ['eval.py', 'train.py', 'render.py', 'tools.study', 'tools.mesh',
+                                    'tools.demo_seeds', 'tools.tables', 'tools.pack_scene'])
+def test_ctrl_c_while_a_script_or_tool_imports_is_one_line(script, tmp_path):
   (tmp_path / 'sitecustomize.py').write_text(SIGINT_AT_JAX_IMPORT)
   env = dict(os.environ, PYTHONPATH=str(tmp_path))
   env.pop(cli.DEBUG_ENV, None)
-  result = subprocess.run([sys.executable, script], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120,
+  command = [script] if script.endswith('.py') else ['-m', script]  # A tool runs as `python -m tools.<name>`.
+  result = subprocess.run([sys.executable, *command], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120,
                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL), check=False)
   assert result.returncode == -signal.SIGINT, result.stderr  # Stopped by SIGINT: 130 in a shell.
   assert result.stderr == interrupt.MESSAGE + '\n'

@@ -111,18 +111,19 @@ def test_overwrite_of_a_run_deletes_everything_it_wrote_and_nothing_else(tmp_pat
   loop.train(config)
   evaluate.evaluate(config)
   render_path.render(config)
-  preds = evaluate.output_dir(str(run), 2)
-  user = {'notes.txt': 'mine', os.path.join(os.path.basename(preds), 'remarks.txt'): 'also mine',
-          os.path.join('checkpoints', 'README'): 'mine too'}
+  outputs = [os.path.basename(f(str(run), 2)) for f in (evaluate.output_dir, render_path.output_dir)]
+  owned = sorted(p.name for p in run.iterdir() if p.is_dir())  # Every folder the run writes into: a user file in each.
+  assert owned == sorted(['checkpoints', 'tensorboard', *outputs])
+  user = {'notes.txt': 'mine', **{os.path.join(name, 'README'): f'mine, in {name}' for name in owned}}
   for name, text in user.items():
     (run / name).write_text(text)
   assert len(_contents(run)) > 30  # Checkpoints, tensorboard, the evaluation and the renders.
   loop.train(tiny_config(scene_dir, run, 'Config.max_steps = 3', 'Config.overwrite = True'), stop_at_step=1)
-  fresh = {'checkpoints', 'config.gin', 'config.json', 'tensorboard',  # No learning curve yet at step 1.
-           run_dir_lib.MARKER_FILE, 'notes.txt', os.path.basename(preds)}
+  fresh = {'config.gin', 'config.json', run_dir_lib.MARKER_FILE, 'notes.txt', *owned}  # No learning curve at step 1.
   assert set(os.listdir(run)) == fresh
-  assert _contents(run / os.path.basename(preds)) == {'remarks.txt': 'also mine'}
-  assert (run / 'checkpoints' / 'README').read_text() == 'mine too'
+  assert {name: (run / name).read_text() for name in user} == user
+  for name in outputs:  # Of the evaluation's and the renders' folders only the user's file is left.
+    assert _contents(run / name) == {'README': f'mine, in {name}'}
   assert checkpoints.latest_step(str(run)) == 1
   assert run_dir_lib.read_fingerprint(str(run))['Config.max_steps'] == 3
 

@@ -3,6 +3,7 @@ and a finished cell never trained or written again."""
 
 import json
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -83,49 +84,79 @@ def test_the_same_job_waits_for_its_earlier_attempt(tmp_path):
   assert time.perf_counter() - tic >= 0.4 and second['token'] != first['token']
 
 
+@pytest.mark.parametrize('garbage', [b'\x00\xff\x13garbage', b'{"host": "a", "pi', b'[1, 2]', b'{}'])
+def test_a_claim_file_that_holds_no_claim_is_taken_over_at_once_naming_it(tmp_path, capsys, garbage):
+  """Claims appear whole (written beside, then linked), so a file that holds no holder record is no live runner's."""
+  (tmp_path / study_claim.CLAIM_FILE).write_bytes(garbage)
+  assert study_claim.live_holder(str(tmp_path)) is None  # The runner submits the cell at once.
+  tic = time.perf_counter()
+  holder = study_claim.acquire(str(tmp_path), 'job-b')
+  assert time.perf_counter() - tic < 1. and json.loads((tmp_path / study_claim.CLAIM_FILE).read_text()) == holder
+  assert capsys.readouterr().out == (f'warning: took over the stale claim of nobody (the file holds no claim) in '
+                                     f'{str(tmp_path / study_claim.CLAIM_FILE)!r}\n')
+
+
+def test_a_claim_file_that_cannot_be_read_is_one_error_naming_it(tmp_path):
+  (tmp_path / study_claim.CLAIM_FILE).mkdir()  # Reading it fails whatever this user may read.
+  with pytest.raises(ValueError, match=f"^{re.escape(repr(str(tmp_path / study_claim.CLAIM_FILE)))} cannot be read"):
+    study_claim.live_holder(str(tmp_path))
+
+
+# A racer: claims the cell; at its first write into the cell (a claim or a takeover lock being created) it waits
+# until every racer is there, so all of them act on what they found at once (a claim made by a check, then a write,
+# would let several through); a winner holds its claim until every racer has an outcome.
 RACER = """
-import sys, time
+import os, sys, time
 from tools.study import claim as study_claim
-cell, job, start, done = sys.argv[1:]
-judge = study_claim.is_stale
-def slow_judge(*args):  # Every racer judges the claim stale before any takes it over, then acts in turn.
-  stale = judge(*args)
-  time.sleep(0.5 + 0.1 * int(job.split('-')[1]) if stale else 0.)
-  return stale
-study_claim.is_stale = slow_judge
-while time.time() < float(start):
-  time.sleep(0.001)
+cell, job, arrived, tried, racers = sys.argv[1:]
+racers, pending, deadline = int(racers), [True], time.time() + 60.
+WRITES = os.O_WRONLY | os.O_RDWR | os.O_CREAT
+
+def count(path):
+  return len(open(path).read().split())
+
+def barrier(event, args):
+  writes = event == 'open' and args[2] is not None and args[2] & WRITES or event in ('os.link', 'os.rename')
+  if pending[0] and writes and os.fspath(args[1] if event == 'os.link' else args[0]).startswith(cell):
+    pending[0] = False
+    with open(arrived, 'a') as f:
+      f.write(job + ' ')
+    while count(arrived) < racers and time.time() < deadline:
+      time.sleep(0.001)
+
+sys.addaudithook(barrier)
 try:
-  holder = study_claim.acquire(cell, job)
+  holder, outcome = study_claim.acquire(cell, job), 'won'
 except study_claim.Held:
-  print('held')
-  sys.exit()
-print('won', flush=True)
-while len(open(done).read().split()) < 5:  # Held until every other racer has tried.
+  outcome = 'held'
+print(outcome, flush=True)
+with open(tried, 'a') as f:
+  f.write(outcome + ' ')
+while count(tried) < racers and time.time() < deadline:
   time.sleep(0.01)
-study_claim.release(cell, holder)
+if outcome == 'won':
+  study_claim.release(cell, holder)
 """
 
 
-def test_of_many_processes_that_find_a_stale_claim_one_takes_it(tmp_path):
-  cell, done = tmp_path / 'cell', tmp_path / 'tried'
-  _write_claim(cell, pid=_dead_pid())
-  done.write_text('')
-  start = str(time.time() + 2.)
-  racers = [subprocess.Popen([sys.executable, '-c', RACER, str(cell), f'job-{i}', start, str(done)], cwd=REPO,
-                             stdout=subprocess.PIPE, text=True) for i in range(6)]
-  outcomes = []
-  for racer in sorted(racers, key=lambda r: r.pid):
-    line = racer.stdout.readline().strip()
-    while line.startswith('warning: took over'):  # The taker's message, before its outcome.
-      line = racer.stdout.readline().strip()
-    outcomes.append(line)
-    if line == 'held':
-      with open(done, 'a') as f:
-        f.write('x\n')
-  for racer in racers:
-    racer.wait(30)
-  assert sorted(outcomes) == ['held'] * 5 + ['won']
+@pytest.mark.parametrize('stale', [False, True])
+def test_of_many_processes_that_race_for_a_cell_one_claims_it(tmp_path, stale):
+  """Six racers at once on a free cell, or on a cell whose claim is stale (each judges it stale, then all race
+  for the takeover)."""
+  cell, arrived, tried = tmp_path / 'cell', tmp_path / 'arrived', tmp_path / 'tried'
+  cell.mkdir()
+  if stale:
+    _write_claim(cell, pid=_dead_pid())
+  arrived.write_text('')
+  tried.write_text('')
+  racers = [subprocess.Popen([sys.executable, '-c', RACER, str(cell), f'job-{i}', str(arrived), str(tried), '6'],
+                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            for i in range(6)]
+  outputs = [racer.communicate(timeout=120)[0] for racer in racers]
+  assert len(arrived.read_text().split()) == 6, outputs  # Every racer waited at the barrier.
+  outcomes = [line for output in outputs for line in output.splitlines() if not line.startswith('warning: took')]
+  assert sorted(outcomes) == ['held'] * 5 + ['won'], outputs
+  assert os.listdir(cell) == []  # The winner released its claim; nothing of the takeover is left behind.
 
 
 def test_a_finished_cell_is_neither_run_nor_written_again(tmp_path):

@@ -3,15 +3,18 @@ cluster started with `ray start --head`; skipped without the cluster extra); eac
 results.csv to the last digit (training is deterministic). Also a Ray worker killed mid-cell, then Ctrl-C."""
 
 import csv
+import http.server
 import json
 import os
 import pathlib
+import re
 import shutil
 import signal
 import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import pytest
@@ -174,16 +177,65 @@ def test_a_killed_worker_is_retried_from_its_checkpoint_and_ctrl_c_stops_cleanly
       (cell / study_claim.CLAIM_FILE).read_text())['pid'] != first['pid'], 'the retry')
   killed_at = _latest_step(cell / 'run')
   _wait_for(lambda: (_latest_step(cell / 'run') or 0) > killed_at, 'the retry to train on')
-  driver.send_signal(signal.SIGINT)                                 # Ctrl-C: the cell stops, its checkpoint saved.
+  for _ in range(4):  # Ctrl-C, and again while the cell saves: the cell stops once, its stop checkpoint complete.
+    driver.send_signal(signal.SIGINT)
+    time.sleep(0.5)
   output = driver.communicate(timeout=300)[0]
   assert driver.returncode == 128 + signal.SIGINT and 'interrupted:' in output, output[-3000:]
-  assert not (cell / study_claim.CLAIM_FILE).exists() and not (cell / 'cell.json').exists()
-  stopped_at = _latest_step(cell / 'run')
+  assert 'still stopping: the cells save their checkpoints' in output, output[-3000:]
+  assert 'Traceback' not in output and not (cell / 'cell.json').exists(), output[-3000:]
+  stopped_at = _stopped_cleanly(cell)
+  assert stopped_at > killed_at, (stopped_at, killed_at)
+  _resumed_from(command, cell, stopped_at)
+
+
+STOPPED = re.compile(r'stopped by signal 2 at step (\d+) with a checkpoint saved; the study run again resumes it$')
+
+
+def _stopped_cleanly(cell) -> int:
+  """The step at which the cell's process stopped, after checking that its log ends in its one stop line (no
+  traceback, no interrupted save) and that its newest checkpoint, complete, is that step."""
+  log = (cell / 'log.txt').read_text()
+  assert not re.search('Traceback|KeyboardInterrupt|interrupted:|thread failed|Failed to run', log), log[-3000:]
+  match = STOPPED.search(log.strip().splitlines()[-1])
+  assert match, log[-3000:]
+  step = int(match.group(1))
+  assert _latest_step(cell / 'run') == step and not any('tmp' in n for n in os.listdir(cell / 'run' / 'checkpoints'))
+  assert not (cell / study_claim.CLAIM_FILE).exists() and not (cell / study_claim.STOP_FILE).exists()
+  return step
+
+
+def _resumed_from(command, cell, step: int) -> None:
+  """Runs the study again: its cell resumes from step and finishes."""
   rerun = subprocess.run(command, cwd=REPO, env=ENV, capture_output=True, text=True, timeout=600, check=False)
   assert rerun.returncode == 0, rerun.stdout[-3000:] + rerun.stderr[-3000:]
   record = json.loads((cell / 'cell.json').read_text())
-  assert record['step'] == 4000 and record['steps_trained'] == 4000 - stopped_at
-  assert record['resumed_from_step'] == stopped_at > killed_at, (record['resumed_from_step'], stopped_at, killed_at)
+  assert record['resumed_from_step'] == step and record['step'] == record['steps_trained'] + step
+
+
+def test_a_cell_sent_signal_after_signal_stops_once_saving_the_step_it_stopped_at(tmp_path):
+  """SIGINT and SIGTERM every 5 ms to a cell process of the local executor from its first checkpoint on, through
+  its stop checkpoint, until it exits: the first stops it, the others find it stopping (as when Ray, its claim's
+  stop request, its runner and a user all ask)."""
+  path = _study(tmp_path, steps=2000, every=50, one_cell=True)
+  out, cell = tmp_path / 'out', tmp_path / 'out' / 'mini' / 'freenerf__object'
+  command = _study_command(path, out)
+  runner = subprocess.Popen(command, cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+  _wait_for(lambda: (_latest_step(cell / 'run') or 0) >= 50, 'the first checkpoint')
+  process = os.pidfd_open(json.loads((cell / study_claim.CLAIM_FILE).read_text())['pid'])
+  sent = 0
+  try:
+    while True:
+      signal.pidfd_send_signal(process, (signal.SIGINT, signal.SIGTERM)[sent % 2])
+      sent += 1
+      time.sleep(0.005)
+  except ProcessLookupError:  # It has exited.
+    os.close(process)
+  output = runner.communicate(timeout=300)[0]
+  assert sent > 20 and 'exit status 130' in output, output[-3000:]  # Signalled before its stop and after it.
+  step = _stopped_cleanly(cell)
+  assert 50 <= step < 2000
+  _resumed_from(command, cell, step)
 
 
 def test_the_sbatch_script_runs_a_study_on_a_one_node_allocation(tmp_path):
@@ -228,6 +280,35 @@ def test_resources_no_node_offers_are_an_error_here_and_a_warning_on_a_cluster(c
     study_ray.check_fits(study_spec.Resources(num_gpus=1), nodes, None)   # The GPU node is dead.
   study_ray.check_fits(study_spec.Resources(num_gpus=1), nodes, '10.0.0.1:6379')
   assert 'warning: a cell asks for 1 GPU' in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('address, env, server', [('127.0.0.1:{port}', {}, None),
+                                                 ('auto', {'RAY_ADDRESS': '127.0.0.1:{port}'}, None),
+                                                 ('127.0.0.1:{port}', {}, http.server.HTTPServer)])
+def test_an_address_where_no_cluster_answers_is_one_line_naming_it_within_seconds(tmp_path, address, env, server):
+  """Nothing listens there (auto: as after `ray start` on a cluster that is gone), or a web server (the dashboard's
+  port, say) does: Ray alone retries for many minutes."""
+  pytest.importorskip('ray', reason=NO_RAY)
+  port = _free_port()
+  address, env = address.format(port=port), {k: v.format(port=port) for k, v in env.items()}
+  web = server(('', port), http.server.SimpleHTTPRequestHandler) if server else None
+  if web:
+    threading.Thread(target=web.serve_forever, daemon=True).start()
+  command = _study_command(_study(tmp_path), tmp_path / 'out', '--executor', 'ray', '--address', address)
+  try:
+    result = subprocess.run(command, cwd=REPO, env={**ENV, **env}, capture_output=True, text=True, timeout=120,
+                            check=False)
+  finally:
+    if web:
+      web.shutdown()
+      web.server_close()
+  why = ('is no Ray cluster (no gRPC answer within 10 s; is it the dashboard\'s port?)' if web else
+         'within 10 s (Connection refused)')
+  assert result.returncode == 2, result.stderr[-3000:]
+  assert re.fullmatch(f'error: --address {re.escape(address)}: (nothing answers at|the server at) .*:{port}.* '
+                      f'{re.escape(why)}; expected the address that `ray start --head` printed, e.g. '
+                      '10.0.0.1:6379\n', result.stderr), result.stderr[-3000:]
+  assert not (tmp_path / 'out').exists()
 
 
 def test_ray_missing_is_one_line_naming_the_extra(capsys, monkeypatch, tmp_path):

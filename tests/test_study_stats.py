@@ -152,3 +152,13 @@ def test_seeds_are_placed_as_categories_in_their_order():
   study = study_spec.parse(SEEDED.replace('seeds = 3', 'seeds = [20200823, 1, 2]'), 'seeded.toml')
   positions, ticks = study_plots._axis_positions(study, study_spec.SEED_AXIS)
   assert positions == {'20200823': 0., '1': 1., '2': 2.} and ticks == ['20200823', '1', '2']
+
+
+@pytest.mark.parametrize('use', [study_stats.compare, study_stats.summarize])
+def test_two_rows_of_one_setting_and_seed_are_refused_naming_them(study, use):
+  rows = _rows(((1., 1., 1.), (1., 1., 1.)))
+  twice = dict(rows[2], psnr=7.5)  # mipnerf on s1, seed 1 again, with another value.
+  with pytest.raises(ValueError, match=r'^two results for method mipnerf, scene s1, seed 1 \(psnr: 10.3 and 7.5\); '
+                                       'expected one row per setting and seed'):
+    use(study, rows + [twice], 'psnr')
+  assert use(study, rows + [dict(twice, psnr='')], 'psnr')  # An unfinished row has no value to count twice.

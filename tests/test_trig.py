@@ -40,6 +40,18 @@ def test_sin_and_cos_are_within_float32_rounding_in_every_binade_up_to_the_large
     assert np.max(np.abs(cos - np.cos(exact))) < 1.2e-7, exponent
 
 
+def test_sin_and_cos_are_within_float32_rounding_for_every_float32_in_the_binade_below_the_exact_limit():
+  """Every float32 of [EXACT_SIN_LIMIT / 2, EXACT_SIN_LIMIT): the reduction's largest octants, where its error
+  grows (a few values a binade err above the bound once the limit is too high: sampling misses them)."""
+  low, high = (np.float32(v).view(np.int32) for v in (trig.EXACT_SIN_LIMIT / 2, trig.EXACT_SIN_LIMIT))
+  x = np.arange(low, high, dtype=np.int32).view(np.float32)
+  x = np.concatenate([x, -x[::7]])  # Both signs (odd and even functions of |x|).
+  sin, cos = (np.asarray(v) for v in jax.jit(trig.sin_cos)(x))
+  exact = x.astype(np.float64)
+  assert np.max(np.abs(sin - np.sin(exact))) < 1.2e-7
+  assert np.max(np.abs(cos - np.cos(exact))) < 1.2e-7
+
+
 def test_one_large_element_does_not_spoil_the_others():
   x = np.concatenate([_samples(8192.)[:5000], [np.float32(3e38), np.float32(-1e9)]]).astype(np.float32)
   sin, cos = (np.asarray(v) for v in jax.jit(trig.sin_cos)(x))

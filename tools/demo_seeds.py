@@ -9,10 +9,14 @@ own, run as plain `python train.py`). Per seed, each as its own process in <work
 Writes <out>/seed_<seed>.json (the metrics, the commands and their seconds, provenance: commit, machine, date and
 this command), then <out>/summary.json and <out>/README.md over every seed_*.json in <out>: per seed and over the
 seeds (mean, standard deviation, range) each method's PSNR, SSIM, LPIPS and depth error, FreeNeRF's lead, the
-all-views PSNR and the wall times. A seed already recorded in <out> is refused, as is a work folder already there
-(its times would not be a whole run). --gin_bindings adds bindings to every run (e.g. a shorter schedule); the
+all-views PSNR and the wall times. Before any work, the seeds are checked (whole numbers, each once, seeds jax and
+numpy take), and a seed already recorded in <out> is refused, as is a work folder already there (its times would
+not be a whole run). --gin_bindings adds bindings to every run (e.g. a shorter schedule); the
 commands recorded show them.
 """
+
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
 
 import argparse
 import dataclasses
@@ -160,15 +164,36 @@ def write_summary(out: str) -> dict:
   return table
 
 
+def checked_seeds(texts: list, extra=()) -> list:
+  """The seeds of --seeds as integers, each once and a valid Config.jax_rng_seed with the extra bindings; a
+  ValueError naming --seeds (or the binding) before any work."""
+  demo.method_configs(extra)  # A bad --gin_bindings is named as itself, not as a seed's.
+  seeds = []
+  for text in texts:
+    try:
+      seed = int(text)
+    except ValueError:
+      raise ValueError(f'--seeds {text!r}: expected whole numbers (values of Config.jax_rng_seed)') from None
+    if seed in seeds:
+      raise ValueError(f'--seeds {" ".join(texts)}: seed {seed} is given twice; expected each seed once')
+    try:
+      demo.method_configs(seed_bindings(seed, extra))
+    except ValueError as e:
+      raise ValueError(f'--seeds {text}: {cli.one_line(e)}') from None
+    seeds.append(seed)
+  return seeds
+
+
 def main(argv=None) -> int:
   """CLI entry point; returns the exit status."""
   argv = sys.argv[1:] if argv is None else argv
   parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-  parser.add_argument('--seeds', type=int, nargs='+', required=True, help='values of Config.jax_rng_seed')
+  parser.add_argument('--seeds', nargs='+', required=True, help='values of Config.jax_rng_seed')
   parser.add_argument('--out', default=os.path.join(ROOT, 'results', 'demo'), help='the folder to commit')
   parser.add_argument('--work', default=os.path.join('out', 'demo_seeds'), help='where the runs are trained')
   parser.add_argument('--gin_bindings', nargs='+', default=[], help='extra bindings of every run')
   args = parser.parse_args(argv)
+  args.seeds = checked_seeds(args.seeds, args.gin_bindings)
   for seed in args.seeds:
     if os.path.exists(seed_file(args.out, seed)):
       raise FileExistsError(f'{seed_file(args.out, seed)!r} exists: seed {seed} is recorded; remove the file to '

@@ -20,6 +20,10 @@ and per solid (Chamfer distance and coverage, internal/evaluation/mesh_scores.py
 meshing took (the grid and the colours, once compiled) and provenance (command, commit, machine), e.g. into
 results/mesh/ to be committed.
 """
+
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import json
 import math
 import os

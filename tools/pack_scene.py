@@ -9,6 +9,9 @@ with Config.dataset_loader = 'packed' and Config.data_dir = '<file>.npz'; the se
 (factor, n_input_views, split settings, ...) must stay as they were. See internal/datasets/packed.py.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import dataclasses
 import os
 import sys

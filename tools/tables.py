@@ -15,6 +15,9 @@ scene's value is their mean, shown with the standard deviation over seeds and n;
 shown with the standard deviation over seeds of the per-seed means when every scene has the same seeds.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import csv
 import dataclasses

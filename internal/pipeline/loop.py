@@ -5,6 +5,7 @@ import dataclasses
 import os
 import signal
 import time
+from typing import Optional
 
 import jax
 import numpy as np
@@ -49,7 +50,14 @@ class StopFlag:
     self.signum = None
 
   def __call__(self, signum, frame):
-    self.signum = signum
+    self.signum = self.signum or signum  # The first signal is the one that stopped training.
+
+  def raise_unless_stopped(self, signum, frame):
+    """A handler for around training: KeyboardInterrupt (stop at once) until a signal stopped training, then
+    nothing, as the process is stopping already (e.g. a second request while it releases what it holds)."""
+    del signum, frame
+    if self.signum is None:
+      raise KeyboardInterrupt
 
   def stopping(self, sync_point: bool) -> bool:
     """True when the loop must stop after this step.
@@ -80,9 +88,9 @@ class NullWriter:
 
 
 @contextlib.contextmanager
-def stop_on_signals():
-  """Installs a StopFlag for SIGINT and SIGTERM for the duration of the block; yields it."""
-  flag = StopFlag()
+def stop_on_signals(flag: Optional[StopFlag] = None):
+  """Installs flag (default: a new StopFlag) for SIGINT and SIGTERM for the duration of the block; yields it."""
+  flag = StopFlag() if flag is None else flag
   previous = {s: signal.signal(s, flag) for s in (signal.SIGINT, signal.SIGTERM)}
   try:
     yield flag
@@ -187,18 +195,20 @@ def _check_batch(config, mesh) -> None:
                      f'({mesh.size}) so that every device gets whole patches')
 
 
-def train(config, stop_at_step: int = 0) -> TrainResult:
+def train(config, stop_at_step: int = 0, stop: Optional[StopFlag] = None) -> TrainResult:
   """Trains up to Config.max_steps (or stop_at_step, if smaller and > 0), resuming from the newest checkpoint.
 
   The run directory is locked against a second training meanwhile (by process 0, when several processes train
-  together). The final state is saved whether the loop ends or a signal stops it.
+  together). The final state is saved whether the loop ends or a signal stops it: SIGINT and SIGTERM are recorded
+  in stop (default: a new StopFlag) from the first step until that save is committed, so that a second signal
+  cannot cut it short.
   """
   with contextlib.ExitStack() as stack:
     distributed.on_primary(lambda: stack.enter_context(run_dir_lib.open_run(config)), 'opening the run directory')
-    return _train_in(config, config.checkpoint_dir, stop_at_step)
+    return _train_in(config, config.checkpoint_dir, stop_at_step, stop)
 
 
-def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
+def _train_in(config, run_dir: str, stop_at_step: int, stop: Optional[StopFlag]) -> TrainResult:
   """train() inside the locked run directory; the settings are recorded once data and model are ready."""
   mesh = sharding.data_mesh()
   _check_batch(config, mesh)
@@ -217,9 +227,9 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
   curve = learning_curve.Recorder(config, model, curve_views, run_dir, writer, int(state.step)) if (
       curve_views is not None and primary) else None
   last = min(config.max_steps, stop_at_step) if stop_at_step > 0 else config.max_steps
-  with disk_full.stop_when_disk_full(run_dir):
+  with disk_full.stop_when_disk_full(run_dir), stop_on_signals(stop) as stop:
     try:
-      with writer, stop_on_signals() as stop:
+      with writer:
         state, skipped = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last, curve)
       checkpoints.save(mngr, state)
     finally:

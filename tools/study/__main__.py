@@ -1,5 +1,8 @@
 """`python -m tools.study`: the study command (runner.py)."""
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import sys
 
 from internal import cli

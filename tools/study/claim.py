@@ -8,14 +8,16 @@ HEARTBEAT_SECONDS while it works and removes it when it stops. With the claim ta
 cell with cell.json is finished and is neither trained nor written again.
 
 A claim is stale, and the next runner that finds it takes it over, when its process is gone (a holder on the same
-host: checked at once) or when its file has not been touched for STALE_SECONDS (any host: a node that died; the
-hosts' clocks must agree within a minute, as NTP keeps them). A runner takes a stale claim over under a takeover
-lock (<cell>/claim.json.takeover, created like a claim): it removes the claim only if it is still the stale one it
-saw, then claims the cell like any runner, so of several runners that find one claim stale a single one takes it
-(a takeover lock older than TAKEOVER_STALE_SECONDS was left by a taker that died and is removed). A cell process of the same job that finds a
-live claim waits for it (a retried Ray task whose first attempt is still saving its checkpoint); one of another
-job stops with Held and its runner looks at the cell again later. A runner stopped by Ctrl-C asks its cells'
-processes to stop through <cell>/claim.stop (they save a checkpoint and release their claims), wherever they run.
+host: checked at once), when its file has not been touched for STALE_SECONDS (any host: a node that died; the hosts'
+clocks must agree within a minute, as NTP keeps them) or when its file holds no holder record (garbage: a claim
+appears complete, so that is no live runner's; taken over at once). A runner takes a stale claim over under a
+takeover lock (<cell>/claim.json.takeover, created like a claim): it removes the claim only if it is still the stale
+one it saw, then claims the cell like any runner, so of several runners that find one claim stale a single one takes
+it (a takeover lock older than TAKEOVER_STALE_SECONDS was left by a taker that died and is removed). A cell process
+of the same job that finds a live claim waits for it (a retried Ray task whose first attempt is still saving its
+checkpoint); one of another job stops with Held and its runner looks at the cell again later. A runner stopped by
+Ctrl-C asks its cells' processes to stop through <cell>/claim.stop (they save a checkpoint and release their
+claims), wherever they run.
 """
 
 import contextlib
@@ -50,21 +52,28 @@ def claim_path(cell_path: str) -> str:
 
 
 def _read(path: str) -> Tuple[Optional[dict], float]:
-  """(holder recorded in the claim file, its mtime): (None, 0) when there is no file, ({}, mtime) if unreadable."""
+  """(record in the file, its mtime): (None, 0) when there is no file, ({}, mtime) when it holds no JSON object; a
+  ValueError naming the file when it cannot be read."""
   try:
     mtime = os.stat(path).st_mtime
-    with open(path) as f:
-      holder = json.load(f)
+    with open(path, 'rb') as f:
+      data = f.read()
   except FileNotFoundError:
     return None, 0.
-  except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+  except OSError as e:
+    raise ValueError(f'{path!r} cannot be read ({e.strerror}); expected a claim file (tools/study/claim.py) that '
+                     'this user can read') from None
+  try:
+    holder = json.loads(data)
+  except (UnicodeDecodeError, json.JSONDecodeError):
     return {}, mtime
   return (holder if isinstance(holder, dict) else {}), mtime
 
 
 def is_stale(holder: dict, mtime: float, now: float) -> bool:
-  """Whether a claim (its holder record and file mtime) may be taken over at time now."""
-  return lock_holders.process_gone(holder) or now - mtime > STALE_SECONDS
+  """Whether a claim (its holder record and file mtime) may be taken over at time now: at once when the file holds
+  no holder record (claims appear complete, so it is no live runner's)."""
+  return 'token' not in holder or lock_holders.process_gone(holder) or now - mtime > STALE_SECONDS
 
 
 def live_holder(cell_path: str) -> Optional[dict]:
@@ -77,8 +86,8 @@ def live_holder(cell_path: str) -> Optional[dict]:
 
 def describe(holder: dict) -> str:
   """'process 12 on host 'a' (job j, since ...)' for messages."""
-  if not holder:
-    return 'an unreadable claim'
+  if 'token' not in holder:
+    return 'nobody (the file holds no claim)'
   return (f"process {holder.get('pid')} on host {holder.get('host')!r} (job {holder.get('job')}, since "
           f"{holder.get('started')})")
 
@@ -108,7 +117,7 @@ def _take_over(path: str, seen: dict) -> None:
   try:
     if _read(path)[0] == seen:  # Not yet replaced by a fresh claim (only a taker removes another's claim).
       os.remove(path)
-      print(f'warning: took over the stale claim of {describe(seen)} on {os.path.dirname(path)!r}', flush=True)
+      print(f'warning: took over the stale claim of {describe(seen)} in {path!r}', flush=True)
   finally:
     os.remove(lock)
 
@@ -160,14 +169,17 @@ def _heartbeat(cell_path: str, holder: dict, stop: threading.Event) -> None:
   stop request with SIGINT to this process (the training loop saves a checkpoint and stops)."""
   path, touched = claim_path(cell_path), time.monotonic()
   while not stop.wait(STOP_POLL_SECONDS):
-    if _stop_requested(cell_path, holder):
-      os.kill(os.getpid(), signal.SIGINT)
-    if time.monotonic() - touched >= HEARTBEAT_SECONDS:
-      if _read(path)[0] != holder:
-        return
-      with contextlib.suppress(FileNotFoundError):
-        os.utime(path)
-      touched = time.monotonic()
+    try:
+      if _stop_requested(cell_path, holder):
+        os.kill(os.getpid(), signal.SIGINT)
+      if time.monotonic() - touched >= HEARTBEAT_SECONDS:
+        if _read(path)[0] != holder:
+          return
+        with contextlib.suppress(FileNotFoundError):
+          os.utime(path)
+        touched = time.monotonic()
+    except ValueError:  # A file that cannot be read just now: looked at again at the next poll.
+      continue
 
 
 @contextlib.contextmanager

@@ -33,6 +33,7 @@ import io
 import json
 import os
 import resource
+import signal
 import subprocess
 import sys
 import time
@@ -104,8 +105,9 @@ def _publish(path: str, record: dict) -> None:
 class CellStopped(Exception):
   """A signal stopped the cell's training (its checkpoint saved); the study run again resumes it."""
 
-  def __init__(self, signum: int):
-    super().__init__(f'stopped by signal {signum} with a checkpoint saved; the study run again resumes it')
+  def __init__(self, signum: int, step: int):
+    super().__init__(f'stopped by signal {signum} at step {step} with a checkpoint saved; the study run again '
+                     'resumes it')
     self.signum = signum
 
 
@@ -117,15 +119,17 @@ def _peak_memory() -> dict:
           'device_peak_bytes': stats.get('peak_bytes_in_use')}
 
 
-def run_cell(path: str, job: str) -> Optional[dict]:
+def run_cell(path: str, job: str, stop=None) -> Optional[dict]:
   """Claims the cell in folder path for job (study_claim.Held if another job holds it), then trains (resuming) and
-  evaluates it from its cell_spec.json and writes cell.json; None when another runner had finished it."""
+  evaluates it from its cell_spec.json and writes cell.json; None when another runner had finished it. stop: the
+  loop.StopFlag that training records its signals in (default: its own)."""
   with study_claim.claimed(path, job):
-    return None if read_cell(path) else _train_and_evaluate(path)
+    return None if read_cell(path) else _train_and_evaluate(path, stop)
 
 
-def _train_and_evaluate(path: str) -> dict:
-  """Trains (resuming) and evaluates the cell in folder path from its cell_spec.json; writes cell.json."""
+def _train_and_evaluate(path: str, stop) -> dict:
+  """Trains (resuming; signals recorded in stop) and evaluates the cell in folder path from its cell_spec.json;
+  writes cell.json."""
   import gin  # pylint: disable=import-outside-toplevel
   # pylint: disable=import-outside-toplevel
   from internal.evaluation import evaluate
@@ -138,10 +142,10 @@ def _train_and_evaluate(path: str) -> dict:
   except checkpoints.NoCheckpointError:
     start_step = None
   tic = time.perf_counter()
-  result = loop.train(config)
+  result = loop.train(config, stop=stop)
   train_seconds = time.perf_counter() - tic
   if result.signum is not None:
-    raise CellStopped(result.signum)
+    raise CellStopped(result.signum, int(result.state.step))
   tic = time.perf_counter()
   record = evaluate.existing_record(config) or evaluate.evaluate(config)
   eval_seconds = time.perf_counter() - tic
@@ -359,7 +363,8 @@ def _parser() -> argparse.ArgumentParser:
   parser.add_argument('--shard', help='K/N: run every N-th cell starting at K (one command per host)')
   parser.add_argument('--executor', choices=('local', 'ray'), default='local',
                       help='where cells run: processes on this machine, or Ray tasks (docs/cluster.md)')
-  parser.add_argument('--address', help='with --executor ray: the Ray cluster (default: start a local one)')
+  parser.add_argument('--address', help='with --executor ray: the Ray cluster (default: start a local one); '
+                      'an address where no cluster answers within 10 s is an error')
   parser.add_argument('--num-gpus', type=float, help='with --executor ray: GPUs per cell ([resources] num_gpus)')
   parser.add_argument('--num-cpus', type=float, help='with --executor ray: CPUs per cell ([resources] num_cpus)')
   parser.add_argument('--max-retries', type=int, help='with --executor ray: retries of a cell whose worker or '
@@ -427,14 +432,26 @@ def _executor(study: study_spec.Study, args, job: str):
 
 
 def _run_one_cell(path: str, job: Optional[str]) -> int:
-  """--run-cell: the cell process; CLAIMED_STATUS when a runner of another job holds the cell."""
+  """--run-cell: the cell process; CLAIMED_STATUS when a runner of another job holds the cell.
+
+  One signal stops it: SIGINT or SIGTERM before training is a KeyboardInterrupt (the claim released, one line),
+  during training the loop saves a checkpoint and stops, and once that signal stopped training further ones (Ray,
+  the claim's stop request, the runner and the user may all ask) are ignored while the cell saves, releases its
+  claim and exits.
+  """
+  from internal.pipeline import loop  # pylint: disable=import-outside-toplevel  (jax: the cell process only)
+  stop = loop.StopFlag()
+  for signum in (signal.SIGINT, signal.SIGTERM):
+    signal.signal(signum, stop.raise_unless_stopped)
   study_schedule.stop_with_runner()
   try:
-    record = run_cell(path, job or study_schedule.new_job())
+    record = run_cell(path, job or study_schedule.new_job(), stop)
   except study_claim.Held as e:
     print(f'not run: {e}')
     return study_schedule.CLAIMED_STATUS
   except CellStopped as e:
+    for signum in (signal.SIGINT, signal.SIGTERM):  # Ignored to its end (Python's exit resets its own handlers).
+      signal.signal(signum, signal.SIG_IGN)
     print(f'{path}: {e}')
     return cli.signal_status(e.signum)
   print(json.dumps(record, indent=1) if record else f'{path} was finished by another runner; not run again')

@@ -38,14 +38,30 @@ def spread(values: Sequence[float]) -> dict:
           'n': len(values)}
 
 
+def by_labels(study: study_spec.Study, rows: List[dict], metric: str) -> Dict[tuple, float]:
+  """{every label of a row (label_keys order): its finite metric}; a ValueError naming labels that two rows share
+  (one setting and seed run twice: pooled it would count twice, paired one value would drop the other)."""
+  keys, values = label_keys(study), {}
+  for row in rows:
+    value, labels = finite(row.get(metric)), tuple(row.get(k) for k in keys)
+    if value is None:
+      continue
+    if labels in values:
+      named = ', '.join(f'{k} {v}' for k, v in zip(keys, labels))
+      raise ValueError(f'two results for {named} ({metric}: {values[labels]:g} and {value:g}); expected one row per '
+                       'setting and seed, so that no seed counts twice')
+    values[labels] = value
+  return values
+
+
 def summarize(study: study_spec.Study, rows: List[dict], metric: str) -> List[dict]:
   """Per group of rows equal on every label but the seed: the labels, the metric's mean, std and n."""
-  keys = [k for k in label_keys(study) if k != study_spec.SEED_AXIS]
+  all_keys = label_keys(study)
+  keys = [k for k in all_keys if k != study_spec.SEED_AXIS]
   groups: Dict[tuple, List[float]] = {}
-  for row in rows:
-    value = finite(row.get(metric))
-    if value is not None:
-      groups.setdefault(tuple(row.get(k) for k in keys), []).append(value)
+  for labels, value in by_labels(study, rows, metric).items():
+    found = dict(zip(all_keys, labels))
+    groups.setdefault(tuple(found[k] for k in keys), []).append(value)
   return [{**dict(zip(keys, labels)), 'metric': metric, **spread(values)} for labels, values in groups.items()]
 
 
@@ -90,12 +106,12 @@ class Comparison:
 
 def pairs(study: study_spec.Study, rows: List[dict], compare: study_spec.Compare, metric: str) -> List[float]:
   """a - b of metric for every pair of rows labelled a and b on compare.axis and equal on every other label."""
-  others = [k for k in label_keys(study) if k != compare.axis]
+  keys = label_keys(study)
   values = {}
-  for row in rows:
-    value = finite(row.get(metric))
-    if value is not None and row.get(compare.axis) in (compare.a, compare.b):
-      values[(row[compare.axis], tuple(row.get(k) for k in others))] = value
+  for labels, value in by_labels(study, rows, metric).items():
+    found = dict(zip(keys, labels))
+    if found[compare.axis] in (compare.a, compare.b):
+      values[(found[compare.axis], tuple(v for k, v in found.items() if k != compare.axis))] = value
   return [value - values[(compare.b, match)] for (label, match), value in values.items()
           if label == compare.a and (compare.b, match) in values]
 
