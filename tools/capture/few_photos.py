@@ -1,0 +1,183 @@
+"""Structure-from-motion on a few photos alone: how often 3, 6 and 9 photos register, and how far their cameras are
+from those of a model of all the photos.
+
+Usage: python -m tools.capture.few_photos CAPTURE_DIR --out RESULTS.json [--sizes 3 6 9] [--subsets 6] [--seed 0]
+                                          [--max_size 800] [--work out/capture/few_photos]
+
+CAPTURE_DIR is a capture of every photo (its images/ and the all-photo model sparse/0, e.g. the cup's). For each
+size n, seeded subsets of its photos of three kinds (KINDS): 'spread', n photos evenly spread along the whole arc
+(the colmap loader's order of the model's cameras), each moved at random by up to a quarter of their spacing;
+'half', the same over half the arc from a random start; 'random', n photos drawn at random. Each subset is run
+through `python -m tools.capture CAPTURE_DIR/images --photos NAMES --out <work>/<kind>_<n>_<k>` in this process:
+structure-from-motion on those photos alone. A run registers the subset when it makes a capture with every photo
+in its model; the registered cameras are compared with the all-photo model's after a similarity fit
+(poses.pose_errors: rotation in degrees, centre distance as a fraction of the all-photo capture's camera distance).
+Writes the JSON (provenance, every run) and its Markdown summary beside it (same name, .md).
+"""
+
+import argparse
+import contextlib
+import io
+import json
+import os
+import sys
+import time
+
+import gin
+import numpy as np
+
+from internal import atomic
+from internal import cli
+from internal import config_loader
+from internal.datasets import colmap, colmap_model
+from tools import provenance
+from tools.capture import CaptureError, __main__ as capture, poses, sfm
+
+KINDS = {'spread': 1., 'half': .5, 'random': None}  # The fraction of the arc a subset spans (None: anywhere).
+JITTER = .25  # Spread subsets: each photo moved by up to this fraction of the spacing.
+
+
+def arc_names(capture_dir: str) -> list:
+  """The capture's registered images in the loader's order along the arc."""
+  gin.clear_config()
+  config = config_loader.load_config([os.path.join(capture.REPO, capture.CONFIG)],
+                                     [f'Config.data_dir = {capture_dir!r}'])
+  found = colmap.read_capture(config)
+  return [found.names[i] for i in colmap.arc_order(found)]
+
+
+def subset(order: list, n: int, span, rng: np.random.Generator) -> list:
+  """n names of order (along the arc): spread evenly over the fraction span of it, jittered, or at random (None)."""
+  last = len(order) - 1
+  if span is None:
+    return [order[i] for i in sorted(rng.choice(len(order), n, replace=False))]
+  length = span * last
+  start = rng.uniform(0., last - length)
+  spacing = length / (n - 1)
+  places = start + np.linspace(0., length, n) + rng.uniform(-JITTER, JITTER, n) * spacing
+  return [order[i] for i in sorted(set(np.clip(np.round(places), 0, last).astype(int)))]
+
+
+def largest_model(out: str):
+  """The capture's sparse/0, else the largest model structure-from-motion left (None without one)."""
+  for folder in (os.path.join(out, 'sparse', '0'), os.path.join(out, 'sfm', 'models', '0')):
+    if os.path.isdir(folder):
+      return colmap_model.read_model(folder)
+  return None
+
+
+def camera_errors(model, reference, distance: float) -> dict:
+  """Median and largest rotation (degrees) and position (fraction of distance) errors of a model's cameras
+  against the reference model's cameras of the same photos."""
+  names, c2w = poses.model_cameras(model)
+  reference_names, reference_c2w = poses.model_cameras(reference)
+  found = poses.pose_errors(c2w, reference_c2w[[reference_names.index(n) for n in names]], distance)
+  return {f'{stat}_{key}': float(fn(found[key])) for stat, fn in (('median', np.median), ('max', np.max))
+          for key in ('rotation_deg', 'position')}
+
+
+def run(photo_dir: str, names: list, out: str, max_size: int, reference, distance: float) -> dict:
+  """One capture of the photos named: its outcome, registered photos and camera errors."""
+  start, error = time.perf_counter(), None
+  try:
+    with contextlib.redirect_stdout(io.StringIO()):
+      capture.main([photo_dir, '--photos', *names, '--out', out, '--max_size', str(max_size), '--overwrite'])
+  except CaptureError as err:
+    error = cli.one_line(err).split(' (what it wrote stays')[0]
+  model = largest_model(out)
+  registered = sorted(i.name for i in model.images.values()) if model else []
+  row = {'photos': names, 'capture_made': error is None, 'error': error, 'registered': len(registered),
+         'all_registered': error is None and len(registered) == len(names),
+         'unregistered': [n for n in names if n not in registered], 'seconds': time.perf_counter() - start}
+  if len(registered) >= capture.MIN_REGISTERED:
+    row.update(camera_errors(model, reference, distance))
+  return row
+
+
+def summary_rows(runs: list) -> list:
+  """Per size and kind: subsets, captures made, subsets registered whole, and the errors of the registered ones."""
+  rows = []
+  for n, kind in dict.fromkeys((r['n'], r['kind']) for r in runs):
+    group = [r for r in runs if (r['n'], r['kind']) == (n, kind)]
+    whole = [r for r in group if r['all_registered']]
+    errors = {key: [r[key] for r in whole] for key in ('median_rotation_deg', 'max_rotation_deg', 'median_position',
+                                                       'max_position')}
+    rows.append({'n': n, 'kind': kind, 'subsets': len(group), 'captures_made': sum(r['capture_made'] for r in group),
+                 'all_registered': len(whole), 'no_initial_pair': sum('no initial pair' in (r['error'] or '')
+                                                                      for r in group),
+                 **{f'{key}_median_over_subsets': float(np.median(v)) if v else None for key, v in errors.items()},
+                 'worst_rotation_deg': max(errors['max_rotation_deg'], default=None),
+                 'worst_position': max(errors['max_position'], default=None)})
+  return rows
+
+
+def _value(value, scale: float = 1., unit: str = '') -> str:
+  """A number for the table, '-' for none."""
+  return '-' if value is None else f'{scale * value:.{1 if scale > 1 else 2}f}{unit}'
+
+
+def markdown(record: dict) -> str:
+  """The results as Markdown: provenance, the summary table, every run."""
+  head = (f'# Structure-from-motion on a few of the {record["photos_in_capture"]} photos of '
+          f'`{record["capture"]}` alone\n\n`{record["command"]}` at commit {record["commit"][:12]} on '
+          f'{record["machine"]["cpu"]} ({record["machine"]["cpu_count"]} CPUs, shared), pycolmap '
+          f'{record["pycolmap"]}, {record["date"]}.\n\nRegistered: a capture made with every photo of the subset in '
+          'its model. Errors of the registered subsets\' cameras against the all-photo model\'s, after a similarity '
+          'fit: the median over the subsets of each subset\'s median (and the worst single camera); positions as a '
+          'percentage of the all-photo capture\'s camera distance.\n\n')
+  table = ('| photos | registered (all photos) | capture made | no initial pair | rotation error, median (worst) | '
+           'position error, median (worst) |\n|---|---|---|---|---|---|\n')
+  for r in record['summary']:
+    table += (f'| {r["n"]}, {r["kind"]} | {r["all_registered"]} of {r["subsets"]} | {r["captures_made"]} | '
+              f'{r["no_initial_pair"]} | {_value(r["median_rotation_deg_median_over_subsets"], unit=" deg")} '
+              f'({_value(r["worst_rotation_deg"], unit=" deg")}) | '
+              f'{_value(r["median_position_median_over_subsets"], 100., " %")} '
+              f'({_value(r["worst_position"], 100., " %")}) |\n')
+  runs = ('\n## Every run\n\n| run | photos | registered | median rotation / position error | outcome |\n'
+          '|---|---|---|---|---|\n')
+  for r in record['runs']:
+    runs += (f'| {r["label"]} | {" ".join(r["photos"])} | {r["registered"]} of {len(r["photos"])} | '
+             f'{_value(r.get("median_rotation_deg"), unit=" deg")} / {_value(r.get("median_position"), 100., " %")} | '
+             f'{(r["error"] or "capture made")[:160]} |\n')
+  return head + table + runs
+
+
+def main(argv=None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('capture_dir', help='a capture of every photo: images/ and its model sparse/0')
+  parser.add_argument('--out', required=True, help='the results file to write (.json; a .md beside it)')
+  parser.add_argument('--sizes', nargs='+', type=int, default=[3, 6, 9])
+  parser.add_argument('--subsets', type=int, default=6, help='subsets of each kind and size')
+  parser.add_argument('--seed', type=int, default=0)
+  parser.add_argument('--max_size', type=int, default=capture.MAX_SIZE)
+  parser.add_argument('--work', default=os.path.join('out', 'capture', 'few_photos'), help='where the captures go')
+  args = parser.parse_args(argv)
+  order = arc_names(args.capture_dir)
+  reference = colmap_model.read_model(os.path.join(args.capture_dir, 'sparse', '0'))
+  distance = poses.camera_distance(poses.model_cameras(reference)[1])
+  runs = []
+  for n in args.sizes:
+    for kind_index, (kind, span) in enumerate(KINDS.items()):
+      rng = np.random.default_rng([args.seed, n, kind_index])
+      for k in range(args.subsets):
+        label = f'{kind}_{n}_{k}'
+        row = run(os.path.join(args.capture_dir, 'images'), subset(order, n, span, rng),
+                  os.path.join(args.work, label), args.max_size, reference, distance)
+        runs.append({'label': label, 'n': n, 'kind': kind, **row})
+        print(f'{label}: {row["registered"]} of {len(row["photos"])} registered'
+              + (f', median rotation error {row["median_rotation_deg"]:.2f} deg' if 'median_rotation_deg' in row
+                 else '') + (f' ({row["error"][:100]})' if row['error'] else ''), flush=True)
+  record = {**provenance.record(['python', '-m', 'tools.capture.few_photos'] + list(sys.argv[1:] if argv is None
+                                                                                    else argv)),
+            'capture': args.capture_dir, 'photos_in_capture': len(order), 'camera_distance': distance,
+            'pycolmap': sfm.require_pycolmap().__version__, 'settings': vars(args),
+            'summary': summary_rows(runs), 'runs': runs}
+  os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+  atomic.write_text(args.out, json.dumps(record, indent=1))
+  atomic.write_text(os.path.splitext(args.out)[0] + '.md', markdown(record))
+  print(markdown(record).split('\n## Every run')[0])
+  return 0
+
+
+if __name__ == '__main__':
+  sys.exit(cli.run(main))
