@@ -152,6 +152,9 @@ def main(argv=None) -> int:
   parser.add_argument('--max_size', type=int, default=capture.MAX_SIZE)
   parser.add_argument('--work', default=os.path.join('out', 'capture', 'few_photos'), help='where the captures go')
   args = parser.parse_args(argv)
+  # The code as the runs start (a run takes minutes, in which the worktree may change).
+  origin = provenance.record(['python', '-m', 'tools.capture.few_photos']
+                             + list(sys.argv[1:] if argv is None else argv))
   order = arc_names(args.capture_dir)
   reference = colmap_model.read_model(os.path.join(args.capture_dir, 'sparse', '0'))
   distance = poses.camera_distance(poses.model_cameras(reference)[1])
@@ -167,9 +170,7 @@ def main(argv=None) -> int:
         print(f'{label}: {row["registered"]} of {len(row["photos"])} registered'
               + (f', median rotation error {row["median_rotation_deg"]:.2f} deg' if 'median_rotation_deg' in row
                  else '') + (f' ({row["error"][:100]})' if row['error'] else ''), flush=True)
-  record = {**provenance.record(['python', '-m', 'tools.capture.few_photos'] + list(sys.argv[1:] if argv is None
-                                                                                    else argv)),
-            'capture': args.capture_dir, 'photos_in_capture': len(order), 'camera_distance': distance,
+  record = {**origin, 'capture': args.capture_dir, 'photos_in_capture': len(order), 'camera_distance': distance,
             'pycolmap': sfm.require_pycolmap().__version__, 'settings': vars(args),
             'summary': summary_rows(runs), 'runs': runs}
   os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
