@@ -139,15 +139,17 @@ def run_sfm(args, found, output, kind: str) -> tuple:
 
 
 def no_initial_pair(n_images: int, best: int) -> CaptureError:
-  """The error of a reconstruction that found no pair to start from: too few matches, or views too close."""
+  """The error of a reconstruction that found no pair to start from: too few matches, or none of the pairs with
+  enough of them made a start (views too close together, matches on one plane or along the line of sight)."""
   matches, degrees = sfm.initial_pair_needs()
   if best < matches:
     return CaptureError(f'no initial pair: no two of the {n_images} images share enough features to start a model '
-                        f'(the best pair has {best} verified matches, {matches} are needed); take more photos, each '
-                        'overlapping its neighbours by well over half')
-  return CaptureError(f'no initial pair: the images that share features ({best} verified matches at best) are seen '
-                      f'from too close together to start a model (it needs two views about {degrees:.0f} degrees '
-                      'apart); take photos further around the scene, each still overlapping its neighbours')
+                        f'(the best pair has {best} verified matches, {matches} are needed even after relaxing the '
+                        'start); take more photos, each overlapping its neighbours by well over half')
+  return CaptureError(f'no initial pair: images share features ({best} verified matches at best), but no pair of '
+                      f'them starts a model: it needs two views at least {degrees:.0f} degrees apart, their matches '
+                      'not all on one plane (a table, a wall) nor the camera moved along its line of sight; take '
+                      'photos further around the object, each still overlapping its neighbours')
 
 
 def training_factor(sized) -> int:

@@ -25,6 +25,9 @@ SEED = 0
 # leaves images out is mapped again with the next seeds, and the attempt that registers the most is kept.
 MAPPING_ATTEMPTS = 3
 VERIFIED = 2  # two_view_geometries.config from this value up: a geometry was verified (COLMAP's enum).
+# Incremental mapping that finds no pair to start from halves its minimum matches, then its minimum angle, and tries
+# again, twice ('Relaxing the initialization constraints' in its log).
+INIT_RELAXATIONS = 2
 # Disk space structure-from-motion may take, checked before it starts: its library aborts the process on a full
 # disk. An image: SIFT's at most 8192 features of 152 bytes in the database, and its 2D points (24 bytes each) in
 # each of the MAPPING_ATTEMPTS models kept at once; a matched pair: its matches and verified inliers, 8 bytes each,
@@ -137,9 +140,10 @@ def _scalar(database: str, query: str, *args):
 
 
 def initial_pair_needs() -> tuple:
-  """(verified matches, degrees between the views) that the pair a model starts from needs (pycolmap's defaults)."""
+  """(verified matches, degrees between the views) that the pair a model starts from needs at the least: pycolmap's
+  defaults after INIT_RELAXATIONS halvings of each."""
   mapper = require_pycolmap().IncrementalPipelineOptions().mapper
-  return mapper.init_min_num_inliers, mapper.init_min_tri_angle
+  return mapper.init_min_num_inliers >> INIT_RELAXATIONS, mapper.init_min_tri_angle / 2 ** INIT_RELAXATIONS
 
 
 def best_pair(database: str) -> int:
