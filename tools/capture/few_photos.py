@@ -86,7 +86,9 @@ def run(photo_dir: str, names: list, out: str, max_size: int, reference, distanc
     error = cli.one_line(err).split(' (what it wrote stays')[0]
   model = largest_model(out)
   registered = sorted(i.name for i in model.images.values()) if model else []
+  database = os.path.join(out, 'sfm', 'database.db')
   row = {'photos': names, 'capture_made': error is None, 'error': error, 'registered': len(registered),
+         'best_pair_matches': sfm.best_pair(database) if os.path.isfile(database) else None,
          'all_registered': error is None and len(registered) == len(names),
          'unregistered': [n for n in names if n not in registered], 'seconds': time.perf_counter() - start}
   if len(registered) >= capture.MIN_REGISTERED:
@@ -95,51 +97,64 @@ def run(photo_dir: str, names: list, out: str, max_size: int, reference, distanc
 
 
 def summary_rows(runs: list) -> list:
-  """Per size and kind: subsets, captures made, subsets registered whole, and the errors of the registered ones."""
+  """Per size and kind: subsets, captures made, subsets registered whole, the best pairs' verified matches, and the
+  errors of the subsets registered whole."""
   rows = []
   for n, kind in dict.fromkeys((r['n'], r['kind']) for r in runs):
     group = [r for r in runs if (r['n'], r['kind']) == (n, kind)]
     whole = [r for r in group if r['all_registered']]
     errors = {key: [r[key] for r in whole] for key in ('median_rotation_deg', 'max_rotation_deg', 'median_position',
                                                        'max_position')}
+    pairs = [r['best_pair_matches'] for r in group if r['best_pair_matches'] is not None]
     rows.append({'n': n, 'kind': kind, 'subsets': len(group), 'captures_made': sum(r['capture_made'] for r in group),
                  'all_registered': len(whole), 'no_initial_pair': sum('no initial pair' in (r['error'] or '')
                                                                       for r in group),
+                 'best_pair_matches_median': float(np.median(pairs)) if pairs else None,
                  **{f'{key}_median_over_subsets': float(np.median(v)) if v else None for key, v in errors.items()},
                  'worst_rotation_deg': max(errors['max_rotation_deg'], default=None),
                  'worst_position': max(errors['max_position'], default=None)})
   return rows
 
 
-def _value(value, scale: float = 1., unit: str = '') -> str:
-  """A number for the table, '-' for none."""
-  return '-' if value is None else f'{scale * value:.{1 if scale > 1 else 2}f}{unit}'
+def _value(value, digits: int, scale: float = 1., unit: str = '') -> str:
+  """A number for the tables ('-' for none)."""
+  return '-' if value is None else f'{scale * value:.{digits}f}{unit}'
+
+
+def _summary_table(rows: list) -> str:
+  """The Markdown table of summary_rows."""
+  table = ("| photos | registered (all photos) | capture made | no initial pair | best pair's verified matches, median "
+           '| rotation error, median (worst) | position error, median (worst) |\n|---|---|---|---|---|---|---|\n')
+  for r in rows:
+    table += (f'| {r["n"]}, {r["kind"]} | {r["all_registered"]} of {r["subsets"]} | {r["captures_made"]} | '
+              f'{r["no_initial_pair"]} | {_value(r["best_pair_matches_median"], 0)} | '
+              f'{_value(r["median_rotation_deg_median_over_subsets"], 2, unit=" deg")} '
+              f'({_value(r["worst_rotation_deg"], 2, unit=" deg")}) | '
+              f'{_value(r["median_position_median_over_subsets"], 1, 100., " %")} '
+              f'({_value(r["worst_position"], 1, 100., " %")}) |\n')
+  return table
+
+
+def _runs_table(runs: list) -> str:
+  """The Markdown table of every run."""
+  table = ("| run | photos | registered | best pair's matches | median rotation / position error | outcome |\n"
+           '|---|---|---|---|---|---|\n')
+  for r in runs:
+    table += (f'| {r["label"]} | {" ".join(r["photos"])} | {r["registered"]} of {len(r["photos"])} | '
+              f'{_value(r["best_pair_matches"], 0)} | {_value(r.get("median_rotation_deg"), 2, unit=" deg")} / '
+              f'{_value(r.get("median_position"), 1, 100., " %")} | {(r["error"] or "capture made")[:160]} |\n')
+  return table
 
 
 def markdown(record: dict) -> str:
   """The results as Markdown: provenance, the summary table, every run."""
-  head = (f'# Structure-from-motion on a few of the {record["photos_in_capture"]} photos of '
-          f'`{record["capture"]}` alone\n\n`{record["command"]}` at commit {record["commit"][:12]} on '
-          f'{record["machine"]["cpu"]} ({record["machine"]["cpu_count"]} CPUs, shared), pycolmap '
-          f'{record["pycolmap"]}, {record["date"]}.\n\nRegistered: a capture made with every photo of the subset in '
-          'its model. Errors of the registered subsets\' cameras against the all-photo model\'s, after a similarity '
-          'fit: the median over the subsets of each subset\'s median (and the worst single camera); positions as a '
-          'percentage of the all-photo capture\'s camera distance.\n\n')
-  table = ('| photos | registered (all photos) | capture made | no initial pair | rotation error, median (worst) | '
-           'position error, median (worst) |\n|---|---|---|---|---|---|\n')
-  for r in record['summary']:
-    table += (f'| {r["n"]}, {r["kind"]} | {r["all_registered"]} of {r["subsets"]} | {r["captures_made"]} | '
-              f'{r["no_initial_pair"]} | {_value(r["median_rotation_deg_median_over_subsets"], unit=" deg")} '
-              f'({_value(r["worst_rotation_deg"], unit=" deg")}) | '
-              f'{_value(r["median_position_median_over_subsets"], 100., " %")} '
-              f'({_value(r["worst_position"], 100., " %")}) |\n')
-  runs = ('\n## Every run\n\n| run | photos | registered | median rotation / position error | outcome |\n'
-          '|---|---|---|---|---|\n')
-  for r in record['runs']:
-    runs += (f'| {r["label"]} | {" ".join(r["photos"])} | {r["registered"]} of {len(r["photos"])} | '
-             f'{_value(r.get("median_rotation_deg"), unit=" deg")} / {_value(r.get("median_position"), 100., " %")} | '
-             f'{(r["error"] or "capture made")[:160]} |\n')
-  return head + table + runs
+  return (f'# Structure-from-motion on a few of the {record["photos_in_capture"]} photos of `{record["capture"]}` '
+          f'alone\n\n`{record["command"]}` at commit {record["commit"][:12]} on {record["machine"]["cpu"]} '
+          f'({record["machine"]["cpu_count"]} CPUs, shared), pycolmap {record["pycolmap"]}, {record["date"]}.\n\n'
+          'Registered: a capture made with every photo of the subset in its model. Errors of the registered subsets\' '
+          "cameras against the all-photo model's, after a similarity fit: the median over the subsets of each "
+          "subset's median (and the worst single camera); positions as a percentage of the all-photo capture's "
+          f'camera distance.\n\n{_summary_table(record["summary"])}\n## Every run\n\n{_runs_table(record["runs"])}')
 
 
 def main(argv=None) -> int:
@@ -176,7 +191,7 @@ def main(argv=None) -> int:
   os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
   atomic.write_text(args.out, json.dumps(record, indent=1))
   atomic.write_text(os.path.splitext(args.out)[0] + '.md', markdown(record))
-  print(markdown(record).split('\n## Every run')[0])
+  print(_summary_table(record['summary']))
   return 0
 
 
