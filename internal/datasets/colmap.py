@@ -3,8 +3,8 @@
 A capture folder holds the images as COLMAP saw them (`Config.capture_images`, optionally with downsampled copies
 `<capture_images>_<k>/` of the same names, as LLFF's images_4/) and the model (`Config.capture_model`, binary or
 text). Any image size trains: where 'area' downsampling needs sides divisible by the factor, the last rows and
-columns that fill no block are cropped (said in one warning), which keeps the cameras exact. Every image may have its own camera; radial and tangential distortion is inverted per pixel
-(distortion.py). An image's id is its position in the file-name order of the registered images.
+columns that fill no block are cropped (said in one warning), which keeps the cameras exact. Every image may have
+its own camera; radial and tangential distortion is inverted per pixel (distortion.py). An image's id is its position in the file-name order of the registered images.
 
 Two rigs (`Config.capture_rig`; 'auto' looks at the spread of the viewing directions):
 - inward (an object seen over an arc): world-space rays in a frame centred on the point nearest to every optical
