@@ -27,8 +27,9 @@ def test_spread_subsets_cover_their_span_evenly_and_random_ones_are_distinct(n):
     half = [ORDER.index(name) for name in few_photos.subset(ORDER, n, .5, np.random.default_rng(seed))]
     assert len(half) == n and .5 * last - (2 * few_photos.JITTER + 1) * last / 2 / (n - 1) <= half[-1] - half[0] <= (
         .5 * last + 2 * few_photos.JITTER * last / 2 / (n - 1) + 1.)
+    quarter = few_photos.subset(ORDER, n, .25, np.random.default_rng(seed))
     drawn = few_photos.subset(ORDER, n, None, np.random.default_rng(seed))
-    assert len(set(drawn)) == n
+    assert len(set(quarter)) == len(set(drawn)) == n
   assert few_photos.subset(ORDER, 6, .5, np.random.default_rng(1)) == few_photos.subset(
       ORDER, 6, .5, np.random.default_rng(1))
 
@@ -56,7 +57,7 @@ def test_a_small_run_on_the_cup_writes_every_run_and_its_summary(tmp_path):
   with open(tmp_path / 'r' / 'few.json', encoding='utf-8') as f:
     record = json.load(f)
   assert record['command'].startswith('python -m tools.capture.few_photos ') and record['photos_in_capture'] == 77
-  assert [r['label'] for r in record['runs']] == ['spread_3_0', 'half_3_0', 'random_3_0']
+  assert [r['label'] for r in record['runs']] == [f'{kind}_3_0' for kind in few_photos.KINDS]
   for run in record['runs']:
     assert len(run['photos']) == 3 and (run['error'] is None) == run['capture_made']
     assert run['all_registered'] == (run['capture_made'] and run['registered'] == 3)

@@ -5,11 +5,11 @@ Usage: python -m tools.capture.few_photos CAPTURE_DIR --out RESULTS.json [--size
                                           [--max_size 800] [--work out/capture/few_photos]
 
 CAPTURE_DIR is a capture of every photo (its images/ and the all-photo model sparse/0, e.g. the cup's). For each
-size n, seeded subsets of its photos of three kinds (KINDS): 'spread', n photos evenly spread along the whole arc
+size n, seeded subsets of its photos of four kinds (KINDS): 'spread', n photos evenly spread along the whole arc
 (the colmap loader's order of the model's cameras), each moved at random by up to a quarter of their spacing;
-'half', the same over half the arc from a random start; 'random', n photos drawn at random. Each subset is run
-through `python -m tools.capture CAPTURE_DIR/images --photos NAMES --out <work>/<kind>_<n>_<k>` in this process:
-structure-from-motion on those photos alone. A run registers the subset when it makes a capture with every photo
+'half' and 'quarter', the same over that part of the arc from a random start; 'random', n photos drawn at random
+(anywhere). Each subset is run through `python -m tools.capture CAPTURE_DIR/images --photos NAMES --out
+<work>/<kind>_<n>_<k>` in this process: structure-from-motion on those photos alone. A run registers the subset when it makes a capture with every photo
 in its model; the registered cameras are compared with the all-photo model's after a similarity fit
 (poses.pose_errors: rotation in degrees, centre distance as a fraction of the all-photo capture's camera distance).
 Writes the JSON (provenance, every run) and its Markdown summary beside it (same name, .md).
@@ -33,7 +33,7 @@ from internal.datasets import colmap, colmap_model
 from tools import provenance
 from tools.capture import CaptureError, __main__ as capture, poses, sfm
 
-KINDS = {'spread': 1., 'half': .5, 'random': None}  # The fraction of the arc a subset spans (None: anywhere).
+KINDS = {'spread': 1., 'half': .5, 'quarter': .25, 'random': None}  # The fraction of the arc a subset spans.
 JITTER = .25  # Spread subsets: each photo moved by up to this fraction of the spacing.
 
 
