@@ -32,6 +32,8 @@ def test_spread_subsets_cover_their_span_evenly_and_random_ones_are_distinct(n):
     assert len(set(quarter)) == len(set(drawn)) == n
   assert few_photos.subset(ORDER, 6, .5, np.random.default_rng(1)) == few_photos.subset(
       ORDER, 6, .5, np.random.default_rng(1))
+  with pytest.raises(ValueError, match='9 photos do not fit apart in 10% of an arc of 40 photos'):
+    few_photos.subset(ORDER, 9, .1, np.random.default_rng(0))
 
 
 @needs_cup

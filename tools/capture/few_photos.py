@@ -54,8 +54,11 @@ def subset(order: list, n: int, span, rng: np.random.Generator) -> list:
   length = span * last
   start = rng.uniform(0., last - length)
   spacing = length / (n - 1)
-  places = start + np.linspace(0., length, n) + rng.uniform(-JITTER, JITTER, n) * spacing
-  return [order[i] for i in sorted(set(np.clip(np.round(places), 0, last).astype(int)))]
+  if spacing < 1.:
+    raise ValueError(f'{n} photos do not fit apart in {span:.0%} of an arc of {len(order)} photos')
+  jitter = min(JITTER, (1. - 1. / spacing) / 2.)  # Neighbours stay at least a photo apart, so n are drawn.
+  places = start + np.linspace(0., length, n) + rng.uniform(-jitter, jitter, n) * spacing
+  return [order[i] for i in np.clip(np.round(places), 0, last).astype(int)]
 
 
 def largest_model(out: str):
