@@ -64,6 +64,7 @@ def test_a_small_run_on_the_cup_writes_every_run_and_its_summary(tmp_path):
     assert len(run['photos']) == 3 and (run['error'] is None) == run['capture_made']
     assert run['all_registered'] == (run['capture_made'] and run['registered'] == 3)
     assert ('median_rotation_deg' in run) == (run['registered'] >= 3)
+    assert run['rig'] in ((None,) if run['error'] else ('forward', 'inward'))
   assert [(r['n'], r['kind'], r['subsets']) for r in record['summary']] == [(3, k, 1) for k in few_photos.KINDS]
   assert '| 3, spread |' in (tmp_path / 'r' / 'few.md').read_text() and '| 3, half |' in printed.getvalue()
 
@@ -77,3 +78,5 @@ def test_neighbouring_photos_register_near_the_all_photo_models_cameras(tmp_path
   row = few_photos.run(str(CUP / 'images'), names, str(tmp_path / 'six'), 200, reference, distance)
   assert row['capture_made'] and row['registered'] >= 3, row
   assert row['median_rotation_deg'] < 3. and row['median_position'] < .05, row
+  summary = few_photos.summary_rows([dict(row, n=6, kind='near')])[0]
+  assert (summary['captures_made'], summary['off'], summary['inward']) == (1, 0, row['rig'] == 'inward')

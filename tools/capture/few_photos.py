@@ -1,7 +1,7 @@
 """Structure-from-motion on a few photos alone: how often 3, 6 and 9 photos register, and how far their cameras are
 from those of a model of all the photos.
 
-Usage: python -m tools.capture.few_photos CAPTURE_DIR --out RESULTS.json [--sizes 3 6 9] [--subsets 6] [--seed 0]
+Usage: python -m tools.capture.few_photos CAPTURE_DIR --out RESULTS.json [--sizes 3 6 9] [--subsets 8] [--seed 0]
                                           [--max_size 800] [--work out/capture/few_photos]
 
 CAPTURE_DIR is a capture of every photo (its images/ and the all-photo model sparse/0, e.g. the cup's). For each
@@ -9,9 +9,10 @@ size n, seeded subsets of its photos of four kinds (KINDS): 'spread', n photos e
 (the colmap loader's order of the model's cameras), each moved at random by up to a quarter of their spacing;
 'half' and 'quarter', the same over that part of the arc from a random start; 'random', n photos drawn at random
 (anywhere). Each subset is run through `python -m tools.capture CAPTURE_DIR/images --photos NAMES --out
-<work>/<kind>_<n>_<k>` in this process: structure-from-motion on those photos alone. A run registers the subset when it makes a capture with every photo
-in its model; the registered cameras are compared with the all-photo model's after a similarity fit
-(poses.pose_errors: rotation in degrees, centre distance as a fraction of the all-photo capture's camera distance).
+<work>/<kind>_<n>_<k>` in this process: structure-from-motion on those photos alone. A subset registers whole when
+every photo is in the capture's model; the registered cameras of every capture made are compared with the all-photo
+model's after a similarity fit (poses.pose_errors: rotation in degrees, centre distance as a fraction of the
+all-photo capture's camera distance), and a capture whose median rotation error is over OFF_DEGREES is counted off.
 Writes the JSON (provenance, every run) and its Markdown summary beside it (same name, .md).
 """
 
@@ -35,6 +36,8 @@ from tools.capture import CaptureError, __main__ as capture, poses, sfm
 
 KINDS = {'spread': 1., 'half': .5, 'quarter': .25, 'random': None}  # The fraction of the arc a subset spans.
 JITTER = .25  # Spread subsets: each photo moved by up to this fraction of the spacing.
+ERRORS = ('median_rotation_deg', 'max_rotation_deg', 'median_position', 'max_position')
+OFF_DEGREES = 5.  # A capture whose cameras are this far off at the median has wrong cameras, not noisy ones.
 
 
 def arc_names(capture_dir: str) -> list:
@@ -75,8 +78,8 @@ def camera_errors(model, reference, distance: float) -> dict:
   names, c2w = poses.model_cameras(model)
   reference_names, reference_c2w = poses.model_cameras(reference)
   found = poses.pose_errors(c2w, reference_c2w[[reference_names.index(n) for n in names]], distance)
-  return {f'{stat}_{key}': float(fn(found[key])) for stat, fn in (('median', np.median), ('max', np.max))
-          for key in ('rotation_deg', 'position')}
+  return {key: float((np.median if key.startswith('median') else np.max)(found[key.split('_', 1)[1]]))
+          for key in ERRORS}
 
 
 def run(photo_dir: str, names: list, out: str, max_size: int, reference, distance: float) -> dict:
@@ -90,7 +93,11 @@ def run(photo_dir: str, names: list, out: str, max_size: int, reference, distanc
   model = largest_model(out)
   registered = sorted(i.name for i in model.images.values()) if model else []
   database = os.path.join(out, 'sfm', 'database.db')
-  row = {'photos': names, 'capture_made': error is None, 'error': error, 'registered': len(registered),
+  rig = None
+  if error is None:
+    with open(os.path.join(out, 'report.json'), encoding='utf-8') as f:
+      rig = json.load(f)['rig']
+  row = {'photos': names, 'capture_made': error is None, 'error': error, 'registered': len(registered), 'rig': rig,
          'best_pair_matches': sfm.best_pair(database) if os.path.isfile(database) else None,
          'all_registered': error is None and len(registered) == len(names),
          'unregistered': [n for n in names if n not in registered], 'seconds': time.perf_counter() - start}
@@ -100,23 +107,29 @@ def run(photo_dir: str, names: list, out: str, max_size: int, reference, distanc
 
 
 def summary_rows(runs: list) -> list:
-  """Per size and kind: subsets, captures made, subsets registered whole, the best pairs' verified matches, and the
-  errors of the subsets registered whole."""
+  """Per size and kind: subsets, those registered whole, captures made (at least MIN_REGISTERED photos) and the
+  photos in them, the best pairs' verified matches, and the camera errors of the captures made."""
   rows = []
   for n, kind in dict.fromkeys((r['n'], r['kind']) for r in runs):
     group = [r for r in runs if (r['n'], r['kind']) == (n, kind)]
-    whole = [r for r in group if r['all_registered']]
-    errors = {key: [r[key] for r in whole] for key in ('median_rotation_deg', 'max_rotation_deg', 'median_position',
-                                                       'max_position')}
+    made = [r for r in group if r['capture_made']]
+    errors = {key: [r[key] for r in made] for key in ERRORS}
     pairs = [r['best_pair_matches'] for r in group if r['best_pair_matches'] is not None]
-    rows.append({'n': n, 'kind': kind, 'subsets': len(group), 'captures_made': sum(r['capture_made'] for r in group),
-                 'all_registered': len(whole), 'no_initial_pair': sum('no initial pair' in (r['error'] or '')
-                                                                      for r in group),
-                 'best_pair_matches_median': float(np.median(pairs)) if pairs else None,
-                 **{f'{key}_median_over_subsets': float(np.median(v)) if v else None for key, v in errors.items()},
+    rows.append({'n': n, 'kind': kind, 'subsets': len(group), 'all_registered': sum(r['all_registered'] for r in group),
+                 'captures_made': len(made), 'registered_in_captures_median': _median([r['registered'] for r in made]),
+                 'inward': sum(r['rig'] == 'inward' for r in made),
+                 'off': sum(r['median_rotation_deg'] > OFF_DEGREES for r in made),
+                 'no_initial_pair': sum('no initial pair' in (r['error'] or '') for r in group),
+                 'best_pair_matches_median': _median(pairs),
+                 **{f'{key}_median_over_captures': _median(v) for key, v in errors.items()},
                  'worst_rotation_deg': max(errors['max_rotation_deg'], default=None),
                  'worst_position': max(errors['max_position'], default=None)})
   return rows
+
+
+def _median(values: list):
+  """The median of values, None for none."""
+  return float(np.median(values)) if values else None
 
 
 def _value(value, digits: int, scale: float = 1., unit: str = '') -> str:
@@ -126,26 +139,30 @@ def _value(value, digits: int, scale: float = 1., unit: str = '') -> str:
 
 def _summary_table(rows: list) -> str:
   """The Markdown table of summary_rows."""
-  table = ("| photos | registered (all photos) | capture made | no initial pair | best pair's verified matches, median "
-           '| rotation error, median (worst) | position error, median (worst) |\n|---|---|---|---|---|---|---|\n')
+  table = ('| photos | registered whole | captures made (photos in them, median; inward) | off | no initial pair | '
+           "best pair's verified matches, median | rotation error, median (worst) | position error, median (worst) "
+           '|\n|---|---|---|---|---|---|---|---|\n')
   for r in rows:
-    table += (f'| {r["n"]}, {r["kind"]} | {r["all_registered"]} of {r["subsets"]} | {r["captures_made"]} | '
-              f'{r["no_initial_pair"]} | {_value(r["best_pair_matches_median"], 0)} | '
-              f'{_value(r["median_rotation_deg_median_over_subsets"], 2, unit=" deg")} '
+    table += (f'| {r["n"]}, {r["kind"]} | {r["all_registered"]} of {r["subsets"]} | {r["captures_made"]} '
+              f'({_value(r["registered_in_captures_median"], 1)}; {r["inward"]}) | {r["off"]} | '
+              f'{r["no_initial_pair"]} | '
+              f'{_value(r["best_pair_matches_median"], 0)} | '
+              f'{_value(r["median_rotation_deg_median_over_captures"], 2, unit=" deg")} '
               f'({_value(r["worst_rotation_deg"], 2, unit=" deg")}) | '
-              f'{_value(r["median_position_median_over_subsets"], 1, 100., " %")} '
+              f'{_value(r["median_position_median_over_captures"], 1, 100., " %")} '
               f'({_value(r["worst_position"], 1, 100., " %")}) |\n')
   return table
 
 
 def _runs_table(runs: list) -> str:
   """The Markdown table of every run."""
-  table = ("| run | photos | registered | best pair's matches | median rotation / position error | outcome |\n"
-           '|---|---|---|---|---|---|\n')
+  table = ("| run | photos | registered | best pair's matches | median rotation / position error | rig | outcome |\n"
+           '|---|---|---|---|---|---|---|\n')
   for r in runs:
     table += (f'| {r["label"]} | {" ".join(r["photos"])} | {r["registered"]} of {len(r["photos"])} | '
               f'{_value(r["best_pair_matches"], 0)} | {_value(r.get("median_rotation_deg"), 2, unit=" deg")} / '
-              f'{_value(r.get("median_position"), 1, 100., " %")} | {(r["error"] or "capture made")[:160]} |\n')
+              f'{_value(r.get("median_position"), 1, 100., " %")} | {r["rig"] or "-"} | '
+              f'{(r["error"] or "capture made")[:160]} |\n')
   return table
 
 
@@ -154,10 +171,14 @@ def markdown(record: dict) -> str:
   return (f'# Structure-from-motion on a few of the {record["photos_in_capture"]} photos of `{record["capture"]}` '
           f'alone\n\n`{record["command"]}` at commit {record["commit"][:12]} on {record["machine"]["cpu"]} '
           f'({record["machine"]["cpu_count"]} CPUs, shared), pycolmap {record["pycolmap"]}, {record["date"]}.\n\n'
-          'Registered: a capture made with every photo of the subset in its model. Errors of the registered subsets\' '
-          "cameras against the all-photo model's, after a similarity fit: the median over the subsets of each "
-          "subset's median (and the worst single camera); positions as a percentage of the all-photo capture's "
-          f'camera distance.\n\n{_summary_table(record["summary"])}\n## Every run\n\n{_runs_table(record["runs"])}')
+          'Registered whole: every photo of the subset in the model. A capture is made from '
+          f'{capture.MIN_REGISTERED} registered photos up; inward: how many of them train as an inward rig (the '
+          "others as forward-facing, the loader's choice from their viewing directions). Errors of the captures' "
+          "registered cameras against the all-photo model's, after a similarity fit: the median over the captures "
+          "of each one's median (and the worst single camera); positions as a percentage of the all-photo "
+          f"capture's camera distance; off: captures whose median rotation error is over {OFF_DEGREES:.0f} "
+          'degrees (wrong cameras that registered).\n\n'
+          f'{_summary_table(record["summary"])}\n## Every run\n\n{_runs_table(record["runs"])}')
 
 
 def main(argv=None) -> int:
@@ -165,7 +186,7 @@ def main(argv=None) -> int:
   parser.add_argument('capture_dir', help='a capture of every photo: images/ and its model sparse/0')
   parser.add_argument('--out', required=True, help='the results file to write (.json; a .md beside it)')
   parser.add_argument('--sizes', nargs='+', type=int, default=[3, 6, 9])
-  parser.add_argument('--subsets', type=int, default=6, help='subsets of each kind and size')
+  parser.add_argument('--subsets', type=int, default=8, help='subsets of each kind and size')
   parser.add_argument('--seed', type=int, default=0)
   parser.add_argument('--max_size', type=int, default=capture.MAX_SIZE)
   parser.add_argument('--work', default=os.path.join('out', 'capture', 'few_photos'), help='where the captures go')
