@@ -134,9 +134,10 @@ def test_a_disk_without_room_for_structure_from_motion_stops_before_it_in_one_li
   assert not os.path.exists(small_disk / 'full' / 'sfm' / 'database.db') and _snapshot(made[0]) == before
 
 
-def test_ctrl_c_while_it_imports_is_one_line(made, tmp_path):
+@pytest.mark.parametrize('module', ['tools.capture', 'tools.capture.bench', 'tools.capture.few_photos'])
+def test_ctrl_c_while_it_imports_is_one_line(module, made, tmp_path):
   (tmp_path / 'sitecustomize.py').write_text(SIGINT_AT_JAX_IMPORT)
-  done = subprocess.run([sys.executable, '-m', 'tools.capture', str(made[0]), '--out', str(tmp_path / 'capture')],
+  done = subprocess.run([sys.executable, '-m', module, str(made[0]), '--out', str(tmp_path / 'capture')],
                         cwd=REPO, env=dict(os.environ, PYTHONPATH=str(tmp_path)), capture_output=True, text=True,
                         timeout=120, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL), check=False)
   assert done.returncode == -signal.SIGINT, done.stderr  # Stopped by SIGINT: 130 in a shell.

@@ -16,6 +16,9 @@ all-photo capture's camera distance), and a capture whose median rotation error 
 Writes the JSON (provenance, every run) and its Markdown summary beside it (same name, .md).
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import contextlib
 import io
