@@ -4,15 +4,20 @@ photo checks, camera scaling and video frames (tests/test_capture.py runs the wh
 import ast
 import os
 import pathlib
+import shutil
 import sqlite3
+import subprocess
 
+import gin
 import numpy as np
 import pytest
 from PIL import Image, ImageFilter
 
 from conftest import SHARED_DATA
+from internal import cli
+from internal import config_loader
 from internal.datasets import cameras, colmap_model
-from tools.capture import CaptureError, bench, model, output, photos, poses, report, sfm, video
+from tools.capture import CaptureError, __main__ as capture, bench, model, output, photos, poses, report, sfm, video
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 CUP = SHARED_DATA / 'colmap' / 'cup'
@@ -114,12 +119,42 @@ def test_overwrite_removes_only_recorded_files(tmp_path):
   with pytest.raises(CaptureError, match='exists; choose a new folder, or add --overwrite'):
     output.Output(str(root), overwrite=False)
   output.Output(str(root), overwrite=True)
-  assert sorted(p.name for p in root.iterdir()) == ['notes.txt', 'sparse']  # Ours gone, the user's kept.
+  # Ours gone, the user's kept; the new run's manifest begun.
+  assert sorted(p.name for p in root.iterdir()) == [output.MANIFEST, 'notes.txt', 'sparse']
   (root / 'images').mkdir()
   (root / 'images' / 'mine.jpg').write_text('the user\'s')
   with pytest.raises(CaptureError, match=r"images' was not written by tools.capture"):
     output.Output(str(root), overwrite=True)
   assert (root / 'images' / 'mine.jpg').read_text() == 'the user\'s'
+
+
+def test_a_recorded_folder_goes_whole_and_an_unfinished_capture_is_replaced_without_overwrite(tmp_path):
+  root = tmp_path / 'capture'
+  first = output.Output(str(root), overwrite=False)
+  sfm_dir = pathlib.Path(first.claim_folder('sfm'))
+  pathlib.Path(first.claim('sfm/database.db')).write_text('ours')
+  (sfm_dir / 'database.db-wal').write_text('the library\'s')  # Files the tool never named, as pycolmap writes.
+  (sfm_dir / 'models' / 'attempt_0' / '0').mkdir(parents=True)
+  (sfm_dir / 'models' / 'attempt_0' / '0' / 'images.bin').write_text('the library\'s')
+  assert output.unfinished(str(root))  # Stopped before its report: the same command takes it over.
+  output.Output(str(root), overwrite=False)
+  assert sorted(p.name for p in root.iterdir()) == [output.MANIFEST]
+  pathlib.Path(output.Output(str(root), overwrite=False).claim(output.REPORT)).write_text('{}')
+  assert not output.unfinished(str(root))
+  with pytest.raises(CaptureError, match='exists; choose a new folder, or add --overwrite'):
+    output.Output(str(root), overwrite=False)
+
+
+def test_an_input_inside_the_output_is_refused(tmp_path):
+  (tmp_path / 'c' / 'images').mkdir(parents=True)
+  for source, out in ((tmp_path / 'c' / 'images', tmp_path / 'c'), (tmp_path / 'c', tmp_path / 'c'),
+                      (tmp_path / 'c' / 'images', tmp_path / 'link')):
+    if not os.path.lexists(tmp_path / 'link'):
+      os.symlink(tmp_path / 'c', tmp_path / 'link')
+    with pytest.raises(CaptureError, match=r'is inside --out .*choose a --out outside it'):
+      output.refuse_input_inside(str(source), str(out))
+  output.refuse_input_inside(str(tmp_path / 'c'), str(tmp_path / 'c' / 'capture'))  # A capture beside the photos.
+  output.refuse_input_inside(str(tmp_path / 'c'), str(tmp_path / 'c2'))
 
 
 def test_natural_order_and_photo_listing(tmp_path):
@@ -131,6 +166,18 @@ def test_natural_order_and_photo_listing(tmp_path):
   (tmp_path / 'empty' / 'a.heic').write_bytes(b'')
   with pytest.raises(CaptureError, match=r"no JPEG or PNG photos in .*empty.*not read.*a.heic.*convert them"):
     photos.list_photos(str(tmp_path / 'empty'))
+
+
+def test_the_tools_own_files_are_never_photos_and_photos_picks_a_few(tmp_path):
+  for name in ('1.jpg', '2.jpg', '3.jpg', 'cameras.png'):
+    (tmp_path / name).write_bytes(b'')
+  (tmp_path / output.MANIFEST).write_text('cameras.png\nreport.json\nimages/1.jpg\n')  # A capture made here before.
+  with pytest.warns(UserWarning, match=r'left out of .*, written there by tools.capture: cameras.png'):
+    assert photos.list_photos(str(tmp_path)) == (['1.jpg', '2.jpg', '3.jpg'], [])
+  (tmp_path / output.MANIFEST).unlink()
+  assert photos.list_photos(str(tmp_path), ['3.jpg', '1.jpg', '3.jpg']) == (['1.jpg', '3.jpg'], [])
+  with pytest.raises(CaptureError, match=r"--photos: '4.jpg', 'b.txt' not among the JPEG/PNG photos of .*e.g. 1.jpg"):
+    photos.list_photos(str(tmp_path), ['1.jpg', '4.jpg', 'b.txt'])
 
 
 def _photo(path, size=(64, 48), seed=0, orientation=None):
@@ -171,6 +218,52 @@ def test_written_images_are_upright_and_downsampled_to_the_loaders_sizes(tmp_pat
     with Image.open(tmp_path / 'capture' / f'images_{k}' / 'a.jpg') as small:
       assert small.size == (61 // k, 90 // k)
   assert photos.sfm_size(found[0], 30) == (20, 30) and photos.sfm_size(found[0], 1000) == (61, 90)
+
+
+def test_downsampled_copies_are_block_means_of_the_top_left_whole_blocks(tmp_path):
+  pixels = np.random.default_rng(3).integers(0, 256, (61, 90, 3), dtype=np.uint8)  # No side a multiple of 8.
+  out = output.Output(str(tmp_path / 'capture'), overwrite=False)
+  Image.fromarray(pixels).save(out.claim('images/a.png'))  # PNG: lossless, so exact.
+  photos.write_downsampled(['a.png'], out)
+  for k in photos.FACTORS:
+    h, w = 61 // k, 90 // k
+    blocks = pixels[:h * k, :w * k].reshape(h, k, w, k, 3).astype(float).mean((1, 3))  # Pixel (i, j): k i, k j on.
+    with Image.open(tmp_path / 'capture' / f'images_{k}' / 'a.png') as small:
+      assert np.abs(np.asarray(small, float) - blocks).max() <= 1.  # Pillow's fixed-point rounding to uint8.
+
+
+def _bash_words(line: str) -> list:
+  """The words bash makes of a command line."""
+  done = subprocess.run(['bash', '-c', f'printf "%s\\0" {line}'], capture_output=True, check=True)
+  return done.stdout.decode('utf-8').split('\0')[:-1]
+
+
+def test_the_printed_command_gives_its_words_back_from_bash_for_any_folder_name():
+  out = "/data/dir with spaces/日本語 ü/it's/a \"b\" $HOME `x` \\ !"
+  line = capture.next_command(out, capture.bindings(out, 4, 20))
+  words = _bash_words(line[len('python train.py '):])
+  assert words[:2] == [f'--gin_configs={capture.CONFIG}', '--gin_bindings=' + words[1].split('=', 1)[1]]
+  bindings = [words[1].split('=', 1)[1]] + words[2:]
+  gin.clear_config()
+  parsed = config_loader.load_config([os.path.join(capture.REPO, capture.CONFIG)], bindings)
+  assert parsed.data_dir == out and parsed.checkpoint_dir == 'out/' + os.path.basename(out)
+
+
+def test_structure_from_motion_is_refused_in_one_line_with_status_4_without_the_space_it_may_take(tmp_path,
+                                                                                               monkeypatch, capsys):
+  assert sfm.space_needed(77, 'exhaustive') > 26 * 2**20 + 4.4 * 2**20 + 4 * 2**20  # Above the cup's measured use.
+  assert sfm.space_needed(10, 'sequential') < sfm.space_needed(10, 'exhaustive') + 10 * 9 * sfm.PAIR_BYTES
+  database = str(tmp_path / 'database.db')
+  sfm.require_space(database, 3, 'exhaustive')  # This disk has room.
+  usage = shutil.disk_usage(tmp_path)
+  monkeypatch.setattr(shutil, 'disk_usage', lambda path: usage._replace(free=sfm.space_needed(3, 'exhaustive') // 2))
+  monkeypatch.delenv(cli.DEBUG_ENV, raising=False)
+  assert cli.run(lambda: sfm.require_space(database, 3, 'exhaustive')) == cli.DISK_FULL_STATUS
+  assert capsys.readouterr().err == (
+      f"error: no space left on the device for structure-from-motion in {str(tmp_path)!r}: its database and models "
+      f"({database!r}, ...) may take 13 MiB for 3 images (exhaustive matching) and 7 MiB are free; free disk space "
+      'and run the same command again\n')
+  assert not os.listdir(tmp_path)
 
 
 def test_scaled_camera_scales_focal_lengths_and_principal_point_only():

@@ -2,8 +2,9 @@
 
 A capture folder holds the images as COLMAP saw them (`Config.capture_images`, optionally with downsampled copies
 `<capture_images>_<k>/` of the same names, as LLFF's images_4/) and the model (`Config.capture_model`, binary or
-text). Every image may have its own camera; radial and tangential distortion is inverted per pixel
-(distortion.py). An image's id is its position in the file-name order of the registered images.
+text). Any image size trains: where 'area' downsampling needs sides divisible by the factor, the last rows and
+columns that fill no block are cropped (said in one warning), which keeps the cameras exact. Every image may have
+its own camera; radial and tangential distortion is inverted per pixel (distortion.py). An image's id is its position in the file-name order of the registered images.
 
 Two rigs (`Config.capture_rig`; 'auto' looks at the spread of the viewing directions):
 - inward (an object seen over an arc): world-space rays in a frame centred on the point nearest to every optical
@@ -20,6 +21,7 @@ included. `Config.train_view_ids` / `Config.test_view_ids` choose them by id ins
 
 import dataclasses
 import os
+import warnings
 from typing import Dict, List
 
 import numpy as np
@@ -209,6 +211,17 @@ def check_size(capture: Capture, index: int, image: np.ndarray, factor: int, pat
                             'them)')
 
 
+def warn_cropped(paths: List[str], factor: int, mode: str) -> None:
+  """One warning when 'area' downsampling by factor crops images (any size trains: their last rows and columns,
+  which fill no block, are left out, as tools.capture's images_<k>/ leave them out; the cameras stay exact)."""
+  sizes = sorted({image_io.image_size(p) for p in paths}) if mode == 'area' and factor > 1 else []
+  cropped = [f'{w} x {h} to {w - w % factor} x {h - h % factor}' for h, w in sizes if h % factor or w % factor]
+  if cropped:
+    warnings.warn(f'{os.path.dirname(paths[0])!r}: images cropped from {", ".join(cropped)} pixels (the last rows '
+                  f"and columns, which fill no {factor} x {factor} block) to average them down by {factor} "
+                  "(Config.downsample_mode = 'area'); the cameras are unchanged", stacklevel=2)
+
+
 def load_scene(split: str, config) -> base.Dataset:
   """One split of the capture (see the module docstring for its frame, rays and views)."""
   capture = read_capture(config)
@@ -219,10 +232,13 @@ def load_scene(split: str, config) -> base.Dataset:
   index = {path: i for i, path in enumerate(paths)}
 
   def load(path):  # Each image against its own camera first (a rotated photo is named, not its neighbour).
-    image = image_io.load_rgb(path, extra, config.downsample_mode)
+    image = image_io.read_image(path, 'RGB')
+    cropped = image_io.crop_to_blocks(image, extra) if config.downsample_mode == 'area' else image
+    image = image_io.downsample(cropped, extra, config.downsample_mode)
     check_size(capture, index[path], image, factor, path)
     return image
 
+  warn_cropped([paths[i] for i in ids], extra, config.downsample_mode)
   images = image_io.load_stack([paths[i] for i in ids], load)
   height, width = images.shape[1:3]
   near, far = near_far(capture)

@@ -96,6 +96,11 @@ def downsample_area(img: np.ndarray, factor: int) -> np.ndarray:
   return (total / factor ** 2).astype(np.float32)
 
 
+def crop_to_blocks(img: np.ndarray, factor: int) -> np.ndarray:
+  """[H,W,C] -> [H - H % f, W - W % f, C]: the last rows and columns, which fill no f x f block, left out."""
+  return img[:img.shape[0] - img.shape[0] % factor, :img.shape[1] - img.shape[1] % factor]
+
+
 def downsample(img: np.ndarray, factor: int, mode: str) -> np.ndarray:
   """[H,W,C] f32 -> [H//f,W//f,C] f32 with mode 'released' or 'area'; factor 1 returns img as float32."""
   check_choice('Config.downsample_mode', mode, DOWNSAMPLE_MODES)

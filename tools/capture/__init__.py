@@ -6,7 +6,8 @@ video), structure-from-motion on copies no larger than --max_size (sfm.py, the o
 the largest model scaled back to the full images as `sparse/0` (model.py), the capture loaded back through the
 project's loader, `report.json` with the flags it can raise (report.py) and `cameras.png` (picture.py). The output
 folder records every file the tool writes (output.py), so that --overwrite replaces only those. poses.py compares
-recovered cameras with independent ones after a similarity fit (tests, bench.py).
+recovered cameras with independent ones after a similarity fit (tests, bench.py, and few_photos.py, which measures
+structure-from-motion on a few photos alone against a model of all of them).
 """
 
 

@@ -1,7 +1,7 @@
 """Photos or a video -> a capture folder to train on: structure-from-motion with pycolmap, checked and reported.
 
-Usage: python -m tools.capture PHOTOS_DIR_OR_VIDEO --out CAPTURE_DIR [--max_size 800] [--frames 100]
-                               [--matching sequential|exhaustive] [--camera shared|per_image]
+Usage: python -m tools.capture PHOTOS_DIR_OR_VIDEO --out CAPTURE_DIR [--photos NAME ...] [--max_size 800]
+                               [--frames 100] [--matching sequential|exhaustive] [--camera shared|per_image]
                                [--camera_model SIMPLE_RADIAL] [--overwrite]
 
 Writes CAPTURE_DIR/images/ (the photos upright, or the video's sharpest frames), sparse/0/ (the largest model, its
@@ -9,6 +9,9 @@ cameras at the full image size), images_2/, images_4/, images_8/, sfm/ (the stru
 and every model), report.json and cameras.png; loads the capture back through the colmap loader, prints a summary
 and the command to train on it. Needs pycolmap: pip install -r requirements-capture.txt.
 """
+
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
 
 import argparse
 import json
@@ -21,11 +24,13 @@ import warnings
 import gin
 import numpy as np
 
+from internal import atomic
 from internal import cli
 from internal import config_loader
 from internal import configs
 from internal.datasets import colmap, colmap_model, load_dataset
 from internal.evaluation import learning_curve
+from internal.run import disk_full
 from tools.capture import CaptureError, model, output as output_lib, photos, picture, poses, report as report_lib
 from tools.capture import sfm, video
 
@@ -35,6 +40,10 @@ VIEWS, LLFFHOLD = 3, 8  # Its view count and hold-out rule (configs/common/captu
 FACTORS = (4, 8)  # The training image size: the config's factor 4 unless the images stay larger than MAX_TRAIN_SIDE.
 MAX_TRAIN_SIDE = 512
 MIN_REGISTERED = 3
+FEW_PHOTOS = 9  # A capture of this many photos or fewer is a few-photo one: the report and errors say what it risks.
+FEW_ADVICE = ('from a few photos structure-from-motion often finds no pair to start from, leaves photos out or places '
+              'them degrees off (measured: results/capture/few_photos.md); to train on a few photos, run it on all you '
+              'took (many, each overlapping the next) and choose the few with Config.train_view_ids')
 # Structure-from-motion copies' long side: on DTU's 1600 x 1200 photos, 800 gave the same cameras as 1600 in a
 # quarter of the time (results/capture/README.md).
 MAX_SIZE = 800
@@ -45,6 +54,8 @@ def parse_args(argv):
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('input', help='a folder of JPEG/PNG photos, or a video file')
   parser.add_argument('--out', required=True, help='the capture folder to create')
+  parser.add_argument('--photos', nargs='+', metavar='NAME', help='structure-from-motion on only these photos of '
+                      'the folder (file names), e.g. the few you will train on; default: all of them')
   parser.add_argument('--max_size', type=int, default=MAX_SIZE, help='long side in pixels of the copies that '
                       'structure-from-motion runs on (cameras are scaled back to the full images)')
   parser.add_argument('--frames', type=int, default=100, help='video: how many frames to take (the sharpest of '
@@ -58,6 +69,8 @@ def parse_args(argv):
   parser.add_argument('--overwrite', action='store_true', help='replace what tools.capture wrote in --out before '
                       '(only that: anything else there stays, and is named if it is in the way)')
   args = parser.parse_args(argv)
+  if args.photos and os.path.isfile(args.input):
+    raise CaptureError(f'--photos names photos of a folder; {args.input!r} is a file (a video)')
   if args.max_size < 100 or args.frames < MIN_REGISTERED:
     raise CaptureError(f'--max_size {args.max_size} / --frames {args.frames}: expected --max_size >= 100 pixels and '
                        f'--frames >= {MIN_REGISTERED}')
@@ -91,22 +104,24 @@ def checked_inputs(source: str, kind: str, folder: str, names: list, skipped: li
 def run_sfm(args, found, output, kind: str) -> tuple:
   """(the largest model at full size, report fields): structure-from-motion on the copies, errors if it failed."""
   folders = photos.camera_folders(found, args.camera == 'per_image')
+  output.claim_folder('sfm')  # Whole: pycolmap names its own files there (the database's journals, the models).
   names = photos.write_sfm_copies(found, folders, output, args.max_size)
   mode = 'per_image' if args.camera == 'per_image' else 'per_folder' if any(folders.values()) else 'single'
   matching = args.matching or ('sequential' if kind == 'video' else 'exhaustive')
   database = output.claim(os.path.join('sfm', 'database.db'))
+  sfm.require_space(database, len(found), matching)
   n_cameras = len(found) if mode == 'per_image' else len(set(folders.values()))
   print(f'structure-from-motion on {len(found)} images ({matching} matching, {n_cameras} camera'
         f'{"s" if n_cameras > 1 else ""}; on 2 cores about a second an image for a hundred, exhaustive matching '
         'growing with their square):', flush=True)
   result = sfm.reconstruct(database, os.path.join(args.out, 'sfm', 'images'), os.path.join(args.out, 'sfm', 'models'),
                            mode, args.camera_model, matching)
-  output.claim_tree(os.path.join('sfm', 'models'))
+  advice = f'; {FEW_ADVICE}' if len(found) <= FEW_PHOTOS else ''
   if not result.models:
-    raise no_initial_pair(len(found), sfm.best_pair(database))
+    raise CaptureError(f'{no_initial_pair(len(found), sfm.best_pair(database))}{advice}')
   if result.sizes[0] < MIN_REGISTERED:
     raise CaptureError(f'only {result.sizes[0]} of the {len(found)} images registered (at least {MIN_REGISTERED} '
-                       'are needed); take more photos, each overlapping its neighbours by well over half')
+                       f'are needed); take more photos, each overlapping its neighbours by well over half{advice}')
   sized = model.full_size_model(colmap_model.read_model(result.models[0]), names,
                                 {p.name: (p.width, p.height) for p in found})
   for name in colmap_model.FILES:
@@ -124,15 +139,17 @@ def run_sfm(args, found, output, kind: str) -> tuple:
 
 
 def no_initial_pair(n_images: int, best: int) -> CaptureError:
-  """The error of a reconstruction that found no pair to start from: too few matches, or views too close."""
+  """The error of a reconstruction that found no pair to start from: too few matches, or none of the pairs with
+  enough of them made a start (views too close together, matches on one plane or along the line of sight)."""
   matches, degrees = sfm.initial_pair_needs()
   if best < matches:
     return CaptureError(f'no initial pair: no two of the {n_images} images share enough features to start a model '
-                        f'(the best pair has {best} verified matches, {matches} are needed); take more photos, each '
-                        'overlapping its neighbours by well over half')
-  return CaptureError(f'no initial pair: the images that share features ({best} verified matches at best) are seen '
-                      f'from too close together to start a model (it needs two views about {degrees:.0f} degrees '
-                      'apart); take photos further around the scene, each still overlapping its neighbours')
+                        f'(the best pair has {best} verified matches, {matches} are needed even after relaxing the '
+                        'start); take more photos, each overlapping its neighbours by well over half')
+  return CaptureError(f'no initial pair: images share features ({best} verified matches at best), but no pair of '
+                      f'them starts a model: it needs two views at least {degrees:.0f} degrees apart, their matches '
+                      'not all on one plane (a table, a wall) nor the camera moved along its line of sight; take '
+                      'photos further around the object, each still overlapping its neighbours')
 
 
 def training_factor(sized) -> int:
@@ -166,9 +183,10 @@ def load_back(gin_bindings: list) -> tuple:
 
 
 def next_command(out: str, gin_bindings: list) -> str:
-  """The train.py command line for the capture (eval.py and render.py take the same flags)."""
-  run = f"Config.checkpoint_dir = 'out/{os.path.basename(os.path.normpath(out))}'"
-  return f'python train.py --gin_configs={CONFIG} --gin_bindings=' + ' '.join(f'"{b}"' for b in gin_bindings + [run])
+  """The train.py command line for the capture (eval.py and render.py take the same flags), quoted for a shell:
+  bash gives back the words, whatever the folder's name holds (spaces, quotes, any letters)."""
+  run = f"Config.checkpoint_dir = {'out/' + os.path.basename(os.path.normpath(out))!r}"
+  return f'python train.py --gin_configs={CONFIG} --gin_bindings=' + cli.quoted(gin_bindings + [run])
 
 
 def draw_picture(path: str, sized, capture, views: dict, order: list, title: str) -> None:
@@ -193,6 +211,9 @@ def finish(args, sized, report: dict, output) -> dict:
                 observations=model.observations(sized), order=problems, picture=os.path.join(args.out, 'cameras.png'),
                 next=next_command(args.out, gin_bindings))
   report['flags'] = report_lib.flags(report, problems, report['observations'], report['kind'] == 'video')
+  if report['photos'] <= FEW_PHOTOS:
+    report['flags'].insert(0, {'check': 'few_photos', 'images': [], 'message': f'structure-from-motion ran on '
+                               f'{report["photos"]} photos only: {FEW_ADVICE}; look at cameras.png'})
   title = (f'{report["registered"]} of {report["photos"]} images registered, {report["points"]} points, '
            f'{report["rig"]} rig')
   draw_picture(output.claim('cameras.png'), sized, capture, views, order, title)
@@ -212,24 +233,38 @@ def build(args, kind: str, found, report: dict, output, start: float) -> dict:
   return finish(args, sized, report, output)
 
 
+def disk_full_at(err: OSError, output) -> OSError:
+  """The error of a write into output that found the disk full, naming the file written: a copy's or a rename's
+  destination, else the error's own file when it is in --out, else the file the tool was writing."""
+  where = err.filename2 or err.filename
+  inside = where and os.path.realpath(where).startswith(os.path.realpath(output.root) + os.sep)
+  return OSError(err.errno, err.strerror, where if inside else output.writing)
+
+
 def main(argv=None) -> int:
   start = time.perf_counter()
   args = parse_args(argv)
   sfm.require_pycolmap()
   kind = input_kind(args.input)
+  output_lib.refuse_input_inside(args.input, args.out)
   output_lib.refuse_existing(args.out, args.overwrite)
-  found, report = (checked_inputs(args.input, kind, args.input, *photos.list_photos(args.input))  # Before writing.
-                   if kind == 'photos' else (None, {}))
+  found, report = (checked_inputs(args.input, kind, args.input, *photos.list_photos(args.input, args.photos))
+                   if kind == 'photos' else (None, {}))  # Before writing.
+  if output_lib.unfinished(args.out) and not args.overwrite:
+    print(f'{args.out}: replacing the unfinished capture there (its run stopped before {output_lib.REPORT})')
   output = output_lib.Output(args.out, args.overwrite)
   try:
     report = build(args, kind, found, report, output, start)
+    report['seconds']['total'] = time.perf_counter() - start
+    report['command'] = cli.command_line('tools.capture', argv)
+    atomic.write_text(output.claim(output_lib.REPORT), json.dumps(report, indent=1))
   except CaptureError as err:
-    raise CaptureError(f'{err} (what was written so far stays in {args.out!r}; add --overwrite to replace it)'
+    raise CaptureError(f'{err} (what it wrote stays in {args.out!r}; the tool run again with that --out replaces it)'
                        ) from err
-  report['seconds']['total'] = time.perf_counter() - start
-  report['command'] = cli.command_line('tools.capture', argv)
-  with open(output.claim('report.json'), 'w', encoding='utf-8') as f:
-    json.dump(report, f, indent=1)
+  except OSError as err:
+    if disk_full.is_disk_full(err):
+      raise disk_full_at(err, output) from err
+    raise
   print(report_lib.summary(report))
   print(f'next: {report["next"]}\n      (then eval.py and render.py with the same flags)')
   return 0

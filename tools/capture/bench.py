@@ -12,6 +12,9 @@ registrations, the errors, the images flagged for few points, wall and CPU secon
 extraction, matching and mapping) and the same as Markdown beside it (same name, .md).
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import json
 import os

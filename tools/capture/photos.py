@@ -13,18 +13,18 @@ import hashlib
 import os
 import re
 import shutil
-from typing import Dict, List, Tuple
+import warnings
+from typing import Dict, List, Optional, Tuple
 
 from PIL import Image, ImageOps
 
-from tools.capture import CaptureError
-from tools.capture.output import Output
+from tools.capture import CaptureError, output as output_lib
 
 PHOTO_EXTENSIONS = ('.jpg', '.jpeg', '.png')
 ORIENTATION_TAG = 274  # EXIF Orientation: 1 upright, 2-8 mirrored and / or rotated.
 CAMERA_TAGS = (271, 272)  # EXIF Make and Model.
 EXIF_IFD, FOCAL_LENGTH_TAG = 0x8769, 37386
-FACTORS = (2, 4, 8)  # images_<k>/: the loader's downsampled copies, each (height // k, width // k).
+FACTORS = (2, 4, 8)  # images_<k>/: the loader's downsampled copies, each (height // k, width // k), cropped.
 JPEG_QUALITY = 95
 
 
@@ -44,12 +44,22 @@ def natural_key(name: str) -> list:
   return [int(part) if part.isdigit() else part.lower() for part in re.split(r'(\d+)', name)]
 
 
-def list_photos(folder: str) -> Tuple[List[str], List[str]]:
-  """(JPEG/PNG file names of folder in natural order, other file names): sub-folders and hidden files ignored."""
-  names = sorted((n for n in os.listdir(folder) if not n.startswith('.')
-                  and os.path.isfile(os.path.join(folder, n))), key=natural_key)
+def list_photos(folder: str, chosen: Optional[List[str]] = None) -> Tuple[List[str], List[str]]:
+  """(JPEG/PNG file names of folder in natural order, other file names): sub-folders, hidden files and what
+  tools.capture wrote there (its manifest's files) ignored; chosen: only these photos (--photos), others ignored."""
+  files = [n for n in os.listdir(folder) if not n.startswith('.') and os.path.isfile(os.path.join(folder, n))]
+  written = sorted(set(files) & set(output_lib.recorded(folder)), key=natural_key)
+  if written:
+    warnings.warn(f'left out of {folder!r}, written there by tools.capture: {", ".join(written)}')
+  names = sorted(set(files) - set(written), key=natural_key)
   photos = [n for n in names if n.lower().endswith(PHOTO_EXTENSIONS)]
   others = [n for n in names if not n.lower().endswith(PHOTO_EXTENSIONS)]
+  if chosen:
+    missing = [n for n in dict.fromkeys(chosen) if n not in photos]
+    if missing:
+      raise CaptureError(f'--photos: {", ".join(map(repr, missing))} not among the JPEG/PNG photos of {folder!r} '
+                         f'(expected file names in it, e.g. {", ".join(photos[:3]) or "none there"})')
+    return [n for n in photos if n in chosen], []
   if not photos:
     found = f'; it holds {len(others)} other files ({", ".join(others[:3])}...): convert them to JPEG' if others else ''
     raise CaptureError(f'no JPEG or PNG photos in {folder!r} (sub-folders are not read){found}')
@@ -105,7 +115,7 @@ def _save(image: Image.Image, path: str, exif: Image.Exif) -> None:
     image.convert('RGB').save(path, quality=JPEG_QUALITY, exif=exif)
 
 
-def write_images(photos: List[Photo], output: Output) -> None:
+def write_images(photos: List[Photo], output: output_lib.Output) -> None:
   """images/<name> for every photo: the file itself when it is upright, else its upright pixels."""
   for photo in photos:
     path = output.claim(os.path.join('images', photo.name))
@@ -130,7 +140,8 @@ def camera_folders(photos: List[Photo], per_image: bool) -> Dict[str, str]:
   return {p.name: f'camera{groups.index(p.camera) + 1}' for p in photos}
 
 
-def write_sfm_copies(photos: List[Photo], folders: Dict[str, str], output: Output, max_size: int) -> Dict[str, str]:
+def write_sfm_copies(photos: List[Photo], folders: Dict[str, str], output: output_lib.Output,
+                     max_size: int) -> Dict[str, str]:
   """sfm/images/[<camera>/]<name>: the upright photos no larger than max_size; returns {name in sfm/images: name}."""
   names = {}
   for photo in photos:
@@ -147,11 +158,14 @@ def write_sfm_copies(photos: List[Photo], folders: Dict[str, str], output: Outpu
   return names
 
 
-def write_downsampled(names: List[str], output: Output) -> None:
-  """images_<k>/<name> for k in FACTORS: images/<name> averaged down to (height // k, width // k) pixels."""
+def write_downsampled(names: List[str], output: output_lib.Output) -> None:
+  """images_<k>/<name> for k in FACTORS: the block means of k x k pixels of images/<name>, (height // k, width // k)
+  of them; the last rows and columns that fill no block are left out (cropped), as the loader does at a factor
+  without a folder, so that pixel (i, j) of images_<k> is k x k pixels from (k i, k j) and the cameras scale by k."""
   for name in names:
     with Image.open(os.path.join(output.root, 'images', name)) as image:
       image.load()
       for k in FACTORS:
-        small = image.resize((image.width // k, image.height // k), Image.Resampling.BOX)
+        size = (image.width // k, image.height // k)
+        small = image.crop((0, 0, k * size[0], k * size[1])).resize(size, Image.Resampling.BOX)
         _save(small, output.claim(os.path.join(f'images_{k}', name)), image.getexif())

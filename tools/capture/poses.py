@@ -8,7 +8,7 @@ chord poorly determined (on the cup, a fit of the centres alone tilts every came
 Cameras are camera-to-world [N, 3, 4] in OpenCV axes (x right, y down, z forward), as the colmap loader keeps them.
 """
 
-from typing import Dict, Tuple
+from typing import Dict, Optional, Tuple
 
 import numpy as np
 
@@ -68,11 +68,12 @@ def alignment(c2w: np.ndarray, reference: np.ndarray) -> Tuple[float, np.ndarray
   return scale, rotation, target.mean(0) - scale * source.mean(0)
 
 
-def pose_errors(c2w: np.ndarray, reference: np.ndarray) -> Dict[str, np.ndarray]:
-  """{'rotation_deg' [N], 'position' [N] (fraction of the reference's camera distance)} of cameras c2w [N, 3, 4]
-  after their alignment to reference [N, 3, 4] (the same cameras, same order)."""
+def pose_errors(c2w: np.ndarray, reference: np.ndarray, distance: Optional[float] = None) -> Dict[str, np.ndarray]:
+  """{'rotation_deg' [N], 'position' [N] (fraction of distance, default the reference's camera distance)} of
+  cameras c2w [N, 3, 4] after their alignment to reference [N, 3, 4] (the same cameras, same order)."""
   aligned = transform(c2w, alignment(c2w, reference))
-  position = np.linalg.norm(aligned[:, :, 3] - reference[:, :, 3], axis=-1) / camera_distance(reference)
+  distance = camera_distance(reference) if distance is None else distance
+  position = np.linalg.norm(aligned[:, :, 3] - reference[:, :, 3], axis=-1) / distance
   return {'rotation_deg': rotation_degrees(aligned[:, :, :3], reference[:, :, :3]), 'position': position}
 
 

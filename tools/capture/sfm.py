@@ -12,6 +12,7 @@ import time
 import warnings
 from typing import List
 
+from internal.run import disk_full
 from tools.capture import CaptureError
 
 PINNED = '4.2.1'
@@ -24,6 +25,18 @@ SEED = 0
 # leaves images out is mapped again with the next seeds, and the attempt that registers the most is kept.
 MAPPING_ATTEMPTS = 3
 VERIFIED = 2  # two_view_geometries.config from this value up: a geometry was verified (COLMAP's enum).
+# Incremental mapping that finds no pair to start from halves its minimum matches, then its minimum angle, and tries
+# again, twice ('Relaxing the initialization constraints' in its log).
+INIT_RELAXATIONS = 2
+# Disk space structure-from-motion may take, checked before it starts: its library aborts the process on a full
+# disk. An image: SIFT's at most 8192 features of 152 bytes in the database, and its 2D points (24 bytes each) in
+# each of the MAPPING_ATTEMPTS models kept at once; a matched pair: its matches and verified inliers, 8 bytes each,
+# for 2000 of each (a pair that overlaps well); the database's write-ahead log. The cup's 77 photos at 800 pixels
+# took 26 MB of database, 4.4 MB of model and 4 MB of log, a sixth of this bound.
+IMAGE_BYTES = 8192 * (152 + 24 * MAPPING_ATTEMPTS)
+PAIR_BYTES = 2 * 2000 * 8
+LOG_BYTES = 8 << 20
+SEQUENTIAL_OVERLAP = 10  # Neighbours each image is matched with in sequential matching (pycolmap's default).
 
 
 def require_pycolmap():
@@ -74,6 +87,22 @@ def reconstruct(database: str, image_dir: str, models_dir: str, camera_mode: str
   return Result([os.path.join(models_dir, str(k)) for k in range(len(sizes))], sizes, seconds, attempts)
 
 
+def space_needed(n_images: int, matching: str) -> int:
+  """Bytes structure-from-motion may write for n_images with matching (at most, see IMAGE_BYTES)."""
+  pairs = n_images * (n_images - 1) // 2 if matching == 'exhaustive' else n_images * SEQUENTIAL_OVERLAP
+  return n_images * IMAGE_BYTES + pairs * PAIR_BYTES + LOG_BYTES
+
+
+def require_space(database: str, n_images: int, matching: str) -> None:
+  """DiskFullError (exit status 4) when the disk holding database has less free space than space_needed."""
+  needed, free = space_needed(n_images, matching), shutil.disk_usage(os.path.dirname(database)).free
+  if free < needed:
+    raise disk_full.DiskFullError(
+        f'no space left on the device for structure-from-motion in {os.path.dirname(database)!r}: its database and '
+        f'models ({database!r}, ...) may take {needed / 2**20:.0f} MiB for {n_images} images ({matching} matching) '
+        f'and {free / 2**20:.0f} MiB are free; free disk space and run the same command again')
+
+
 def _map_best(pycolmap, database: str, image_dir: str, models_dir: str) -> tuple:
   """(registered images per model, largest first, in models_dir/<k>/; mapping runs): incremental mapping with
   SEED, again with the next seeds while the largest model leaves images out, keeping the run that registers most."""
@@ -111,9 +140,10 @@ def _scalar(database: str, query: str, *args):
 
 
 def initial_pair_needs() -> tuple:
-  """(verified matches, degrees between the views) that the pair a model starts from needs (pycolmap's defaults)."""
+  """(verified matches, degrees between the views) that the pair a model starts from needs at the least: pycolmap's
+  defaults after INIT_RELAXATIONS halvings of each."""
   mapper = require_pycolmap().IncrementalPipelineOptions().mapper
-  return mapper.init_min_num_inliers, mapper.init_min_tri_angle
+  return mapper.init_min_num_inliers >> INIT_RELAXATIONS, mapper.init_min_tri_angle / 2 ** INIT_RELAXATIONS
 
 
 def best_pair(database: str) -> int:
