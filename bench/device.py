@@ -4,8 +4,9 @@ Usage: python -m bench.device [--batch_size 4096] [--precisions float32,default,
                               [--methods mipnerf,freenerf] [--repeats 5] [--render_rays 16384] [--out FILE]
 
 The paper model (8 x 256 MLP, 2 levels x 128 samples) with each method's DTU 3-view gin config (random DTU-like
-rays, no data needed; RegNeRF's step also takes as many random-pose rays in 8 x 8 patches). Per precision, the methods' steps and a matmul at that precision run interleaved
-(A, B, M, A, B, M, ...); figures are medians over --repeats after a warm-up step:
+rays, no data needed; RegNeRF's step also takes as many random-pose rays in 8 x 8 patches). Per precision, the
+methods' steps and a matmul at that precision run interleaved (A, B, M, A, B, M, ...); figures are medians over
+--repeats after a warm-up step:
   step time, rays/s, XLA's flop count of the compiled step / step time = achieved TFLOP/s, against the best
   [m, k] @ [k, n] rate at the same dtype and matmul precision (the MLP's [B | B*S, W] @ [W, W] and a
   square of side min(B, 4096)); rendering rays/s (chunks of Config.render_chunk_size, no normals); XLA's memory
