@@ -9,7 +9,7 @@ On a cluster (`--cluster-gpus N`): nothing is measured; each cell's steps are mu
 that bench.device measured on a GPU at the precision the cell runs at there (Config.precision 'auto' resolved for
 a GPU: bfloat16, whatever machine prints the estimate; results/gpu/bench_device_*.json), for the cell's method and
 scaled to its rays per step. RegNeRF, when that benchmark did not time it, costs mip-NeRF's step times RegNeRF's
-ratio to it: as a GPU window timed it (results/gpu/ledger/variants/*/bench_device.json, bench/lease.sh), else as
+ratio to it: as a GPU window timed it (GPU_RATIO_GLOB, written by bench/lease.sh), else as
 measured on a CPU (CPU_RATIO_FILE), and says which; another unmeasured method costs the mean of the measured ones.
 The benchmark ran the paper's model, so the estimate holds for cells of that model; it counts training steps only
 (no compilation, checkpoints, learning curves or evaluation), one GPU per cell, and packs the cells longest first
