@@ -3,7 +3,9 @@
 import csv
 import dataclasses
 import json
+import os
 import pathlib
+import signal
 
 import gin
 import numpy as np
@@ -92,6 +94,21 @@ def test_a_resumed_run_counts_its_seconds_from_its_checkpoints_clock(tmp_path, s
   resumed = learning_curve.read_rows(str(run / learning_curve.CSV_FILE))[-1]
   assert resumed['step'] == 15 and (resumed['seconds'] > 1000.) == continues_from_clock
   assert (resumed['compile_seconds'] > 100.) == continues_from_clock
+
+
+@MASK_STILL_OPENING
+def test_a_run_stopped_at_a_curve_step_keeps_its_point(tmp_path, scene_dir, monkeypatch):
+  make_batcher = loop.datasets.make_batcher
+
+  def signalling(dataset, config):  # SIGTERM (a budget's end) while step 10, a curve step, is drawn.
+    batcher = make_batcher(dataset, config)
+    return lambda step: (os.kill(os.getpid(), signal.SIGTERM) if step == 10 else None) or batcher(step)
+  monkeypatch.setattr(loop.datasets, 'make_batcher', signalling)
+  run = tmp_path / 'run'
+  assert loop.train(tiny_config(scene_dir, run, *CURVE)).signum == signal.SIGTERM
+  monkeypatch.undo()
+  loop.train(tiny_config(scene_dir, run, *CURVE))
+  assert [r['step'] for r in learning_curve.read_rows(str(run / learning_curve.CSV_FILE))] == [5, 10, 15, 20]
 
 
 def test_curve_settings_are_bookkeeping(tmp_path):

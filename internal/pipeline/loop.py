@@ -259,13 +259,13 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
         stopping = stop.stopping(step % config.print_every == 0 or step == last)
         if step % config.print_every == 0 or step == last or stopping:
           report.flush(step)
+        if curve is not None and curve.due(step):  # Before a stop: the run resumes after this step.
+          curve.record(step, state.params)
         if stopping:
           break
         if config.train_render_every > 0 and step % config.train_render_every == 0 and distributed.is_primary():
           test_set = test_set if test_set is not None else datasets.load_dataset('test', config)
           preview(config, model, state, step, test_set, writer)
-        if curve is not None and curve.due(step):
-          curve.record(step, state.params)
         if step % config.checkpoint_every == 0 and step < last:
           report.flush(step)
           _save(mngr, state, curve)
