@@ -15,12 +15,17 @@
 #      window.tar.gz, run_RUN.tar.gz and eval_RUN.tar.gz per run. `python -m bench.ledger unpack FOLDER` commits them.
 # Environment: OUT (required), BUDGET (seconds, default 540), PYTHON (python3), LEASE_WORK (an empty folder for run
 # folders and logs, default a new one under /tmp), LEDGER, RESULTS, DATA (bench.ledger's --ledger, --results,
-# --data), STOP_AT_STEP (dry runs and tests: training stops after this step, as a budget would cut it).
+# --data), EVAL_SECONDS (an evaluation's limit, default 180: 13 views take about 20 s on an H100), STOP_AT_STEP (dry
+# runs and tests: training stops after this step, as a budget would cut it).
 set -u
 cd "$(dirname "$0")/.." || exit 2
 out=${OUT:?OUT: the folder that comes back from the window} budget=${BUDGET:-540} py=${PYTHON:-python3}
 work=${LEASE_WORK:-$(mktemp -d /tmp/lease.XXXXXX)}
 reserve=45  # Seconds kept for packing (a run and the window) after the last stage.
+# Seconds from a stage's SIGTERM to its SIGKILL: training stopped by the budget finishes its step, the curve point
+# in progress (13 views, their render compiled at the first point) and a checkpoint; a checkpoint every
+# checkpoint_every steps bounds what a SIGKILL loses.
+grace=40
 export PYTHONUNBUFFERED=1 XLA_PYTHON_CLIENT_PREALLOCATE=false JAX_COMPILATION_CACHE_DIR=$work/jax_cache
 ledger=(--ledger "${LEDGER:-bench/ledger.toml}" --results "${RESULTS:-results/gpu/ledger}" --data "${DATA:-.devdata}")
 mkdir -p "$out" "$work/logs" || exit 2
@@ -63,7 +68,7 @@ while stage next 90 10 "$py" -m bench.ledger next --work "$work" "${ledger[@]}";
     fi
   fi
   if [ "$ACTION" = evaluate ] || grep -q "^Trained to step $STEPS;" "$work/logs/$log.log" 2>/dev/null; then
-    stage "eval_$RUN" 180 30 "$py" eval.py --gin_configs="${args[0]}" --gin_bindings "${args[@]:1}"
+    stage "eval_$RUN" "${EVAL_SECONDS:-180}" 30 "$py" eval.py --gin_configs="${args[0]}" --gin_bindings "${args[@]:1}"
   fi
   if ! timeout 60 "$py" -m bench.ledger pack "$RUN" --work "$work" --out "$out" "${ledger[@]}"; then
     echo "== pack $RUN failed: the run folder as it is"  # Still resumable: unpack reads its newest checkpoint.

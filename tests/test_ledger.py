@@ -121,7 +121,7 @@ def _evaluated(results, run, value):
   """Commits run as evaluated at its last step with value as its metric."""
   ledger_lib.write_json(str(results / run.name / ledger_lib.STATE), {'step': run.steps, 'evaluated': True,
                                                                       'windows': []})
-  ledger_lib.write_json(str(results / run.name / 'metrics.json'), {'step': run.steps, 'complete': True,
+  ledger_lib.write_json(str(results / run.name / 'metrics.json'), {'step': run.steps, 'eval_factor': 1,
                                                                     'means': {run.metric: value}})
 
 
