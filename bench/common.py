@@ -14,6 +14,7 @@ import numpy as np
 from internal import config_loader
 from internal import configs
 from internal import rays as rays_lib
+from internal.datasets import random_poses
 from internal.evaluation import inference
 from internal.run import flops
 from internal.training import train_step as ts
@@ -105,6 +106,16 @@ def dtu_like_batch(num_rays: int) -> dict:
   """{'rays': dtu_like_rays [num_rays, ...], 'rgb' [num_rays, 3] uniform colours}: a training batch without data."""
   return {'rays': dtu_like_rays(num_rays),
           'rgb': jnp.asarray(np.random.default_rng(1).uniform(size=(num_rays, 3)), jnp.float32)}
+
+
+def with_patches(batch: dict, config) -> dict:
+  """batch with RegNeRF's random-pose patches [P, ps, ps, ...] (P = batch_size_random // ps**2 DTU-like rays) when
+  Config asks for depth smoothness, else batch as it is."""
+  if not random_poses.needs_patches(config):
+    return batch
+  size = config.patch_size
+  rays = dtu_like_rays(config.batch_size_random // size**2 * size**2, seed=3)
+  return dict(batch, patch_rays=rays_lib.map_rays(lambda x: x.reshape((-1, size, size, x.shape[-1])), rays))
 
 
 def render_runner(render_fn, num_rays: int, chunk: int):

@@ -4,13 +4,15 @@ Usage: python -m bench.device [--batch_size 4096] [--precisions float32,default,
                               [--methods mipnerf,freenerf] [--repeats 5] [--render_rays 16384] [--out FILE]
 
 The paper model (8 x 256 MLP, 2 levels x 128 samples) with each method's DTU 3-view gin config (random DTU-like
-rays, no data needed). Per precision, the methods' steps and a matmul at that precision run interleaved
-(A, B, M, A, B, M, ...); figures are medians over --repeats after a warm-up step:
+rays, no data needed; RegNeRF's step also takes as many random-pose rays in 8 x 8 patches). Per precision, the
+methods' steps and a matmul at that precision run interleaved (A, B, M, A, B, M, ...); figures are medians over
+--repeats after a warm-up step:
   step time, rays/s, XLA's flop count of the compiled step / step time = achieved TFLOP/s, against the best
   [m, k] @ [k, n] rate at the same dtype and matmul precision (the MLP's [B | B*S, W] @ [W, W] and a
   square of side min(B, 4096)); rendering rays/s (chunks of Config.render_chunk_size, no normals); XLA's memory
   estimate of the compiled step; the process's peak memory after that precision's runs (the device's
   peak_bytes_in_use, or the host's peak RSS where the device reports none; a running maximum).
+The JSON of --out also records the provenance (commit, machine, date: tools/provenance.py).
 """
 
 import argparse
@@ -29,6 +31,7 @@ from internal import configs
 from internal.evaluation import inference
 from internal.models import mip_nerf
 from internal.models import precision
+from tools import provenance
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 METHOD_CONFIGS = {'mipnerf': 'configs/mipnerf/dtu3_mipnerf.gin',
@@ -44,9 +47,11 @@ def available_methods():
 
 
 def method_config(method: str, precision_name: str, batch_size: int, bindings) -> configs.Config:
-  """The validated Config of method's gin file (parsed now, replacing any earlier bindings) at a precision."""
+  """The validated Config of method's gin file (parsed now, replacing any earlier bindings) at a precision, with
+  RegNeRF's random-pose rays as many as the training rays (the paper's 4096 and 4096)."""
+  random_rays = {'batch_size_random': batch_size} if method == 'regnerf' else {}
   return common.gin_config([os.path.join(ROOT, METHOD_CONFIGS[method])], bindings, precision=precision_name,
-                           batch_size=batch_size)
+                           batch_size=batch_size, **random_rays)
 
 
 def peak_memory():
@@ -65,7 +70,7 @@ def measure_precision(name, methods, args, bindings):
     # The model's gin bindings are read when it is traced, so each method is compiled right after its parse.
     config = method_config(method, name, args.batch_size, bindings)
     model = mip_nerf.MipNerfModel(white_background=config.white_background, precision=name)
-    steps[method] = common.step_runner(config, model, batch)
+    steps[method] = common.step_runner(config, model, common.with_patches(batch, config))
     params = jax.tree.map(jnp.copy, steps[method][1][0].params)  # The timed steps donate the state's.
     renders[method] = common.render_runner(
         inference.make_render_fn(config, model, params, config.max_steps), args.render_rays,
@@ -118,9 +123,9 @@ def main(argv=None):
   names = common.names_of(args.precisions, precision.PRECISIONS, '--precisions')
   methods = common.names_of(args.methods, available_methods(), '--methods')
   bindings = TINY if args.tiny else []
+  words = ['python', '-m', 'bench.device'] + list(sys.argv[1:] if argv is None else argv)
   report = {'device': jax.devices()[0].device_kind, 'platform': jax.devices()[0].platform,
-            'jax_version': jax.__version__,
-            'command': cli.command_line('bench.device', argv),
+            'jax_version': jax.__version__, 'command': cli.quoted(words), 'provenance': provenance.record(words),
             'batch_size': args.batch_size, 'repeats': args.repeats, 'render_rays': args.render_rays,
             'tiny': args.tiny, 'results': {}}
   print(f'{report["device"]} ({report["platform"]}), jax {report["jax_version"]}: {report["command"]}')

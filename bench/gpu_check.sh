@@ -25,25 +25,8 @@ reserve=30  # Seconds kept for the report and for a stopped stage's 20 s of grac
 export PYTHONUNBUFFERED=1 XLA_PYTHON_CLIENT_PREALLOCATE=false
 mkdir -p "$out" "$root"
 : >"$out/stages.tsv"
-
-stage() {  # stage NAME MAX_SECONDS MIN_SECONDS COMMAND...: COMMAND within what is left, its output in NAME.log.
-  local name=$1 limit=$2 least=$3 t0=$SECONDS status
-  shift 3
-  local left=$((budget - SECONDS - reserve - 20))
-  ((left < limit)) && limit=$left
-  if ((limit < least)); then
-    echo "== $name: skipped (${left}s of the budget left, it needs ${least}s)"
-    printf '%s\tskipped\t0\n' "$name" >>"$out/stages.tsv"
-    return 1
-  fi
-  echo "== $name: $(date +%T), limit ${limit}s"
-  timeout -s TERM -k 20 "$limit" "$@" >"$out/$name.log" 2>&1
-  status=$?
-  echo "== $name: status $status after $((SECONDS - t0))s"
-  printf '%s\t%s\t%s\n' "$name" "$status" "$((SECONDS - t0))" >>"$out/stages.tsv"
-  tail -n 12 "$out/$name.log"
-  return $status
-}
+stage_dir=$out
+source "$(dirname "$0")/stages.sh"  # stage NAME MAX MIN COMMAND...
 
 stage env 60 10 "$py" train.py --env
 [ "${BENCH:-1}" = 1 ] && stage step_variants 240 60 "$py" -m bench.step_variants --out_dir "$out" \

@@ -28,7 +28,6 @@ import jax.numpy as jnp
 from bench import common
 from bench import released_equivalent
 from internal import cli
-from internal import rays as rays_lib
 from internal.evaluation import inference
 from internal.models import freq_schedule
 from internal.models import registry
@@ -116,8 +115,7 @@ def main():
   steps = {name: step_runner(name, batch) for name in ('mipnerf', 'freenerf')}
   steps['released_freenerf'] = step_runner('freenerf', batch, released_equivalent.ReleasedModel)
   steps.update(nerf_step_runners(batch))
-  patches = rays_lib.map_rays(lambda x: x.reshape((-1, 8, 8, x.shape[-1])), common.dtu_like_rays(args.batch, seed=3))
-  steps['regnerf'] = step_runner('regnerf', dict(batch, patch_rays=patches))
+  steps['regnerf'] = step_runner('regnerf', common.with_patches(batch, method_config('regnerf', args.batch)))
   runners = {name: run for name, (run, _, _) in steps.items()}
   runners.update(matmul_peak=matmul_runner(min), matmul_sustained=matmul_runner(statistics.mean))
   times = interleaved_medians(runners, args.repeats)

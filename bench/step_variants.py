@@ -227,8 +227,13 @@ def guarded_medians(runners: dict, repeats: int, precision_name: str, results: d
 
 def measure_precision(precision_name: str, args, batch, platform: str = 'gpu'):
   """{variant: figures} of every available variant at one precision (unavailable ones with their reason)."""
-  runners, results = {}, {}
+  runners, results, start = {}, {}, time.perf_counter()
   for variant in args.variants:
+    if args.build_seconds and time.perf_counter() - start > args.build_seconds:
+      # A lease's stage limit would otherwise cut the run before any variant is timed and written.
+      results[variant] = {'unavailable': f'not built: --build_seconds {args.build_seconds:g} spent on the others'}
+      print(f'{precision_name} {variant}: {results[variant]["unavailable"]}', flush=True)
+      continue
     built = guarded('build', variant, precision_name, results,
                     lambda variant=variant: build(variant, precision_name, args, batch))
     if built:
@@ -293,6 +298,8 @@ def main(argv=None):
   parser.add_argument('--batch_size', type=int, default=4096)
   parser.add_argument('--repeats', type=int, default=5)
   parser.add_argument('--profile_steps', type=int, default=5, help='0: no profile')
+  parser.add_argument('--build_seconds', type=float, default=0.,
+                      help='stop building variants after this long and time those built (0: build all)')
   parser.add_argument('--out_dir', default='', help='step_variants.json and the traces go here')
   parser.add_argument('--tiny', action='store_true', help='a 2 x 32 MLP with 8 samples (for tests)')
   parser.add_argument('--bindings', default='', help='VARIANT or fastest: print its name and gin bindings')

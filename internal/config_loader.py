@@ -75,13 +75,13 @@ def _raise_missing_include(err: OSError) -> None:
                             f'does not exist (looked for it in {searched})') from err
 
 
-def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> Config:
-  """Parses gin and returns a validated Config."""
+def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = (), backend: str = '') -> Config:
+  """Parses gin and returns a validated Config, its precision resolved for backend ('' = this process's)."""
   parse_gin(gin_configs, gin_bindings)
   config = _expand_home(_apply_warmup_end(Config()))
   validate(config)
   # Concrete from here on: a run records (and its fingerprint checks) the numerics it trained with.
-  return dataclasses.replace(config, precision=precision.resolve(config.precision))
+  return dataclasses.replace(config, precision=precision.resolve(config.precision, backend))
 
 
 # The Config fields that name a file or folder: a leading '~' means a home folder, as in a shell.

@@ -37,3 +37,14 @@ def test_methods_follow_the_gin_configs_present_and_bad_names_are_named():
   assert device.available_methods() == expected and expected[:2] == ['mipnerf', 'freenerf']
   with pytest.raises(ValueError, match="--precisions 'fp16': expected comma-separated names among"):
     device.main(['--precisions', 'fp16'])
+
+
+def test_regnerf_steps_with_as_many_random_pose_rays_as_training_rays(tmp_path):
+  out = tmp_path / 'results.json'
+  device.main(['--tiny', '--batch_size', '64', '--repeats', '1', '--render_rays', '64', '--methods',
+               'mipnerf,regnerf', '--precisions', 'float32', '--out', str(out)])
+  report = json.loads(out.read_text())
+  methods = report['results']['float32']['methods']
+  # One 8 x 8 patch of random-pose rays: the density trunk forward and backward again on both levels.
+  assert 1.3 < methods['regnerf']['step_tflop'] / methods['mipnerf']['step_tflop'] < 2.2
+  assert report['provenance']['command'] == report['command'] and report['provenance']['commit']

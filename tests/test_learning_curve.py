@@ -2,7 +2,10 @@
 
 import csv
 import dataclasses
+import json
+import os
 import pathlib
+import signal
 
 import gin
 import numpy as np
@@ -57,19 +60,55 @@ def test_resumed_run_continues_the_csv_and_matches_eval(tmp_path, scene_dir):
   path = run / learning_curve.CSV_FILE
   assert [r['step'] for r in _csv_rows(path)] == ['5', '10']
   with open(path, 'a') as f:              # A row past the checkpoint: a crash after it, before the next save.
-    f.write('15,99.0,1000.0\n')
+    f.write('15,99.0,1000.0,1.0\n')
   loop.train(tiny_config(scene_dir, run, *CURVE))
   rows = learning_curve.read_rows(str(path))
   assert [r['step'] for r in rows] == [5, 10, 15, 20]
   assert rows[2]['psnr'] != 99. and rows[2]['seconds'] < 1000.
   assert all(a['seconds'] < b['seconds'] for a, b in zip(rows, rows[1:]))
-  assert all(8. < r['psnr'] < 40. for r in rows) and set(rows[0]) == {'step', 'psnr', 'seconds'}
+  assert all(8. < r['psnr'] < 40. for r in rows) and set(rows[0]) == {'step', 'psnr', 'seconds', 'compile_seconds'}
+  # Each call compiled its step once: the resumed call's compilation adds to the first call's.
+  assert 0 < rows[0]['compile_seconds'] == rows[1]['compile_seconds'] < rows[2]['compile_seconds'] < rows[2]['seconds']
   # The last point is what eval.py reports for the same views at the same size.
   config = tiny_config(scene_dir, run, *CURVE)
   record = evaluate.evaluate(dataclasses.replace(config, eval_test_ids=[1, 3], eval_factor=2))
   assert [entry['id'] for entry in record['per_image']] == learning_curve.load_views(
       config, evaluate.check_eval_inputs(config)).ids
   assert rows[-1]['psnr'] == pytest.approx(record['means']['psnr'], abs=1e-4)
+
+
+@MASK_STILL_OPENING
+@pytest.mark.parametrize('clock_step, continues_from_clock', [(12, True), (11, False)])
+def test_a_resumed_run_counts_its_seconds_from_its_checkpoints_clock(tmp_path, scene_dir, clock_step,
+                                                                    continues_from_clock):
+  run = tmp_path / 'run'
+  loop.train(tiny_config(scene_dir, run, *CURVE), stop_at_step=12)  # Rows 5 and 10, a checkpoint at step 12.
+  clock = json.loads((run / learning_curve.CLOCK_FILE).read_text())
+  rows = learning_curve.read_rows(str(run / learning_curve.CSV_FILE))
+  assert clock['step'] == 12 and clock['seconds'] > rows[-1]['seconds'] and clock['compile_seconds'] > 0
+  # Steps 11 and 12 took 1000 s and compiled for 100 s more: a clock of the checkpoint's step is taken, another
+  # step's is not (then the seconds go on from the last row, as before clocks were kept).
+  (run / learning_curve.CLOCK_FILE).write_text(json.dumps({'step': clock_step, 'seconds': 1000.,
+                                                           'compile_seconds': 100.}))
+  loop.train(tiny_config(scene_dir, run, *CURVE), stop_at_step=15)
+  resumed = learning_curve.read_rows(str(run / learning_curve.CSV_FILE))[-1]
+  assert resumed['step'] == 15 and (resumed['seconds'] > 1000.) == continues_from_clock
+  assert (resumed['compile_seconds'] > 100.) == continues_from_clock
+
+
+@MASK_STILL_OPENING
+def test_a_run_stopped_at_a_curve_step_keeps_its_point(tmp_path, scene_dir, monkeypatch):
+  make_batcher = loop.datasets.make_batcher
+
+  def signalling(dataset, config):  # SIGTERM (a budget's end) while step 10, a curve step, is drawn.
+    batcher = make_batcher(dataset, config)
+    return lambda step: (os.kill(os.getpid(), signal.SIGTERM) if step == 10 else None) or batcher(step)
+  monkeypatch.setattr(loop.datasets, 'make_batcher', signalling)
+  run = tmp_path / 'run'
+  assert loop.train(tiny_config(scene_dir, run, *CURVE)).signum == signal.SIGTERM
+  monkeypatch.undo()
+  loop.train(tiny_config(scene_dir, run, *CURVE))
+  assert [r['step'] for r in learning_curve.read_rows(str(run / learning_curve.CSV_FILE))] == [5, 10, 15, 20]
 
 
 def test_curve_settings_are_bookkeeping(tmp_path):

@@ -129,6 +129,10 @@ def test_auto_is_float32_on_a_cpu_and_bfloat16_on_an_accelerator_and_runs_record
   assert config_loader.load_config([], []).precision == expected
   gin.clear_config()
   assert config_loader.load_config([], ["Config.precision = 'default'"]).precision == 'default'
+  # For another machine (a cluster estimate printed on a CPU for GPUs): resolved for its backend.
+  gin.clear_config()
+  assert config_loader.load_config([], [], backend='gpu').precision == precision.resolve('auto', 'gpu') == 'bfloat16'
+  assert precision.resolve('auto', 'cpu') == 'float32' and precision.resolve('default', 'gpu') == 'default'
 
 
 def test_precision_comes_from_config_only_and_is_fingerprinted():

@@ -112,3 +112,13 @@ def test_a_wrong_gradient_is_refused_and_a_failing_variant_keeps_its_error_and_n
   assert timed['error_tail'][-1] == 'ValueError: the kernel stopped'
   assert all(np.isfinite(results[name]['step_seconds']) for name in ('base', 'relu_from_output'))
   assert 'unavailable: build: RuntimeError' in log
+
+
+def test_variants_past_the_build_budget_are_left_unbuilt_and_those_built_are_timed(tmp_path):
+  # The plain step is built first, within the budget; building it takes longer than the whole budget.
+  step_variants.main(['--tiny', '--batch_size', '64', '--repeats', '1', '--precisions', 'float32',
+                      '--profile_steps', '0', '--out_dir', str(tmp_path), '--build_seconds', '0.001',
+                      '--variants', 'relu_from_output'])
+  results = json.loads((tmp_path / 'step_variants.json').read_text())['results']['float32']
+  assert results['relu_from_output'] == {'unavailable': 'not built: --build_seconds 0.001 spent on the others'}
+  assert np.isfinite(results['base']['step_seconds'])

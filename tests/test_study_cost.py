@@ -1,6 +1,7 @@
 """tools.study.cost and `tools.study --list --estimate`: a study's expected wall time before it runs."""
 
 import json
+import os
 import pathlib
 import subprocess
 import sys
@@ -74,14 +75,42 @@ BENCH = {'device': 'GPU X', 'jax_version': '0', 'batch_size': 4096,
                      'bfloat16': {'methods': {'mipnerf': {'step_seconds': 0.02}}}}}
 
 
+def _cpu_ratio():
+  methods = json.loads((REPO / study_cost.CPU_RATIO_FILE).read_text())['results']['float32']['methods']
+  return methods['regnerf']['step_seconds'] / methods['mipnerf']['step_seconds']
+
+
 def test_gpu_step_seconds_per_precision_method_and_batch():
   assert study_cost.gpu_step_seconds(BENCH, 'float32', 'freenerf', 4096) == (0.3, '')
   seconds, note = study_cost.gpu_step_seconds(BENCH, 'float32', 'regnerf', 4096)
-  assert seconds == pytest.approx(0.2) and note == 'regnerf not benchmarked: the mean of freenerf, mipnerf'
+  assert 1.5 < _cpu_ratio() < 2.2 and seconds == pytest.approx(0.1 * _cpu_ratio())
+  assert note == (f"regnerf not benchmarked: mip-NeRF's step x {_cpu_ratio():.2f}, as measured on a CPU "
+                  f'({study_cost.CPU_RATIO_FILE}), not yet on a GPU')
+  seconds, note = study_cost.gpu_step_seconds({**BENCH, 'results': {'float32': {'methods': {
+      'freenerf': {'step_seconds': 0.3}, 'nerf': {'step_seconds': 0.1}}}}}, 'float32', 'regnerf', 4096)
+  assert seconds == pytest.approx(0.2) and note == 'regnerf not benchmarked: the mean of freenerf, nerf'
   seconds, note = study_cost.gpu_step_seconds(BENCH, 'bfloat16', 'mipnerf', 1024)
   assert seconds == pytest.approx(0.005) and note == 'batch 1024 scaled from 4096'
   with pytest.raises(ValueError, match=r"Config.precision 'default' has no GPU step time.*\['bfloat16', 'float32'\]"):
     study_cost.gpu_step_seconds(BENCH, 'default', 'mipnerf', 4096)
+
+
+def _device_record(path, date, regnerf_ms, precision='bfloat16'):
+  path.parent.mkdir(parents=True, exist_ok=True)
+  path.write_text(json.dumps({'device': f'GPU of {date}', 'provenance': {'date': date}, 'results': {precision: {
+      'methods': {'mipnerf': {'step_seconds': 0.02}, 'regnerf': {'step_seconds': regnerf_ms / 1e3}}}}}))
+
+
+def test_regnerf_costs_the_ratio_a_gpu_window_timed_once_one_did(tmp_path, monkeypatch):
+  monkeypatch.setattr(study_cost, 'REPO', str(tmp_path))
+  _device_record(tmp_path / study_cost.CPU_RATIO_FILE, '2026-01-01', 40, 'float32')
+  assert study_cost.regnerf_ratio('bfloat16')[0] == pytest.approx(2.)
+  variants = tmp_path / 'results' / 'gpu' / 'ledger' / 'variants'
+  _device_record(variants / 'nvidia_h100_abc' / 'bench_device.json', '2026-12-02', 34)
+  _device_record(variants / 'nvidia_h200_abc' / 'bench_device.json', '2026-12-01', 30)
+  ratio, where = study_cost.regnerf_ratio('bfloat16')
+  newest = os.path.relpath(variants / 'nvidia_h100_abc' / 'bench_device.json', tmp_path)
+  assert ratio == pytest.approx(1.7) and where == f'as timed on GPU of 2026-12-02 ({newest})'
 
 
 def test_wall_seconds_packs_the_longest_cells_first():
@@ -97,11 +126,13 @@ def test_cluster_estimate_of_the_dtu_table_from_the_committed_gpu_record():
                         '--cluster-gpus', '8'], cwd=REPO, capture_output=True, text=True, check=True).stdout
   lines = out.splitlines()
   assert lines[0] == 'studies/table_dtu.toml: 135 pending cell(s) estimated, 0 done not counted'
-  step = bench['results']['float32']['methods']['freenerf']['step_seconds']
-  assert f'{43945 * step / 3600:8.2f} GPU-h  43945 steps x {step * 1e3:.1f} ms (float32)  freenerf__scan8__views=3' in lines
+  # The cells run at Config.precision = 'auto': bfloat16 on the GPUs they are estimated for, not this CPU's float32.
+  step = bench['results']['bfloat16']['methods']['freenerf']['step_seconds']
+  assert f'{43945 * step / 3600:8.2f} GPU-h  43945 steps x {step * 1e3:.1f} ms (bfloat16)  freenerf__scan8__views=3' in lines
   per_view = {3: 43945, 6: 87891, 9: 131836}
-  steps = {m: bench['results']['bfloat16']['methods'][m] for m in ('freenerf', 'mipnerf')}
-  mean = sum(s['step_seconds'] for s in steps.values()) / 2
-  total = 15 * sum(n * (steps['freenerf']['step_seconds'] + steps['mipnerf']['step_seconds'] + mean)
-                   for n in per_view.values()) / 3600
-  assert f"total all at Config.precision = 'bfloat16': 135 cell(s), {total:.1f} GPU-hours; on 8 GPU(s)" in out
+  steps = {m: bench['results']['bfloat16']['methods'][m]['step_seconds'] for m in ('freenerf', 'mipnerf')}
+  regnerf = steps['mipnerf'] * _cpu_ratio()
+  total = 15 * sum(n * (steps['freenerf'] + steps['mipnerf'] + regnerf) for n in per_view.values()) / 3600
+  for label in ('as configured', "all at Config.precision = 'bfloat16'"):
+    assert f'total {label}: 135 cell(s), {total:.1f} GPU-hours; on 8 GPU(s)' in out
+  assert f"x {regnerf * 1e3:.1f} ms (bfloat16)  regnerf__scan8__views=3  [regnerf not benchmarked: mip-NeRF's" in out

@@ -1,17 +1,21 @@
 """Learning curves: the test PSNR of a few test views at reduced size every Config.curve_every steps of training.
 
 The paper's story is dynamic (the baseline overfits early, FreeNeRF does not): a curve shows it. A row is
-{'step', 'psnr', 'psnr_masked' (DTU only), 'seconds'}: the mean over the curve's views of their PSNR computed as
-evaluation computes it (and the DTU protocol's object-masked PSNR), and the wall-clock seconds of training so far,
-the curve's own evaluations left out. Rows go to tensorboard (curve/psnr, curve/psnr_masked, curve/eval_seconds)
-and to <run dir>/learning_curve.csv, rewritten atomically at every row. A resumed run keeps the rows up to its
-checkpoint's step, and its seconds go on from the last kept row (training time after that row, lost with the
-interrupted steps, is not counted).
+{'step', 'psnr', 'psnr_masked' (DTU only), 'seconds', 'compile_seconds'}: the mean over the curve's views of their
+PSNR computed as evaluation computes it (and the DTU protocol's object-masked PSNR), the wall-clock seconds of
+training so far, the curve's own evaluations left out, and how many of those seconds compiled the step (the first
+step of each call of training: seconds - compile_seconds are the seconds of steps). Rows go to tensorboard
+(curve/psnr, curve/psnr_masked, curve/eval_seconds) and to <run dir>/learning_curve.csv, rewritten atomically at
+every row. Every checkpoint also writes the clock (learning_curve_clock.json: the step and both seconds), so a
+resumed run's seconds go on from its checkpoint's step: a run trained in several calls (GPU windows) reads as one
+run. A resumed run keeps the rows up to its checkpoint's step; without a clock of that step its seconds go on from
+the last kept row (training time after that row, lost with the interrupted steps, is not counted).
 """
 
 import csv
 import dataclasses
 import io
+import json
 import os
 import time
 from typing import List, NamedTuple, Optional
@@ -29,6 +33,7 @@ from internal.evaluation import results
 from internal.run import sharding
 
 CSV_FILE = 'learning_curve.csv'
+CLOCK_FILE = 'learning_curve_clock.json'
 
 
 class Views(NamedTuple):
@@ -65,8 +70,9 @@ def curve_positions(config, num_views: int) -> list:
   return [(2 * i + 1) * num_views // (2 * k) for i in range(k)]
 
 
-def curve_row(step: int, seconds: float, images, renders, masks=None) -> dict:
-  """{'step', 'psnr'[, 'psnr_masked'], 'seconds'} of renders [V][h,w,3] against images [V][h,w,3].
+def curve_row(step: int, seconds: float, images, renders, masks=None, compile_seconds=None) -> dict:
+  """{'step', 'psnr'[, 'psnr_masked'], 'seconds'[, 'compile_seconds']} of renders [V][h,w,3] against images
+  [V][h,w,3].
 
   PSNRs are averaged over the views as evaluation's means are; psnr_masked (with DTU masks [V][h,w,3]) only
   counts the values whose mask is 1, as the DTU protocol does.
@@ -75,12 +81,25 @@ def curve_row(step: int, seconds: float, images, renders, masks=None) -> dict:
   if masks is not None:
     row['psnr_masked'] = results.mean([metrics.masked_psnr(r, g, m) for r, g, m in zip(renders, images, masks)])
   row['seconds'] = float(seconds)
+  if compile_seconds is not None:
+    row['compile_seconds'] = float(compile_seconds)
   return row
 
 
 def csv_path(run_dir: str) -> str:
   """<run_dir>/learning_curve.csv."""
   return os.path.join(run_dir, CSV_FILE)
+
+
+def read_clock(run_dir: str, step: int):
+  """(seconds, compile_seconds) of training up to step, as the checkpoint of step recorded them; None when the
+  clock is of another step (a checkpoint saved after it, or none recorded) or unreadable."""
+  try:
+    with open(os.path.join(run_dir, CLOCK_FILE)) as f:
+      clock = json.load(f)
+    return (float(clock['seconds']), float(clock['compile_seconds'])) if clock['step'] == step else None
+  except (OSError, ValueError, KeyError, TypeError):
+    return None
 
 
 def read_rows(path: str) -> List[dict]:
@@ -127,25 +146,40 @@ class Recorder:
   """Scores the curve's views every Config.curve_every steps and at the last step; tensorboard and the CSV."""
 
   def __init__(self, config, model, views: Views, run_dir: str, writer, resumed_step: int):
-    self.config, self.model, self.views, self.writer = config, model, views, writer
+    self.config, self.model, self.views, self.writer, self.run_dir = config, model, views, writer, run_dir
     self.log = CurveLog(run_dir, resumed_step)
     self.compiled = inference.compile_render(config, model)  # One compilation for every curve point.
-    self.seconds_before = self.log.rows[-1]['seconds'] if self.log.rows else 0.
+    last = self.log.rows[-1] if self.log.rows else {}
+    self.seconds_before, self.compile_seconds = read_clock(run_dir, resumed_step) or (
+        last.get('seconds', 0.), last.get('compile_seconds') or 0.)
     self.start, self.eval_seconds = time.perf_counter(), 0.
 
   def due(self, step: int) -> bool:
     """Whether step gets a curve point."""
     return step % self.config.curve_every == 0 or step == self.config.max_steps
 
+  def seconds(self) -> float:
+    """Seconds of training so far (the runs before this call's included), the curve's evaluations left out."""
+    return self.seconds_before + time.perf_counter() - self.start - self.eval_seconds
+
+  def compiled_step(self, seconds: float) -> None:
+    """Counts seconds spent compiling the step (the first step of a call of training)."""
+    self.compile_seconds += seconds
+
+  def checkpointed(self, step: int) -> None:
+    """Records the clock of a checkpoint just saved at step (the steps before it done), for a resumed run."""
+    atomic.write_text(os.path.join(self.run_dir, CLOCK_FILE), json.dumps(
+        {'step': int(step), 'seconds': self.seconds(), 'compile_seconds': self.compile_seconds}))
+
   def record(self, step: int, params) -> dict:
     """Renders and scores the views with the parameters of step; logs and appends the row; returns it."""
     params = jax.block_until_ready(sharding.local_copy(params))  # The steps dispatched so far count as training.
     tic = time.perf_counter()
-    seconds = self.seconds_before + tic - self.start - self.eval_seconds
+    seconds = self.seconds()
     render_fn = inference.make_render_fn(self.config, self.model, params, step, compiled=self.compiled)
     renders = [inference.render_image(render_fn, rays_lib.map_rays(lambda x, i=i: x[i], self.views.rays),
                                       self.config.render_chunk_size)['rgb'] for i in range(len(self.views.ids))]
-    row = curve_row(step, seconds, self.views.images, renders, self.views.masks)
+    row = curve_row(step, seconds, self.views.images, renders, self.views.masks, self.compile_seconds)
     self.log.append(row)
     elapsed = time.perf_counter() - tic
     self.eval_seconds += elapsed

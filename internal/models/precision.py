@@ -17,10 +17,11 @@ _SETTINGS = {'float32': (jnp.float32, jax.lax.Precision.HIGHEST),
              'bfloat16': (jnp.bfloat16, None)}
 
 
-def resolve(name: str) -> str:
-  """The precision a Config.precision value means on this process's backend (one of PRECISIONS)."""
+def resolve(name: str, backend: str = '') -> str:
+  """The precision a Config.precision value means on a backend ('cpu', 'gpu', ...; '' = this process's), one of
+  PRECISIONS."""
   if name == 'auto':
-    return 'float32' if jax.default_backend() == 'cpu' else 'bfloat16'
+    return 'float32' if (backend or jax.default_backend()) == 'cpu' else 'bfloat16'
   if name not in _SETTINGS:
     raise ValueError(f'Config.precision = {name!r}; expected one of {list(CHOICES)}')
   return name

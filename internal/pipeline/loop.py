@@ -231,11 +231,18 @@ def _train_in(config, run_dir: str, stop_at_step: int, stop: Optional[StopFlag])
     try:
       with writer:
         state, skipped = _loop(config, model, state, batcher, mesh, train_key, mngr, writer, stop, last, curve)
-      checkpoints.save(mngr, state)
+      _save(mngr, state, curve)
     finally:
       mngr.wait_until_finished()
       mngr.close()
   return TrainResult(model, state, run_dir, stop.signum, skipped)
+
+
+def _save(mngr, state, curve) -> None:
+  """Saves a checkpoint of state (unless its step is saved already) and the learning curve's clock at its step."""
+  checkpoints.save(mngr, state)
+  if curve is not None:
+    curve.checkpointed(int(state.step))
 
 
 def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: int, curve):
@@ -254,21 +261,24 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
   try:
     with out_of_memory.naming_setting('in the training step', f'Config.batch_size = {config.batch_size}', needed):
       for step in range(first, last + 1):
-        state, stats = step_fn(state, sharding.shard_batch(batcher(step), mesh), key)
+        batch, tic = sharding.shard_batch(batcher(step), mesh), time.perf_counter()
+        state, stats = step_fn(state, batch, key)
+        if step == first and curve is not None:  # The first call traces and compiles; later ones only dispatch.
+          curve.compiled_step(time.perf_counter() - tic)
         report.add(step, stats)
         stopping = stop.stopping(step % config.print_every == 0 or step == last)
         if step % config.print_every == 0 or step == last or stopping:
           report.flush(step)
+        if curve is not None and curve.due(step):  # Before a stop: the run resumes after this step.
+          curve.record(step, state.params)
         if stopping:
           break
         if config.train_render_every > 0 and step % config.train_render_every == 0 and distributed.is_primary():
           test_set = test_set if test_set is not None else datasets.load_dataset('test', config)
           preview(config, model, state, step, test_set, writer)
-        if curve is not None and curve.due(step):
-          curve.record(step, state.params)
         if step % config.checkpoint_every == 0 and step < last:
           report.flush(step)
-          checkpoints.save(mngr, state)
+          _save(mngr, state, curve)
   finally:
     report.close()
   return state, report.skips.total

@@ -54,8 +54,9 @@ WRITTEN = {
                     r'damaged_\d+_\d{8}-\d{6}': None},  # and the damaged ones set aside (checkpoints.py).
     'tensorboard': {r'events\.out\.tfevents\..+': None},
     r'test_preds_step_\d+': _OUTPUTS, r'path_renders_step_\d+': _OUTPUTS,
-    r'learning_curve\.csv': None, re.escape(GIN_FILE): None,
-    **{_atomic_tmp(re.escape(name)): None for name in ('learning_curve.csv', GIN_FILE, FINGERPRINT_FILE)},
+    r'learning_curve\.csv': None, r'learning_curve_clock\.json': None, re.escape(GIN_FILE): None,
+    **{_atomic_tmp(re.escape(name)): None for name in ('learning_curve.csv', 'learning_curve_clock.json', GIN_FILE,
+                                                       FINGERPRINT_FILE)},
     re.escape(FINGERPRINT_FILE): None}
 # Config fields that do not change what training computes: they may differ between a run and its resumption.
 NOT_FINGERPRINTED = configs.declared(configs.BOOKKEEPING)

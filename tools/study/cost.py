@@ -6,10 +6,14 @@ counts training steps, the learning curve's renders and the evaluation's renders
 and the metrics themselves (LPIPS), so expect the real time to be somewhat longer.
 
 On a cluster (`--cluster-gpus N`): nothing is measured; each cell's steps are multiplied by the train step time
-that bench.device measured on a GPU at the cell's precision (results/gpu/bench_device_*.json), for the cell's
-method (the mean of the measured methods for another) and scaled to its rays per step. The benchmark ran the
-paper's model, so the estimate holds for cells of that model; it counts training steps only (no compilation,
-checkpoints, learning curves or evaluation), one GPU per cell, and packs the cells longest first onto N GPUs.
+that bench.device measured on a GPU at the precision the cell runs at there (Config.precision 'auto' resolved for
+a GPU: bfloat16, whatever machine prints the estimate; results/gpu/bench_device_*.json), for the cell's method and
+scaled to its rays per step. RegNeRF, when that benchmark did not time it, costs mip-NeRF's step times RegNeRF's
+ratio to it: as a GPU window timed it (GPU_RATIO_GLOB, written by bench/lease.sh), else as
+measured on a CPU (CPU_RATIO_FILE), and says which; another unmeasured method costs the mean of the measured ones.
+The benchmark ran the paper's model, so the estimate holds for cells of that model; it counts training steps only
+(no compilation, checkpoints, learning curves or evaluation), one GPU per cell, and packs the cells longest first
+onto N GPUs.
 """
 
 import glob
@@ -26,6 +30,9 @@ from tools.study import spec as study_spec
 
 PROBE_STEPS = 6  # Timed train steps after the first (compiling) one.
 BENCH_GLOB = os.path.join('results', 'gpu', 'bench_device_*.json')  # bench.device's GPU records, in the repository.
+# bench.device's records of RegNeRF's step beside mip-NeRF's: timed in GPU windows, and on a CPU.
+GPU_RATIO_GLOB = os.path.join('results', 'gpu', 'ledger', 'variants', '*', 'bench_device.json')
+CPU_RATIO_FILE = os.path.join('results', 'cluster', 'bench_device_cpu_regnerf.json')
 REPO = study_spec.REPO
 
 
@@ -131,6 +138,10 @@ def gpu_step_seconds(bench: dict, precision: str, method: str, batch_size: int) 
   methods = measured['methods']
   if method in methods:
     seconds, notes = methods[method]['step_seconds'], []
+  elif method == 'regnerf' and 'mipnerf' in methods:
+    ratio, where = regnerf_ratio(precision)
+    seconds = methods['mipnerf']['step_seconds'] * ratio
+    notes = [f"regnerf not benchmarked: mip-NeRF's step x {ratio:.2f}, {where}"]
   else:
     seconds = statistics.mean(m['step_seconds'] for m in methods.values())
     notes = [f'{method} not benchmarked: the mean of {", ".join(sorted(methods))}']
@@ -138,6 +149,29 @@ def gpu_step_seconds(bench: dict, precision: str, method: str, batch_size: int) 
     seconds *= batch_size / bench['batch_size']
     notes.append(f'batch {batch_size} scaled from {bench["batch_size"]}')
   return seconds, '; '.join(notes)
+
+
+def _ratio(record: dict, precision: str) -> Optional[float]:
+  """RegNeRF's step time over mip-NeRF's in a bench.device record, at precision or else its first precision timing
+  both; None when it timed them at none."""
+  both = [p for p, r in record.get('results', {}).items() if {'mipnerf', 'regnerf'} <= set(r.get('methods', {}))]
+  if not both:
+    return None
+  methods = record['results'][precision if precision in both else both[0]]['methods']
+  return methods['regnerf']['step_seconds'] / methods['mipnerf']['step_seconds']
+
+
+def regnerf_ratio(precision: str) -> Tuple[float, str]:
+  """(RegNeRF's step time over mip-NeRF's, where it was measured): the newest GPU window's that timed both, else
+  the CPU's of CPU_RATIO_FILE."""
+  timed = [(record.get('provenance', {}).get('date', ''), path, record) for path in
+           glob.glob(os.path.join(REPO, GPU_RATIO_GLOB)) for record in [study_export.read_json(path)]
+           if _ratio(record, precision) is not None]
+  if timed:
+    _, path, record = max(timed, key=lambda found: found[:2])
+    return _ratio(record, precision), f'as timed on {record.get("device")} ({os.path.relpath(path, REPO)})'
+  path = os.path.join(REPO, CPU_RATIO_FILE)
+  return _ratio(study_export.read_json(path), precision), f'as measured on a CPU ({CPU_RATIO_FILE}), not yet on a GPU'
 
 
 def wall_seconds(durations: List[float], gpus: int) -> float:
@@ -153,7 +187,8 @@ def cluster_lines(cells: List[Tuple[str, str, object]], bench_path: str, bench: 
   and the wall time on gpus GPUs (the cells' own precisions first)."""
   lines = [f'GPU estimate from {os.path.relpath(bench_path, REPO)} ({bench.get("device")}, jax '
            f'{bench.get("jax_version")}) at commit {provenance.git_commit(REPO)}: training steps only, no '
-           'compilation, checkpoints, learning curves or evaluation; one GPU per cell']
+           "compilation, checkpoints, learning curves or evaluation; one GPU per cell, at the precision it runs at "
+           "on a GPU (Config.precision 'auto': bfloat16)"]
   own = []
   for cell_id, method, config in cells:
     step, note = gpu_step_seconds(bench, config.precision, method, config.batch_size)

@@ -210,7 +210,7 @@ def _list(study: study_spec.Study, args) -> None:
       pending.append(cell)
   if args.cluster_gpus:
     print(f'{study.path}: {len(pending)} pending cell(s) estimated, {len(lines) - len(pending)} done not counted')
-    print('\n'.join(study_cost.cluster_lines([(c.cell_id, c.method, _config(study, c, args)) for c in pending],
+    print('\n'.join(study_cost.cluster_lines([(c.cell_id, c.method, _gpu_config(study, c, args)) for c in pending],
                                             *study_cost.device_bench(args.device_bench), args.cluster_gpus)))
     return
   print('\n'.join(lines))
@@ -219,14 +219,15 @@ def _list(study: study_spec.Study, args) -> None:
     print('\n'.join(study_cost.summary_lines(estimate(paths), args.jobs)))
 
 
-def _config(study: study_spec.Study, cell: study_spec.Cell, args):
-  """The validated Config of a cell (nothing is written)."""
+def _gpu_config(study: study_spec.Study, cell: study_spec.Cell, args):
+  """The validated Config of a cell as a GPU runs it (Config.precision 'auto' is bfloat16 there; nothing is
+  written)."""
   import gin  # pylint: disable=import-outside-toplevel
   from internal import config_loader  # pylint: disable=import-outside-toplevel
   run_dir = os.path.join(cell_dir(study, cell, args.out), RUN_SUBDIR)
   gin.clear_config()
   return config_loader.load_config(*study_spec.cell_gin(study, cell, args.out, args.data_root, run_dir,
-                                                        tuple(args.gin_bindings)))
+                                                        tuple(args.gin_bindings)), backend='gpu')
 
 
 def _worker_envs(jobs: int, gpus: Optional[str]) -> List[Dict[str, str]]:
