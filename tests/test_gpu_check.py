@@ -46,6 +46,8 @@ def test_gpu_check_runs_every_stage_and_reports_the_three_tables(tmp_path):
                   '| bfloat16 | freenerf | pallas | 20 |'):
     assert heading in report
   assert (out / 'test_views.png').stat().st_size > 0 and (out / 'trace_bfloat16_base.json.gz').is_file()
+  assert sorted(p.name for p in (out / 'test_truth').iterdir()) == sorted(
+      p.name for p in (out / 'test_preds_freenerf_bfloat16_pallas').glob('color_*.png'))  # The picture's truth.
 
 
 
