@@ -4,9 +4,9 @@ Usage: python -m bench.gpu_report OUT_DIR
 
 Reads what gpu_check.sh left in OUT_DIR (stages.tsv, step_variants.json, train_<run>.log, metrics_<run>.json,
 test_preds_<run>/, test_truth/) and writes gpu_report.md (printed too) and test_views.png (a column per test view;
-the ground truth, then per run a colour and a depth row). A run is METHOD_PRECISION[_VARIANT] (the step variant it trained with); its step time is the
-training's own rate once warm, its minutes the training stage's wall time (start-up and compilation included), its
-paper-length minutes 43,945 steps at that rate.
+the ground truth, then per run a colour and a depth row). A run is METHOD_PRECISION[_VARIANT] (the step variant it
+trained with); its step time is the training's own rate once warm, its minutes the training stage's wall time
+(start-up and compilation included), its paper-length minutes 43,945 steps at that rate.
 """
 
 import csv

@@ -74,8 +74,8 @@ def _place(entry: cells_file.Entry, target: str) -> None:
   texts = cells_file.files(entry.line)
   evaluated = study_export.eval_dir(target, entry.line['record']['step'])
   os.makedirs(evaluated, exist_ok=True)
-  places = {cells_file.METRICS_FILE: evaluated, cells_file.METRICS_TABLE: evaluated,
-            cells_file.CURVE_FILE: os.path.dirname(learning_curve.csv_path(os.path.join(target, study_export.RUN_SUBDIR)))}
+  curve_folder = os.path.dirname(learning_curve.csv_path(os.path.join(target, study_export.RUN_SUBDIR)))
+  places = {cells_file.METRICS_FILE: evaluated, cells_file.METRICS_TABLE: evaluated, cells_file.CURVE_FILE: curve_folder}
   for name, folder in places.items():
     if name in texts:
       atomic.write_text(os.path.join(folder, name), texts[name])
