@@ -24,8 +24,8 @@ import train
 
 REGULARIZERS = {'freq_reg', 'freq_reg_end', 'occ_reg_loss_mult'}
 # The demo's results, per seed, as `python -m tools.demo_seeds` recorded them (results/demo/README.md). The tests
-# below train with the default seed and compare with what was recorded for it (the settings that chose the demo:
-# docs/results.md).
+# below train with the default seed and compare with what was recorded for it (what the demo shows:
+# results/README.md).
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / 'results' / 'demo'
 # On the machine and versions that recorded them a run reproduces them; within this of them, in dB.
 REPRODUCED = .01

@@ -41,7 +41,8 @@ def _cell(export: pathlib.Path, cell: str, study: str, psnr_shift: float = 0., c
 def _export(path: pathlib.Path, study: str, cells: dict) -> pathlib.Path:
   """An old-layout export of study at path: {cell id: (study its record names, psnr shift)}, provenance.json with
   the per-cell copies the old exports kept."""
-  records = {cell: _cell(path, cell, owner, shift, curve=i == 0) for i, (cell, (owner, shift)) in enumerate(cells.items())}
+  records = {cell: _cell(path, cell, owner, shift, curve=i == 0)
+             for i, (cell, (owner, shift)) in enumerate(cells.items())}
   provenance = {'command': 'python -m tools.study x.toml --export x', 'study_file': {'path': 'x', 'sha256': 'ab'},
                 'cells': {c: {k: r.get(k) for k in ('commit', 'machine', 'train_seconds', 'step')}
                           for c, r in records.items()}}
@@ -134,4 +135,8 @@ def test_every_committed_export_holds_its_cells_in_one_file(export):
   assert entries and all(reuse.checked(e) for e in entries.values())    # Each record agrees with its evaluation.
   assert 'cells' not in json.loads((export / 'provenance.json').read_text())
   studies = ROOT / 'results' / 'studies'  # Each study folder has its README; cpu-mini's exports share their parent's.
-  assert (export / 'README.md').is_file() or (export.parent != studies and (export.parent / 'README.md').is_file())
+  readme = export / 'README.md' if export.parent == studies else export.parent / 'README.md'
+  assert readme.is_file(), f'{export} has no README.md'
+  dirty = [c for c, e in entries.items() if (e.line['record'].get('commit') or '').endswith('+dirty')]
+  assert not dirty or 'uncommitted changes' in readme.read_text(), (
+      f'{readme} does not say that {len(dirty)} cells ran from a tree with uncommitted changes: {dirty[:3]}')
