@@ -9,7 +9,8 @@
 #      each then evaluated on its test views; a run the budget cuts keeps its checkpoints in
 #      ckpt_RUN.tar.gz (RUN: METHOD_PRECISION[_VARIANT]), which RESUME_DIR gives back to a later call (it resumes);
 #   4. with time left, the numerics tests (TEST_FILES) on the device;
-#   5. `bench.gpu_report`: the tables (variants, profiles, precision trade) and a picture, printed last.
+#   5. `bench.gpu_report`: the tables (variants, profiles, precision trade) and a picture (the ground truth of its
+#      views from the packed scene, then each run's renders), printed last.
 # Usage: bash bench/gpu_check.sh PACKED_SCENE OUT_DIR
 #   Environment: BUDGET (seconds for everything, default 540), RUNS (default below), BENCH=0 (skips stage 2),
 #   VARIANT_FLAGS (flags of bench.step_variants; by default the fused Pallas layers against the plain step: the
@@ -69,4 +70,5 @@ done
 tests=${TEST_FILES:-tests/test_activations.py tests/test_fused_dense.py tests/test_precision.py tests/test_train_step.py
   tests/test_trig.py}
 stage tests 120 45 "$py" -m pytest -q -p no:cacheprovider $tests  # On every core (pytest.ini).
+"$py" -c "from bench import gpu_report; gpu_report.write_truth('$scene', '$out')" || true  # The picture's truth.
 "$py" -m bench.gpu_report "$out"

@@ -3,10 +3,10 @@
 Usage: python -m bench.gpu_report OUT_DIR
 
 Reads what gpu_check.sh left in OUT_DIR (stages.tsv, step_variants.json, train_<run>.log, metrics_<run>.json,
-test_preds_<run>/) and writes gpu_report.md (printed too) and test_views.png (per run a row of test views, colour
-over depth). A run is METHOD_PRECISION[_VARIANT] (the step variant it trained with); its step time is the
-training's own rate once warm, its minutes the training stage's wall time (start-up and compilation included), its
-paper-length minutes 43,945 steps at that rate.
+test_preds_<run>/, test_truth/) and writes gpu_report.md (printed too) and test_views.png (a column per test view;
+the ground truth, then per run a colour and a depth row). A run is METHOD_PRECISION[_VARIANT] (the step variant it
+trained with); its step time is the training's own rate once warm, its minutes the training stage's wall time
+(start-up and compilation included), its paper-length minutes 43,945 steps at that rate.
 """
 
 import csv
@@ -21,9 +21,15 @@ from PIL import Image
 
 from bench import step_variants
 from internal import cli
+from internal import demo
+from internal.datasets import image_io
+from internal.datasets import packed
+from internal.evaluation import vis
 
 PAPER_DTU_STEPS = 43945
 VIEWS_IN_PICTURE = 3
+KINDS = {'color_': 'colour', 'depth_': 'depth'}  # A run's rows in test_views.png: file prefix -> row label.
+TRUTH_FOLDER = 'test_truth'  # The pictured views' ground truth in OUT_DIR (write_truth).
 
 
 def stage_seconds(out_dir: str):
@@ -86,20 +92,50 @@ def trade_table(rows) -> str:
   return '\n'.join(lines)
 
 
+def write_truth(packed_scene: str, out_dir: str) -> int:
+  """Writes the ground truth of the test views that the runs' renders show (test_preds_<run>/color_<id>.png), read
+  from the packed scene they were evaluated on (downsampled to the renders' size, as an eval_factor does), as
+  out_dir/test_truth/color_<id>.png; returns how many."""
+  meta, arrays = packed.read_pack(packed_scene)
+  ids, images = meta['splits']['test']['ids'], packed.decode(arrays, 'test/images')
+  renders = {os.path.basename(p): p for p in glob.glob(os.path.join(out_dir, 'test_preds_*', 'color_*.png'))}
+  os.makedirs(os.path.join(out_dir, TRUTH_FOLDER), exist_ok=True)
+  for name, render in sorted(renders.items()):
+    truth = images[ids.index(_view_id(name))]
+    factor = truth.shape[0] // _image(render).shape[0]
+    vis.save_png(image_io.downsample(truth, factor, 'released'), os.path.join(out_dir, TRUTH_FOLDER, name))
+  return len(renders)
+
+
+def _view_id(name: str) -> int:
+  """The test view id of a render's file name (color_011.png -> 11)."""
+  return int(name.removeprefix('color_').removesuffix('.png'))
+
+
+def _image(path: str) -> np.ndarray:
+  """A PNG as float RGB [h, w, 3] in [0, 1]."""
+  with Image.open(path) as image:
+    return np.asarray(image.convert('RGB'), np.float32) / 255.
+
+
 def picture(out_dir: str, runs) -> str:
-  """test_views.png: per run, its first test views' colour over their depth; '' when no run has views."""
-  blocks = []
-  for run in runs:
-    colour = sorted(glob.glob(os.path.join(out_dir, f'test_preds_{run}', 'color_*.png')))[:VIEWS_IN_PICTURE]
-    if colour:
-      blocks += [np.concatenate([np.asarray(Image.open(p.replace('color_', kind)).convert('RGB')) for p in colour],
-                                1) for kind in ('color_', 'depth_')]
-  if not blocks:
+  """test_views.png: a column per pictured test view (the first run's first views, by id), a row of their ground
+  truth (test_truth/, write_truth) and per run a colour and a depth row, every row and column labelled; '' when no
+  run has views."""
+  rendered = [sorted(glob.glob(os.path.join(out_dir, f'test_preds_{run}', 'color_*.png'))) for run in runs]
+  names = [os.path.basename(p) for p in next((r for r in rendered if r), [])][:VIEWS_IN_PICTURE]
+  if not names:
     return ''
-  width = max(b.shape[1] for b in blocks)
-  blocks = [np.pad(b, ((0, 0), (0, width - b.shape[1]), (0, 0))) for b in blocks]
+  truth = [os.path.join(out_dir, TRUTH_FOLDER, n) for n in names]
+  tiles, rows = ([[_image(p) for p in truth]], ['ground truth']) if all(map(os.path.isfile, truth)) else ([], [])
+  for run in runs:
+    folder = os.path.join(out_dir, f'test_preds_{run}')
+    if all(os.path.isfile(os.path.join(folder, n)) for n in names):
+      tiles += [[_image(os.path.join(folder, n.replace('color_', kind))) for n in names] for kind in KINDS]
+      rows += [f'{run} {label}' for label in KINDS.values()]
   path = os.path.join(out_dir, 'test_views.png')
-  Image.fromarray(np.concatenate(blocks, 0)).save(path)
+  columns = [f'test view {_view_id(n)}' for n in names]
+  vis.save_png(demo.grid(tiles, columns, rows, scale=1) / 255., path)
   return path
 
 
@@ -114,7 +150,8 @@ def report(out_dir: str) -> str:
   rows = trade_rows(out_dir)
   if rows:
     pictured = [r['run'] for r in rows if os.path.isdir(os.path.join(out_dir, f"test_preds_{r['run']}"))]
-    caption = (f'\n\nRows of test_views.png, top to bottom: {", ".join(pictured)} (colour over depth).'
+    caption = (f'\n\nRows of test_views.png, top to bottom: the ground truth, {", ".join(pictured)} (colour over '
+               'depth).'
                if picture(out_dir, pictured) else '')
     parts.append('## Precision trade\n\n' + trade_table(rows) + caption)
   return '\n\n'.join(parts) or f'nothing to report in {out_dir}'

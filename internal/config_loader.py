@@ -78,7 +78,7 @@ def _raise_missing_include(err: OSError) -> None:
 def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = (), backend: str = '') -> Config:
   """Parses gin and returns a validated Config, its precision resolved for backend ('' = this process's)."""
   parse_gin(gin_configs, gin_bindings)
-  config = _expand_home(_apply_warmup_end(Config()))
+  config = _expand_home(_resolve_freq_reg_end(_apply_warmup_end(Config()), gin_bindings))
   validate(config)
   # Concrete from here on: a run records (and its fingerprint checks) the numerics it trained with.
   return dataclasses.replace(config, precision=precision.resolve(config.precision, backend))
@@ -106,6 +106,30 @@ def _apply_warmup_end(config: Config) -> Config:
   if config.warmup_end and not config.freq_reg_end:
     return dataclasses.replace(config, freq_reg_end=config.warmup_end)
   return config
+
+
+def _bound(bindings: Sequence[str], name: str) -> bool:
+  """Whether gin bindings (command-line strings, one or more lines each) bind Config.<name>."""
+  return any(re.search(rf'^\s*Config\.{name}\s*=', b, re.M) for b in bindings)
+
+
+def _resolve_freq_reg_end(config: Config, gin_bindings: Sequence[str]) -> Config:
+  """Config with freq_reg_end = round(freq_reg_end_fraction x max_steps) when a fraction is set. A step count bound
+  in gin_bindings wins over a fraction from the gin files (the later setting, as gin's own rule); binding both there
+  is a ValueError, as is a fraction that is negative or not finite."""
+  fraction = config.freq_reg_end_fraction
+  if fraction is None:
+    return config
+  in_steps, as_fraction = _bound(gin_bindings, 'freq_reg_end'), _bound(gin_bindings, 'freq_reg_end_fraction')
+  if in_steps and as_fraction:
+    raise ValueError(f'Config.freq_reg_end = {config.freq_reg_end} and Config.freq_reg_end_fraction = {fraction} '
+                     'are both bound; expected one of them (T in steps, or as a fraction of Config.max_steps)')
+  if in_steps:
+    return dataclasses.replace(config, freq_reg_end_fraction=None)
+  if isinstance(fraction, bool) or not (isinstance(fraction, (int, float)) and math.isfinite(fraction) and fraction >= 0):
+    raise ValueError(f'Config.freq_reg_end_fraction = {fraction!r}; expected a finite number >= 0 (T as a '
+                     'fraction of Config.max_steps), or None')
+  return dataclasses.replace(config, freq_reg_end=round(fraction * config.max_steps))
 
 
 # Settings that name one of a list of options, each list next to the code that implements it.

@@ -162,6 +162,10 @@ class Config:
   freq_reg: bool = setting(False)
   # T: the step at which every frequency is visible; 0 = no ramp (the paper: 0.9 x steps, 3 views).
   freq_reg_end: int = setting(0, NON_NEGATIVE)
+  # T as a fraction of max_steps (the paper: 0.9 / 0.7 / 0.5 for 3 / 6 / 9 views); None = freq_reg_end in steps.
+  # config_loader resolves it into freq_reg_end when the config loads; a freq_reg_end bound on the command line
+  # (or a study's bindings) wins over a fraction from the gin files.
+  freq_reg_end_fraction: Optional[float] = setting(None, BOOKKEEPING)
   # 'released' (3 features at a time over sin-then-cos) | 'paper' (sin and cos of a band together).
   freq_mask_layout: str = setting('released')
   max_vis_freq_ratio: float = setting(0.)  # Fixed visible-ratio ablation (paper Fig. 2), under freq_reg only; 0 = off.

@@ -24,8 +24,8 @@ import train
 
 REGULARIZERS = {'freq_reg', 'freq_reg_end', 'occ_reg_loss_mult'}
 # The demo's results, per seed, as `python -m tools.demo_seeds` recorded them (results/demo/README.md). The tests
-# below train with the default seed and compare with what was recorded for it (the settings that chose the demo:
-# docs/results.md).
+# below train with the default seed and compare with what was recorded for it (what the demo shows:
+# results/README.md).
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / 'results' / 'demo'
 # On the machine and versions that recorded them a run reproduces them; within this of them, in dB.
 REPRODUCED = .01
@@ -145,6 +145,7 @@ def test_curves_picture_needs_a_recorded_curve(tmp_path, monkeypatch):
     assert picture.format == 'PNG' and picture.size == (640, 440)
 
 
+@pytest.mark.slow
 def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch):
   monkeypatch.chdir(tmp_path)
   bindings = TINY + [f"Config.data_dir = '{tmp_path / 'forward_scene'}'", 'Config.max_steps = 4', 'Config.freq_reg_end = 3',
@@ -193,6 +194,7 @@ def test_the_recorded_results_are_the_demo_over_several_seeds():
   assert json.loads((RESULTS / demo_seeds.SUMMARY).read_text()) == json.loads(json.dumps(demo_seeds.summary(records)))
 
 
+@pytest.mark.slow
 def test_demo_settings_reconstruct_the_scene_from_all_views(tmp_path):
   gin.clear_config()
   config = config_loader.load_config(demo.METHODS['NeRF'], PIPELINE + [
@@ -206,6 +208,7 @@ def test_demo_settings_reconstruct_the_scene_from_all_views(tmp_path):
   check_against_recorded(record['means']['psnr'], lambda r: r['all_views']['means']['psnr'])
 
 
+@pytest.mark.slow
 def test_demo_settings_freenerf_from_few_views_as_recorded(tmp_path):
   """FreeNeRF of the demo (2 views) trained as the demo does; the NeRF it leads is in the recorded results."""
   config = demo.method_config('FreeNeRF', ['Config.compute_lpips = False', f"Config.data_dir = '{tmp_path / 'scene'}'",

@@ -1,12 +1,15 @@
 """tools.demo_seeds: the commands it runs per seed, what it records and summarizes, what it refuses."""
 
 import json
+import os
 import statistics
 import sys
 
 import pytest
 
 from internal import cli
+from internal import demo
+from internal.evaluation import learning_curve
 from tools import demo_seeds
 
 
@@ -81,3 +84,18 @@ def test_a_bad_seed_is_one_line_before_any_work_and_leaves_nothing(tmp_path, mon
   err = capsys.readouterr().err
   assert err.startswith(f'error: {message}') and err.count('\n') == 1, err
   assert not out.exists() and not work.exists()
+
+
+def test_a_seed_records_each_methods_learning_curve(tmp_path, monkeypatch):
+  def trained(argv_list, cwd, log):  # The demo (the first command) leaves each run's learning_curve.csv.
+    for i, cfg in enumerate(demo.method_configs([]).values()):
+      if not os.path.isdir(os.path.join(cwd, cfg.checkpoint_dir)):
+        os.makedirs(os.path.join(cwd, cfg.checkpoint_dir))
+        learning_curve.CurveLog(os.path.join(cwd, cfg.checkpoint_dir), 0).append(
+            {'step': 50, 'psnr': 19.4 + i, 'seconds': 1.5})
+    return 1.
+  monkeypatch.setattr(demo_seeds, 'run_timed', trained)
+  monkeypatch.setattr(demo_seeds, 'means', lambda run, step: {'psnr': 17.})
+  record = demo_seeds.run_seed(7, str(tmp_path))
+  assert record['demo']['learning_curves'] == {name: [{'step': 50, 'psnr': 19.4 + i, 'seconds': 1.5}]
+                                               for i, name in enumerate(demo.METHODS)}

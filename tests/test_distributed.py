@@ -120,6 +120,7 @@ def test_two_processes_train_like_one(tmp_path, scene_dir, one_process):
   assert abs(curve[0]['psnr'] - ref_curve[0]['psnr']) < 1e-3
 
 
+@pytest.mark.slow
 def test_two_processes_killed_after_a_checkpoint_resume_like_one(tmp_path, scene_dir, one_process):
   run = tmp_path / 'killed'
   procs = _launch(scene_dir, run)

@@ -15,6 +15,7 @@ PACK = ['Config.allow_missing_test_views = True', "Config.dtu_mask_path = ''", '
 TINY = device.TINY + PACK + ['Config.batch_size = 64', 'Config.render_chunk_size = 4096', 'Config.occ_reg_range = 4']
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not (SHARED_DATA / 'dtu' / 'dtu_scan24').is_dir(), reason=f'no DTU scan24 under {SHARED_DATA}')
 def test_gpu_check_runs_every_stage_and_reports_the_three_tables(tmp_path):
   scene = tmp_path / 'scan24.npz'
@@ -44,3 +45,5 @@ def test_gpu_check_runs_every_stage_and_reports_the_three_tables(tmp_path):
                   '| bfloat16 | freenerf | pallas | 20 |'):
     assert heading in report
   assert (out / 'test_views.png').stat().st_size > 0 and (out / 'trace_bfloat16_base.json.gz').is_file()
+  assert sorted(p.name for p in (out / 'test_truth').iterdir()) == sorted(
+      p.name for p in (out / 'test_preds_freenerf_bfloat16_pallas').glob('color_*.png'))  # The picture's truth.

@@ -57,6 +57,7 @@ def _skip_unless_resolvable():
     pytest.skip(f'the package index cannot be reached (pip index versions jax-cuda12-plugin: {reason})')
 
 
+@pytest.mark.slow
 def test_the_gpu_requirements_resolve_to_the_constrained_jax_with_its_cuda_plugin(tmp_path):
   _skip_unless_resolvable()
   options = metadata_options()

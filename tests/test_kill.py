@@ -8,6 +8,7 @@ import time
 
 import jax
 import numpy as np
+import pytest
 
 from internal.run import checkpoints
 from internal import datasets
@@ -41,6 +42,7 @@ def _mid_save(folder) -> bool:
   return any('tmp' in n or (n.isdigit() and checkpoints.damage(os.path.join(folder, n))) for n in names)
 
 
+@pytest.mark.slow
 def test_sigkill_at_random_moments_then_resume_equals_a_straight_run(tmp_path, scene_dir):
   run = tmp_path / 'killed'
   bindings = TINY + [f"Config.data_dir = '{scene_dir}'", f"Config.checkpoint_dir = '{run}'", *BINDINGS]

@@ -1,4 +1,4 @@
-"""Layering: the scripts are thin shells over internal/; internal/ and tools/ never import the scripts,
+"""Layering: the scripts are thin shells over internal/; internal/ and tools/ never import the scripts or bench/,
 internal/ never imports tools/, and inside internal/ each stage of the pipeline imports only earlier stages."""
 
 import ast
@@ -8,6 +8,7 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPTS = {'train', 'eval', 'render'}
+BENCH = 'bench'  # The benchmarks sit on top: they import internal/ and tools/, never the other way.
 
 
 def imported_modules(path: pathlib.Path) -> set:
@@ -38,6 +39,11 @@ def test_library_modules_do_not_import_the_scripts(path):
   assert not imported_modules(path) & SCRIPTS
 
 
+@pytest.mark.parametrize('path', _modules('internal') + _modules('tools'), ids=lambda p: str(p.relative_to(ROOT)))
+def test_library_modules_do_not_import_the_benchmarks(path):
+  assert BENCH not in imported_modules(path)
+
+
 @pytest.mark.parametrize('path', _modules('internal'), ids=lambda p: str(p.relative_to(ROOT)))
 def test_internal_does_not_import_tools(path):
   assert 'tools' not in imported_modules(path)
@@ -60,12 +66,23 @@ def stage(module: str) -> str:
 
 
 def internal_imports(path: pathlib.Path) -> set:
-  """Dotted names of the internal modules a file imports (`from internal import x` gives 'internal.x')."""
+  """Dotted names of the internal modules a file imports (`from internal import x` and `import internal.x` give
+  'internal.x'; `from internal.x import f` gives 'internal.x')."""
   names = set()
   for node in ast.walk(ast.parse(path.read_text(), str(path))):
-    if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module.startswith('internal'):
+    if isinstance(node, ast.Import):
+      names.update(a.name for a in node.names if a.name.startswith('internal.'))
+    elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module.startswith('internal'):
       names.update(f'internal.{a.name}' for a in node.names) if node.module == 'internal' else names.add(node.module)
   return names
+
+
+def test_internal_imports_sees_every_import_form(tmp_path):
+  path = tmp_path / 'm.py'
+  path.write_text('import internal.pipeline.loop\nimport internal.models.mlp as mlp\nfrom internal import demo\n'
+                  'from internal.run import checkpoints\nimport internalize\ndef f():\n  import internal.cli\n')
+  assert internal_imports(path) == {'internal.pipeline.loop', 'internal.models.mlp', 'internal.demo',
+                                    'internal.run', 'internal.cli'}
 
 
 def test_stage_of_a_module():

@@ -1,5 +1,6 @@
 """Every path of this repository that the docs, READMEs, docstrings and study files name exists (no dead paths)."""
 
+import ast
 import os
 import re
 
@@ -24,11 +25,41 @@ def _texts():
   return sorted(found)
 
 
+def _defines(module: str, attributes: list) -> bool:
+  """Whether a module file defines a dotted attribute: a top-level function, class, assignment or import, and for a
+  class, its methods and class attributes ('Config.freq_reg_end')."""
+  with open(module) as f:
+    body = ast.parse(f.read(), module).body
+  for name in attributes:
+    found = next((node for node in body if name in _names(node)), None)
+    if found is None:
+      return False
+    body = found.body if isinstance(found, ast.ClassDef) else []
+  return True
+
+
+def _names(node) -> set:
+  """The names a module- or class-level statement binds."""
+  if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+    return {node.name}
+  if isinstance(node, (ast.Assign, ast.AnnAssign)):
+    targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+    return {n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name)}
+  if isinstance(node, (ast.Import, ast.ImportFrom)):
+    return {(a.asname or a.name).split('.')[0] for a in node.names}
+  return set()
+
+
 def _exists(path: str, named_in: str) -> bool:
-  """Whether path exists from the root or beside the file naming it; 'a/b.attr' names a/b.py's attribute."""
+  """Whether path exists from the root or beside the file naming it; 'a/b.attr' names an attribute that a/b.py
+  defines (a function, class, constant; 'a/b.Class.attr' one of that class's)."""
   for candidate in (path, os.path.join(os.path.dirname(named_in), path)):
-    stem, dot, _ = candidate.rpartition('.')
-    if os.path.exists(os.path.join(ROOT, candidate)) or (dot and os.path.isfile(os.path.join(ROOT, stem + '.py'))):
+    if os.path.exists(os.path.join(ROOT, candidate)):
+      return True
+    folder, _, name = candidate.rpartition('/')
+    module, *attributes = name.split('.')
+    source = os.path.join(ROOT, folder, module + '.py')
+    if attributes and os.path.isfile(source) and _defines(source, attributes):
       return True
   return False
 
@@ -45,6 +76,14 @@ def test_the_pattern_takes_paths_and_leaves_patterns_and_placeholders():
   assert named_paths(text) == {'internal/models/encoding.py', 'internal/config_loader.validate'}
   gone = os.path.join('internal', 'encoding.py')  # Moved to internal/models/ long ago (joined: not named here).
   assert _exists('internal/config_loader.validate', 'README.md') and not _exists(gone, 'x.md')
+  assert _exists('internal/configs.Config.freq_reg_end', 'README.md')
+
+
+def test_a_module_attribute_that_the_module_lacks_is_dead():
+  loader, configs = os.path.join('internal', 'config_loader'), os.path.join('internal', 'configs')  # Joined: not named.
+  assert not _exists(loader + '.no_such_function', 'README.md')
+  assert not _exists(configs + '.Config.no_such_field', 'README.md')
+  assert _exists('internal/datasets/loader.mesh_bounds', 'tools/mesh.py')
 
 
 @pytest.mark.parametrize('named_in', _texts())

@@ -123,6 +123,7 @@ def test_the_readme_has_its_command_blocks():
   assert any(name.startswith('docs/') for name, _ in BLOCKS)  # The docs' blocks are run too.
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('index,block', BLOCKS, ids=[name for name, _ in BLOCKS])
 def test_readme_block_runs_as_written(index, block, sandbox):
   missing = [str(path) for name, path in SHARED_SCENES.items() if re.search(rf'\b{name}', block) and

@@ -20,6 +20,7 @@ from internal import demo
 from internal.pipeline import loop
 from tools import provenance
 from tools import tables
+from tools.study import cells_file
 from tools.study import plots as study_plots
 from tools.study import runner as study_lib
 from tools.study import spec as study_spec
@@ -140,14 +141,23 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   exported = json.loads((dest / 'provenance.json').read_text())
   assert exported['study_file']['sha256'] == hashlib.sha256(path.read_bytes()).hexdigest()
   assert exported['command'].startswith('python -m tools.study ') and '--export' in exported['command']
-  for cell, source in exported['cells'].items():
-    record = json.loads((dest / cell / 'metrics.json').read_text())
-    assert json.loads((dest / cell / 'cell.json').read_text())['means']['psnr'] == record['means']['psnr']
-    assert source['commit'].split('+')[0] == provenance.git_commit(str(REPO)).split('+')[0]
-    changed = source['changed_files']  # The tree as the cell found it: a list, empty when clean.
-    assert isinstance(changed, list) and bool(changed) == source['commit'].endswith('+dirty')
-    curve = pathlib.Path(out, 'mini', cell, study_lib.RUN_SUBDIR, 'learning_curve.csv')
-    assert (dest / cell / 'learning_curve.csv').read_text() == curve.read_text()
+  assert 'cells' not in exported and sorted(p.name for p in dest.iterdir() if p.is_dir()) == []  # No cell folders.
+  cells = cells_file.read(str(dest))
+  assert sorted(cells) == sorted(c.cell_id for c in study_spec.cells(study_spec.load(path)))
+  for cell, entry in cells.items():
+    record, line = entry.line['record'], entry.line
+    assert record == json.loads(pathlib.Path(out, 'mini', cell, 'cell.json').read_text())
+    assert record['means'] == line['evaluation']['means'] and line['spec']['gin_bindings'][-1].endswith(
+        f"'{{out}}/mini/{cell}/run'")                                  # The spec without this machine's paths.
+    assert record['commit'].split('+')[0] == provenance.git_commit(str(REPO)).split('+')[0]
+    changed = record['changed_files']  # The tree as the cell found it: a list, empty when clean.
+    assert isinstance(changed, list) and bool(changed) == record['commit'].endswith('+dirty')
+    run = pathlib.Path(out, 'mini', cell, study_lib.RUN_SUBDIR)
+    texts = cells_file.files(line)                           # Each file as the run wrote it.
+    assert texts['learning_curve.csv'] == (run / 'learning_curve.csv').read_bytes().decode()
+    evaluated = run / f'test_preds_step_{record["step"]}'
+    assert texts['metrics.csv'] == (evaluated / 'metrics.csv').read_bytes().decode()
+    assert texts['metrics.json'] == (evaluated / 'metrics.json').read_text()
   assert (dest / 'psnr_vs_step.png').is_file()
   table = (dest / 'table.md').read_text().splitlines()
   assert table[0].startswith('| method | scene | views | step | psnr |') and len(table) == 2 + 4
@@ -289,6 +299,21 @@ def test_reuse_takes_the_exported_cells_with_the_same_settings(ran, tmp_path, ca
   pick = lambda rows: [{k: r[k] for k in columns} for r in rows]
   assert pick(_rows(fresh / 'mini' / 'results.csv')) == pick(_rows(pathlib.Path(out, 'mini', 'results.csv')))
   assert (fresh / 'mini' / 'psnr_vs_step.png').is_file()                 # The learning curves came along.
+  cell = study_spec.cells(study_spec.load(path))[0].cell_id
+  for name in ('metrics.csv', 'metrics.json'):                           # Placed as the run wrote them.
+    placed = fresh / 'mini' / cell / study_lib.RUN_SUBDIR / f'test_preds_step_{STEPS}' / name
+    assert placed.read_bytes() == (pathlib.Path(out, 'mini', cell, study_lib.RUN_SUBDIR, placed.parent.name,
+                                                name).read_bytes())
+  renamed = tmp_path / 'mini_again.toml'                                 # Another study taking the same cells:
+  renamed.write_text(path.read_text().replace('name = "mini"', 'name = "mini_again"'))
+  again = tmp_path / 'again'                                             # its export refers to the first one.
+  assert study_lib.main([str(renamed), '--out', str(tmp_path / 'fresh2'), '--reuse', str(export), '--plots-only',
+                         '--export', str(again)]) == 0
+  assert capsys.readouterr().out.count('reused ') == 4
+  lines = [json.loads(l) for l in (again / 'cells.jsonl').read_text().splitlines()]
+  assert lines and all(l == {'cell': l['cell'], 'same_as': '../export'} for l in lines)
+  assert {c: e.line for c, e in cells_file.read(str(again)).items()} == {
+      c: e.line for c, e in cells_file.read(str(export)).items()}
   changed = tmp_path / 'changed'                                         # An export of another version of the file.
   shutil.copytree(export, changed)
   other_version = tmp_path / 'mini_v2.toml'

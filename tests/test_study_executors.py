@@ -81,6 +81,7 @@ def _run_together(*commands) -> list:
   return outputs
 
 
+@pytest.mark.slow
 def test_two_processes_on_one_folder_train_each_cell_once(reference, tmp_path):
   path, rows = reference
   out = tmp_path / 'two'
@@ -127,6 +128,7 @@ def fixture_cluster():
   shutil.rmtree(temp, ignore_errors=True)
 
 
+@pytest.mark.slow
 def test_ray_beside_a_local_shard_gives_the_local_executors_results(reference, cluster, tmp_path):
   path, rows = reference
   out = tmp_path / 'ray'
@@ -164,6 +166,7 @@ def _latest_step(run_dir):
   return max((int(n) for n in os.listdir(folder) if n.isdigit()), default=None) if folder.is_dir() else None
 
 
+@pytest.mark.slow
 def test_a_killed_worker_is_retried_from_its_checkpoint_and_ctrl_c_stops_cleanly(cluster, tmp_path):
   path = _study(tmp_path, steps=4000, every=200, one_cell=True)
   out, cell = tmp_path / 'out', tmp_path / 'out' / 'mini' / 'freenerf__object'
@@ -238,6 +241,7 @@ def test_a_cell_sent_signal_after_signal_stops_once_saving_the_step_it_stopped_a
   _resumed_from(command, cell, step)
 
 
+@pytest.mark.slow
 def test_the_sbatch_script_runs_a_study_on_a_one_node_allocation(tmp_path):
   pytest.importorskip('ray', reason=NO_RAY)
   path, out, temp = _study(tmp_path, steps=4, every=2, one_cell=True), tmp_path / 'out', tempfile.mkdtemp(prefix='ray')

@@ -6,8 +6,9 @@ A seed is Config.jax_rng_seed (the models' initialization and sampling noise; 20
 own, run as plain `python train.py`). Per seed, each as its own process in <work>/seed_<seed>/, timed:
   the demo: `python train.py [--gin_bindings "Config.jax_rng_seed = <seed>"]`, both methods' test metrics;
   the all-views check (tests/test_demo.py): the demo's NeRF trained on every training view, evaluated without LPIPS.
-Writes <out>/seed_<seed>.json (the metrics, the commands and their seconds, provenance: commit, machine, date and
-this command), then <out>/summary.json and <out>/README.md over every seed_*.json in <out>: per seed and over the
+Writes <out>/seed_<seed>.json (the metrics, each method's learning curve (test PSNR of the curve views against the
+step, as demo_curves.png draws it), the commands and their seconds, provenance: commit, machine, date and this
+command), then <out>/summary.json and <out>/README.md over every seed_*.json in <out>: per seed and over the
 seeds (mean, standard deviation, range) each method's PSNR, SSIM, LPIPS and depth error, FreeNeRF's lead, the
 all-views PSNR and the wall times. Before any work, the seeds are checked (whole numbers, each once, seeds jax and
 numpy take), and a seed already recorded in <out> is refused, as is a work folder already there (its times would
@@ -32,6 +33,7 @@ from internal import cli
 from internal import demo
 from internal.configs import Config
 from internal.evaluation import evaluate
+from internal.evaluation import learning_curve
 from internal.evaluation import results
 from tools import provenance
 from tools.study import stats as study_stats
@@ -90,9 +92,12 @@ def run_seed(seed: int, work: str, extra=()) -> dict:
   all_views_seconds = run_timed(cmds['all_views'], cwd, log)
   cfgs = demo.method_configs(extra)
   step = cfgs['FreeNeRF'].max_steps
+  runs = {name: os.path.join(cwd, cfg.checkpoint_dir) for name, cfg in cfgs.items()}
   return {'seed': seed, 'step': step,
           'demo': {'command': shown(cmds['demo']), 'seconds': demo_seconds,
-                   'means': {name: means(os.path.join(cwd, cfg.checkpoint_dir), step) for name, cfg in cfgs.items()}},
+                   'means': {name: means(run, step) for name, run in runs.items()},
+                   'learning_curves': {name: learning_curve.read_rows(learning_curve.csv_path(run))
+                                       for name, run in runs.items()}},
           'all_views': {'commands': [shown(argv) for argv in cmds['all_views']], 'seconds': all_views_seconds,
                         'means': means(os.path.join(cwd, 'out', 'all_views'), step)}}
 

@@ -25,7 +25,7 @@ import time
 from typing import Dict, List, Optional, Tuple
 
 from tools import provenance
-from tools.study import export as study_export
+from tools.study import cells_file
 from tools.study import spec as study_spec
 
 PROBE_STEPS = 6  # Timed train steps after the first (compiling) one.
@@ -121,7 +121,7 @@ def device_bench(path: Optional[str] = None) -> Tuple[str, dict]:
     path = found[0]
   if not os.path.isfile(path):
     raise ValueError(f'--device-bench {path}: no such file; expected a JSON written by python -m bench.device')
-  record = study_export.read_json(path)
+  record = cells_file.read_json(path)
   if not isinstance(record.get('results'), dict) or not isinstance(record.get('batch_size'), int):
     raise ValueError(f'--device-bench {path}: no results per precision or batch_size; expected a JSON written by '
                      'python -m bench.device')

@@ -1,48 +1,40 @@
 """Copies a study's results into a folder meant to be committed: what was run, on what, and what came out.
 
-<dest>/ gets results.csv, the statistics over seeds (summary.csv, comparisons.csv and .md) and the plots, per cell <cell>/cell.json, the evaluation's metrics.json and metrics.csv and the run's
-learning_curve.csv where recorded (no checkpoints), a side-by-side picture per scene (ground truth, then each
-method's render of the first evaluated test views, of the first seed), table.md (per cell its metrics, wall times
-and commit) and provenance.json: the command, the study file's path and SHA-256, the commit each cell ran at
-with the tracked files that differed from it (a commit ending '+dirty'), the machine and the package versions.
+<dest>/ gets results.csv, the statistics over seeds (summary.csv, comparisons.csv and .md) and the plots, cells.jsonl
+(a line per finished cell: its gin, its cell.json, its evaluation's metrics.json and its learning curve; a cell
+reused from another study's export a reference to that export's line: tools/study/cells_file.py), a side-by-side
+picture per scene (ground truth, then each method's render of the first evaluated test views, of the first seed),
+table.md (per cell its metrics, wall times and commit) and provenance.json: the command, the study file's path and
+SHA-256, the machine and the package versions (each cell's commit, with the tracked files that differed from it,
+is in its line). No checkpoints, no renders.
 """
 
 import glob
 import json
 import os
 import shutil
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import numpy as np
 from PIL import Image
 
 from internal.evaluation import vis
 from tools import provenance
+from tools.study import cells_file
 from tools.study import spec as study_spec
 
 RUN_SUBDIR = 'run'    # A cell's run directory (Config.checkpoint_dir) inside its folder.
-METRICS_FILES = ('metrics.json', 'metrics.csv')  # What a cell's evaluation wrote that an export keeps.
+# Written by --reuse into a cell it placed: {"export": the export's absolute path}, so that an export of this study
+# refers to that export's line instead of copying it when the cell is another study's.
+REUSED_FILE = 'reused_from.json'
 PICTURE_VIEWS = 2     # Test views per scene in the side-by-side picture.
 MIN_TILE_WIDTH = 160  # Narrower renders are upscaled (nearest) so that the column titles fit.
-PROVENANCE_FILE = 'provenance.json'
+PROVENANCE_FILE = cells_file.PROVENANCE_FILE
 REPO = study_spec.REPO
 TABLE_FILE = 'table.md'
 # Columns of table.md, where the cells report them: DTU's object-masked metrics first, as the paper's tables.
 TABLE_METRICS = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'psnr', 'ssim', 'lpips', 'depth_mae',
                  'pseudo_depth_mae', 'pseudo_depth_within_5pct')
-
-
-def read_json(path: str) -> dict:
-  """A study's JSON record (cell.json, metrics.json) as a dict; ValueError naming the file when it is not one."""
-  try:
-    with open(path) as f:
-      record = json.load(f)
-  except (UnicodeDecodeError, json.JSONDecodeError) as e:
-    raise ValueError(f'{path}: not valid JSON ({e}); expected the record tools.study wrote (a merge conflict? '
-                     'keep one side, or delete the cell\'s folder to run it again)') from None
-  if not isinstance(record, dict):
-    raise ValueError(f'{path}: a JSON {type(record).__name__}; expected the record (an object) tools.study wrote')
-  return record
 
 
 def eval_dir(cell_path: str, step: int) -> str:
@@ -51,17 +43,32 @@ def eval_dir(cell_path: str, step: int) -> str:
   return evaluate.output_dir(os.path.join(cell_path, RUN_SUBDIR), step)
 
 
-def _copy_cell(cell_path: str, cell: dict, dest: str) -> None:
-  """Copies a finished cell's cell.json, its evaluation's metrics files and its learning curve into
-  dest/<cell id>/."""
+def _cell_line(study: study_spec.Study, cell: study_spec.Cell, path: str, record: dict, dest: str) -> dict:
+  """A finished cell's line of cells.jsonl: a reference when --reuse took it from another study's export that
+  still holds the same run (its path relative to dest), else its spec, record, evaluation and learning curve."""
   from internal.evaluation import learning_curve  # pylint: disable=import-outside-toplevel
-  target = os.path.join(dest, cell['cell'])
-  os.makedirs(target, exist_ok=True)
-  shutil.copy2(os.path.join(cell_path, 'cell.json'), target)
-  sources = [os.path.join(eval_dir(cell_path, cell['step']), name) for name in METRICS_FILES]
-  for source in sources + [learning_curve.csv_path(os.path.join(cell_path, RUN_SUBDIR))]:
-    if os.path.isfile(source):
-      shutil.copy2(source, target)
+  metrics = os.path.join(eval_dir(path, record['step']), cells_file.METRICS_FILE)
+  curve = learning_curve.csv_path(os.path.join(path, RUN_SUBDIR))
+  entry = cells_file.line(cell.cell_id, record, cells_file.read_json(metrics) if os.path.isfile(metrics) else None,
+                          _text(curve), cells_file.spec(study, cell))
+  source = _reused_from(path)
+  if source and record.get('study') != study.name:
+    return cells_file.reference(dest, entry, source) or entry
+  return entry
+
+
+def _text(path: str) -> Optional[str]:
+  """A file's text as written (line ends kept), None when absent."""
+  if not os.path.isfile(path):
+    return None
+  with open(path, newline='') as f:
+    return f.read()
+
+
+def _reused_from(cell_path: str) -> Optional[str]:
+  """The export --reuse took a cell from (its REUSED_FILE), None for a cell that ran here."""
+  marker = os.path.join(cell_path, REUSED_FILE)
+  return cells_file.read_json(marker)['export'] if os.path.isfile(marker) else None
 
 
 def _depth_row(folders: List[str], view_id: int, image: np.ndarray):
@@ -176,14 +183,14 @@ def _write(study: study_spec.Study, study_file: str, study_folder: str, dest: st
   for name in sorted(os.listdir(study_folder)):
     if name.endswith(('.csv', '.png', '.md')):
       shutil.copy2(os.path.join(study_folder, name), dest)
-  finished, paths = [], {}
+  finished, paths, lines = [], {}, []
   for cell in study_spec.cells(study):
     path = os.path.join(study_folder, cell.cell_id)
     if os.path.isfile(os.path.join(path, 'cell.json')):
-      with open(os.path.join(path, 'cell.json')) as f:
-        finished.append(json.load(f))
+      finished.append(cells_file.read_json(os.path.join(path, 'cell.json')))
       paths[cell.cell_id] = path
-      _copy_cell(path, finished[-1], dest)
+      lines.append(_cell_line(study, cell, path, finished[-1], dest))  # Beside the final dest: same references.
+  cells_file.write(dest, lines)
   pictures = []
   for scene in dict.fromkeys(c['scene'] for c in finished):
     cells = _picture_cells([c for c in finished if c['scene'] == scene], paths, _seeds(study))
@@ -197,10 +204,7 @@ def _write(study: study_spec.Study, study_file: str, study_folder: str, dest: st
     f.write(markdown_table(finished))
   record = {'command': command, 'machine': provenance.machine(),
             'study_file': {'path': os.path.relpath(os.path.abspath(study_file), REPO),
-                           'sha256': provenance.file_sha256(study_file)},
-            'cells': {c['cell']: {k: c.get(k) for k in ('commit', 'changed_files', 'machine', 'train_seconds',
-                                                        'eval_seconds', 'step')}
-                      for c in finished}}
+                           'sha256': provenance.file_sha256(study_file)}}
   with open(os.path.join(dest, PROVENANCE_FILE), 'w') as f:
     json.dump(record, f, indent=1)
   return pictures

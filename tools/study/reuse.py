@@ -1,21 +1,25 @@
 """Finished cells taken from an earlier export (`tools.study --reuse DIR`), so that a study moved to another machine,
 or whose run folders are gone, runs only the cells it lacks.
 
-A cell of the export is reused when the cell has not finished here and the study file the export ran (named in its
-provenance.json by path and SHA-256, found in this checkout or its git history) gives it the same gin configs and
-bindings as this study file does. Its numbers are the evaluation's: the export's cell.json
-must agree with the metrics.json beside it (step, completeness and every mean), else the command stops with one line
-naming both files; a cell exported without metrics.json is not reused (it runs here). Its cell.json, the evaluation's metrics.json and
-metrics.csv and its learning curve go where a run here would have written them; its checkpoints and renders are not
-in an export, so a reused cell cannot resume training and appears in no side-by-side picture.
+A cell of the export (its cells.jsonl, or a folder per cell in exports written before it: tools/study/cells_file.py)
+is reused when the cell has not finished here and the study file the export ran (named in its provenance.json by
+path and SHA-256, found in this checkout or its git history) gives it the same settings as this study file does:
+the same gin configs and bindings, or ones that load to the same Config (T given in steps or as a fraction, say).
+Its numbers are the evaluation's: the cell's record must agree with its evaluation's metrics.json (step,
+completeness and every mean), else the command stops with one line naming both; a cell exported without its
+evaluation is not reused (it runs here). Its cell.json, the evaluation's metrics.json and metrics.csv and its
+learning curve go where a run here would have written them, with a note of the export it came from (an export of
+this study then refers to that export's line); its checkpoints and renders are not in an export, so a reused cell
+cannot resume training and appears in no side-by-side picture.
 """
 
 import json
 import os
-import shutil
 from typing import List, Optional
 
+from internal import atomic
 from tools import provenance
+from tools.study import cells_file
 from tools.study import export as study_export
 from tools.study import spec as study_spec
 
@@ -27,7 +31,7 @@ def exported_study(export_dir: str) -> study_spec.Study:
   if not os.path.isfile(provenance_path):
     raise study_spec.StudyError(f'--reuse {export_dir}: no {study_export.PROVENANCE_FILE} there; give the folder '
                                 'that tools.study --export wrote')
-  source = study_export.read_json(provenance_path).get('study_file') or {}
+  source = cells_file.read_json(provenance_path).get('study_file') or {}
   if not {'path', 'sha256'} <= source.keys():
     raise study_spec.StudyError(f'--reuse {export_dir}: its {study_export.PROVENANCE_FILE} names no study file '
                                 '(path and sha256); export it again with this version of tools.study')
@@ -39,41 +43,60 @@ def exported_study(export_dir: str) -> study_spec.Study:
 
 
 def _same_settings(study, exported, cell, out: str, data_root: str) -> bool:
-  """Whether both study files give the cell (one of both studies') the same gin configs and bindings."""
+  """Whether both study files give the cell (one of both studies') the same gin configs and bindings, or gin that
+  loads to the same Config (the run's fingerprint)."""
   run_dir = os.path.join(out, cell.cell_id)
-  return (study_spec.cell_gin(study, cell, out, data_root, run_dir)
-          == study_spec.cell_gin(exported, cell, out, data_root, run_dir))
+  ours = study_spec.cell_gin(study, cell, out, data_root, run_dir)
+  theirs = study_spec.cell_gin(exported, cell, out, data_root, run_dir)
+  if ours == theirs:
+    return True
+  fingerprint = _fingerprint(*ours)
+  return fingerprint is not None and fingerprint == _fingerprint(*theirs)
 
 
-def _copy_cell(source: str, target: str, step: int) -> None:
-  """Places an exported cell's files in the cell folder target as a finished run would have left them."""
-  from internal.evaluation import learning_curve  # pylint: disable=import-outside-toplevel  (jax: only when used)
-  evaluated = study_export.eval_dir(target, step)
-  os.makedirs(evaluated, exist_ok=True)
-  curve = learning_curve.csv_path(os.path.join(target, study_export.RUN_SUBDIR))
-  destinations = [os.path.join(evaluated, name) for name in study_export.METRICS_FILES] + [curve]
-  for dest in destinations:
-    exported = os.path.join(source, os.path.basename(dest))
-    if os.path.isfile(exported):
-      shutil.copy2(exported, dest)
-  shutil.copy2(os.path.join(source, 'cell.json'), target)  # Last: cell.json marks the cell finished.
-
-
-def checked_record(source: str) -> Optional[dict]:
-  """The exported cell.json of folder source once checked against its metrics.json; None without metrics.json.
-  ValueError naming both files when they disagree."""
-  record = study_export.read_json(os.path.join(source, 'cell.json'))
-  metrics_path = os.path.join(source, 'metrics.json')
-  if not os.path.isfile(metrics_path):
+def _fingerprint(configs: list, bindings: list) -> Optional[dict]:
+  """The fingerprint of the Config that gin loads to (internal/run/run_dir.py), None when it does not load."""
+  import gin  # pylint: disable=import-outside-toplevel  (jax: only when the texts differ)
+  from internal import config_loader  # pylint: disable=import-outside-toplevel
+  from internal.run import run_dir  # pylint: disable=import-outside-toplevel
+  gin.clear_config()
+  try:
+    return run_dir.fingerprint(config_loader.load_config(configs, bindings))
+  except (ValueError, OSError, KeyError, TypeError):
     return None
-  metrics = study_export.read_json(metrics_path)
+  finally:
+    gin.clear_config()
+
+
+def _place(entry: cells_file.Entry, target: str) -> None:
+  """Writes an exported cell's files into the cell folder target as a finished run would have left them."""
+  from internal.evaluation import learning_curve  # pylint: disable=import-outside-toplevel  (jax: only when used)
+  texts = cells_file.files(entry.line)
+  evaluated = study_export.eval_dir(target, entry.line['record']['step'])
+  os.makedirs(evaluated, exist_ok=True)
+  curve_folder = os.path.dirname(learning_curve.csv_path(os.path.join(target, study_export.RUN_SUBDIR)))
+  places = {cells_file.METRICS_FILE: evaluated, cells_file.METRICS_TABLE: evaluated, cells_file.CURVE_FILE: curve_folder}
+  for name, folder in places.items():
+    if name in texts:
+      atomic.write_text(os.path.join(folder, name), texts[name])
+  atomic.write_text(os.path.join(target, study_export.REUSED_FILE),
+                    json.dumps({'export': os.path.abspath(entry.export)}))
+  atomic.write_text(os.path.join(target, cells_file.CELL_FILE), texts[cells_file.CELL_FILE])  # Last: finished.
+
+
+def checked(entry: cells_file.Entry) -> bool:
+  """Whether an exported cell has its evaluation (False: not reused); ValueError naming where its record and its
+  evaluation were read when they disagree on the step, completeness or a mean."""
+  record, metrics = entry.line['record'], entry.line.get('evaluation')
+  if metrics is None:
+    return False
   for key in ('step', 'complete', 'means'):
     if json.dumps(record.get(key), sort_keys=True) != json.dumps(metrics.get(key), sort_keys=True):
       differ = _first_difference(record.get(key), metrics.get(key))
-      raise ValueError(f'--reuse: {os.path.join(source, "cell.json")} says {key} {differ[0]} but the evaluation\'s '
-                       f'{metrics_path} says {differ[1]}; expected the numbers the evaluation wrote (restore the '
-                       'export from git, or delete that cell\'s folder from the export to run it here)')
-  return record
+      raise ValueError(f'--reuse: {entry.where["record"]} says {key} {differ[0]} but the evaluation\'s '
+                       f'{entry.where["evaluation"]} says {differ[1]}; expected the numbers the evaluation wrote '
+                       '(restore the export from git, or delete that cell from the export to run it here)')
+  return True
 
 
 def _first_difference(a, b) -> tuple:
@@ -90,23 +113,24 @@ def reuse(study: study_spec.Study, export_dir: str, study_folder: str, data_root
   cell reused or passed over; returns the reused cell ids."""
   exported = exported_study(export_dir)
   exported_ids = {c.cell_id for c in study_spec.cells(exported)}
+  entries = cells_file.read(export_dir)
   out = os.path.dirname(study_folder)
   chosen = []
   for cell in study_spec.cells(study):
-    source, target = os.path.join(export_dir, cell.cell_id), os.path.join(study_folder, cell.cell_id)
-    if not os.path.isfile(os.path.join(source, 'cell.json')) or os.path.isfile(os.path.join(target, 'cell.json')):
+    entry, target = entries.get(cell.cell_id), os.path.join(study_folder, cell.cell_id)
+    if entry is None or os.path.isfile(os.path.join(target, cells_file.CELL_FILE)):
       continue
     if cell.cell_id not in exported_ids or not _same_settings(study, exported, cell, out, data_root):
       print(f'warning: {cell.cell_id} not reused: {export_dir} ran it with other settings')
       continue
-    record = checked_record(source)
-    if record is None:
-      print(f'warning: {cell.cell_id} not reused: {source} has no metrics.json to check its cell.json against')
+    if not checked(entry):
+      print(f'warning: {cell.cell_id} not reused: {entry.where["evaluation"]} is missing, so its record cannot '
+            'be checked against it')
       continue
-    chosen.append((cell, source, target, record))
+    chosen.append((cell, entry, target))
   reused = []
-  for cell, source, target, record in chosen:  # Copied once every cell is checked: a bad export copies nothing.
-    _copy_cell(source, target, record['step'])
+  for cell, entry, target in chosen:  # Written once every cell is checked: a bad export writes nothing.
+    _place(entry, target)
     reused.append(cell.cell_id)
-    print(f'reused {cell.cell_id} from {export_dir} (commit {(record.get("commit") or "unknown")[:8]})')
+    print(f'reused {cell.cell_id} from {export_dir} (commit {(entry.line["record"].get("commit") or "unknown")[:8]})')
   return reused

@@ -12,7 +12,8 @@ include data loading and compilation), steps/s, XLA's flop count of one train st
 and, on accelerators, the device's peak bytes. Its output goes to <cell>/log.txt.
 Resumable: a cell with cell.json is skipped; a half-trained one resumes from its newest checkpoint. A cell process
 claims its cell first (tools/study/claim.py), so any number of runners may share a study folder. --reuse DIR
-takes the finished cells of an earlier export (another machine's, say) instead of running them again.
+takes the finished cells of an earlier export (another machine's, say) instead of running them again; --export DIR
+writes one: results, plots, pictures and cells.jsonl, a line per cell (tools/study/export.py, cells_file.py).
 --jobs N runs N cells at a time; --gpus gives one GPU per worker (CUDA_VISIBLE_DEVICES), --shard K/N takes
 every N-th cell from K (one command per host on a shared folder); --executor ray runs the cells as Ray tasks
 (tools/study/ray_executor.py, docs/cluster.md). At the end (also after failures) the
@@ -43,6 +44,7 @@ from internal import atomic
 from internal import cli
 from tools import provenance
 from tools.study import budget as study_budget
+from tools.study import cells_file
 from tools.study import claim as study_claim
 from tools.study import cost as study_cost
 from tools.study import export as study_export
@@ -74,7 +76,7 @@ def cell_dir(study: study_spec.Study, cell: study_spec.Cell, out: str) -> str:
 def read_cell(path: str) -> Optional[dict]:
   """The cell.json of a cell folder, or None when the cell has not finished; ValueError naming a malformed one."""
   path = os.path.join(path, CELL_FILE)
-  return study_export.read_json(path) if os.path.isfile(path) else None
+  return cells_file.read_json(path) if os.path.isfile(path) else None
 
 
 def write_spec(study: study_spec.Study, cell: study_spec.Cell, out: str, data_root: str,
@@ -380,8 +382,8 @@ def _parser() -> argparse.ArgumentParser:
   parser.add_argument('--plots-only', action='store_true', help='only gather results.csv and the plots')
   parser.add_argument('--gin_bindings', action='extend', nargs='+', default=[], metavar='BINDING',
                       help='gin bindings appended to every cell (after the study file\'s own)')
-  parser.add_argument('--export', metavar='DIR', help='after the run, copy results, plots, per-cell metrics, '
-                      'side-by-side pictures and provenance (no checkpoints) into DIR, to be committed')
+  parser.add_argument('--export', metavar='DIR', help='after the run, copy results, plots, cells.jsonl (a line per '
+                      'cell), side-by-side pictures and provenance (no checkpoints) into DIR, to be committed')
   parser.add_argument('--reuse', metavar='DIR', help='first take the finished cells of an earlier --export DIR '
                       'that this study lacks and runs with the same settings (tools/study/reuse.py)')
   parser.add_argument('--run-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)

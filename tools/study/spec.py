@@ -6,7 +6,7 @@ A study file (see studies/*.toml):
   bindings = ["MLP.net_width = 16"]       # applied to every cell after the method's configs
   [methods.<m>]  configs = [...]  bindings = [...]
   [scenes.<s>]   bindings = [...]
-  [[axis]]  name = "T"  binding = "Config.freq_reg_end"  values = [100, 500]          # a swept binding, or
+  [[axis]]  name = "T"  binding = "Config.freq_reg_end_fraction"  values = [0.1, 0.5]   # a swept binding, or
   [[axis]]  name = "M"  points = [{label = "M=5", value = 5, bindings = [...], configs = [...]}, ...]
   seeds = 3  (or [0, 1, 2])                 # replicates: the seed axis, last; binds both of a cell's seeds
   [[compare]]  a = "freenerf"  b = "mipnerf"  axis = "method"   # paired a - b over seeds and scenes (95% CI)
