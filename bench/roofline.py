@@ -86,6 +86,45 @@ def floor(layers, precision: str, tflops: float, tbytes_per_s: float):
           'memory_ms': total_bytes / tbytes_per_s / 1e9, 'floor_ms': sum(per_layer)}
 
 
+def _copy_columns(depth: int, tile_depth: int) -> int:
+  """Activation columns the fused layer's default moves to make a [R, depth] input whole tiles (read the parts,
+  write the padded copy) and reads again as padding (forward and dx)."""
+  padded = -(-depth // tile_depth) * tile_depth
+  return depth + padded + 2 * (padded - depth)
+
+
+def pass_savings(mlp, tile_depth: int = 128) -> dict:
+  """{step variant: passes of a [R, net_width] activation it leaves out of a step, over R rows of every level}:
+  the fused layers' counts of docs/benchmarks.md ('Fewer passes over the activations'), from the MLP's shapes."""
+  width, trunk = mlp.net_width, mlp.net_depth
+  shapes = {name: i for name, i, _ in mlp.layer_shapes()}
+  first = shapes['Dense_0']
+  skips = [shapes[f'Dense_{i + 1}'] for i in range(trunk - 1) if shapes[f'Dense_{i + 1}'] > width]
+  # Skip layers: the joined input copied and padded, its padded dx sliced back to the ReLU's columns (read, write);
+  # the first layer: the encoding padded. Reading the two parts in place costs a second weight-gradient kernel (the
+  # output gradient and the output read again: 2 passes) on each skip layer.
+  columns = sum(_copy_columns(k, tile_depth) + -(-k // tile_depth) * tile_depth + width for k in skips)
+  two_inputs = (columns + _copy_columns(first, tile_depth)) / width - 2 * len(skips)
+  mask_at_store = trunk - 1  # Each trunk layer whose output feeds the next: 8 -> 7 passes.
+  return {'pallas_mask_at_store': mask_at_store, 'pallas_two_inputs': two_inputs,
+          # Both, and the skip layers' second weight-gradient kernels load their output gradient masked already.
+          'pallas_fewer_passes': mask_at_store + two_inputs + len(skips),
+          'folded_bias': trunk,  # At most: the ReLU mask fused into the products, no bias pass (1 a trunk layer).
+          'folded_bias_cublaslt': 3 * trunk}  # At most: 2 more a trunk layer with ReLU in the matmul's epilogue.
+
+
+def savings_table(mlp, rows: int) -> str:
+  """Markdown: per variant the passes saved a step and their bytes and milliseconds at each GPU's bandwidth."""
+  pass_bytes = rows * mlp.net_width * ACTIVATION_BYTES['bfloat16']
+  lines = [f'| variant | passes saved a step | GB | ' + ' | '.join(f'{gpu} ms' for gpu in GPUS) + ' |',
+           '|---' * (3 + len(GPUS)) + '|']
+  for variant, passes in pass_savings(mlp).items():
+    gb = passes * pass_bytes / 1e9
+    lines.append(f'| {variant} | {passes:.1f} | {gb:.1f} | ' +
+                 ' | '.join(f"{gb / rates['hbm']:.1f}" for rates in GPUS.values()) + ' |')
+  return '\n'.join(lines)
+
+
 def gpu_of(device_kind: str) -> str:
   """The GPUS key of a jax device_kind ('NVIDIA H200', 'NVIDIA H100 80GB HBM3'), or '' for another device."""
   return next((gpu for gpu in GPUS if gpu.split()[0] in device_kind), '')
@@ -140,13 +179,21 @@ def main(argv=None):
   parser.add_argument('--out', default='', help='also write the tables (markdown) here')
   args = parser.parse_args(argv)
 
-  def layers_of(batch_size):
+  def model_of(batch_size):
     config = common.gin_config([args.gin_configs], [], batch_size=batch_size)
-    return step_layers(config, registry.build(config.model, white_background=config.white_background))
-  layers = layers_of(args.batch_size)
+    return config, registry.build(config.model, white_background=config.white_background)
+
+  def layers_of(batch_size):
+    return step_layers(*model_of(batch_size))
+  config, model = model_of(args.batch_size)
+  layers = step_layers(config, model)
   command = cli.command_line('bench.roofline', argv)
+  rows = config.batch_size * model.num_samples * model.num_levels
   text = (f'`{command}`\n\n{sum(l.flops() for l in layers) / args.batch_size / 1e9:.3f} GFLOP of matmuls a ray, '
           f'batch {args.batch_size}:\n\n' + table(layers, GPUS))
+  text += (f'\n\nWhat the step variants that leave passes out should save (bfloat16; a pass is one read or write of '
+           f'a [{rows:,}, {model.mlp.net_width}] activation, {rows * model.mlp.net_width * 2 / 1e9:.2f} GB; '
+           'upper bounds where XLA must fuse what the variant allows):\n\n' + savings_table(model.mlp, rows))
   if args.measured:
     text += '\n\nMeasured steps against the floor:\n\n' + measured_table(layers_of, args.measured)
   print(text)

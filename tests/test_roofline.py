@@ -27,6 +27,18 @@ def test_a_layers_flops_and_bytes_by_hand():
   assert roofline.Layer('enc', 10, 4, 3, constant_inputs=4).min_bytes(2) == 2 * 10 * 7 * 2  # No input gradient.
 
 
+def test_the_passes_the_fused_variants_leave_out_of_the_paper_step_by_hand():
+  config = common.gin_config([roofline.PAPER_CONFIG], [], batch_size=64)
+  saved = roofline.pass_savings(registry.build(config.model).mlp)
+  # 8 trunk layers of 256, the encoding 99 wide, the skip layer's input 99 + 256 = 355, tiles 128 deep.
+  skip = (355 + 384) + (384 + 256) + 2 * (384 - 355)  # Joined and padded; its dx sliced back; padding read twice.
+  first = (99 + 128) + 2 * (128 - 99)
+  assert saved['pallas_mask_at_store'] == 7 and saved['folded_bias'] == 8 and saved['folded_bias_cublaslt'] == 24
+  assert saved['pallas_two_inputs'] == pytest.approx((skip + first) / 256 - 2)  # A second dW kernel: 2 passes.
+  assert saved['pallas_fewer_passes'] == pytest.approx(7 + (skip + first) / 256 - 1)
+  assert '| pallas_fewer_passes | 12.7 | 6.8 |' in roofline.savings_table(registry.build(config.model).mlp, 1 << 20)
+
+
 def test_the_hand_count_is_xlas_count_of_the_traced_paper_step_within_its_element_wise_work():
   config = common.gin_config([roofline.PAPER_CONFIG], [], batch_size=64)
   rays = random_rays(0, 64)
