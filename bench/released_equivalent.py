@@ -12,6 +12,7 @@ import flax.linen as nn
 import jax.numpy as jnp
 
 from internal.models import encoding
+from internal.models import dense
 from internal.models import mip_nerf
 
 
@@ -28,10 +29,10 @@ class ReleasedMLP(mip_nerf.MLP):
       """Released trunk on one sample: concatenated skip input, density and features."""
       x = enc = encoding.integrated_pos_enc(mean, cov, self.min_deg_point, self.max_deg_point) * mask
       for i in range(self.net_depth):
-        x = self.net_activation(mip_nerf.dense(self.layers[f'Dense_{i}'], x))
+        x = self.net_activation(dense.dense(self.layers[f'Dense_{i}'], x))
         if self._skip_after(i):
           x = jnp.concatenate([x, enc], axis=-1)
-      raw = mip_nerf.dense(self.layers[f'Dense_{self.net_depth}'], x)[0] + noise
+      raw = dense.dense(self.layers[f'Dense_{self.net_depth}'], x)[0] + noise
       return self.density_activation(raw + self.density_bias), x
 
     (density, x), grad = jax.vmap(jax.value_and_grad(density_one, has_aux=True))(
@@ -40,10 +41,10 @@ class ReleasedMLP(mip_nerf.MLP):
         jnp.linalg.norm(grad, axis=-1, keepdims=True), 1e-7))
     view = encoding.pos_enc(viewdirs, 0, self.deg_view, append_identity=True)
     view = jnp.broadcast_to(view[:, None], means.shape[:-1] + view.shape[-1:]).reshape(num, -1)
-    x = mip_nerf.dense(self.layers[f'Dense_{self.net_depth + 1}'], x)
+    x = dense.dense(self.layers[f'Dense_{self.net_depth + 1}'], x)
     x = jnp.concatenate([x, view * tile(mask_view, view.shape[-1])], axis=-1)
-    x = self.net_activation(mip_nerf.dense(self.layers[f'Dense_{self.net_depth + 2}'], x))
-    rgb = self.rgb_activation(mip_nerf.dense(self.layers[f'Dense_{self.net_depth + 3}'], x))
+    x = self.net_activation(dense.dense(self.layers[f'Dense_{self.net_depth + 2}'], x))
+    rgb = self.rgb_activation(dense.dense(self.layers[f'Dense_{self.net_depth + 3}'], x))
     rgb = rgb * (1 + 2 * self.rgb_padding) - self.rgb_padding
     return rgb.reshape(means.shape), density.reshape(means.shape[:-1])
 

@@ -194,29 +194,6 @@ def test_model_and_released_equivalent_mlp_take_the_mlp_bindings_and_their_degre
   np.testing.assert_allclose(theirs, ours, atol=1e-5)
 
 
-def test_a_bias_folded_into_its_kernel_as_a_row_equals_float64_and_passes_the_ones_column_on():
-  rng = np.random.default_rng(3)
-  hidden, enc, g = (rng.normal(size=s).astype(np.float32) for s in ((50, 16), (50, 7), (50, 12)))
-  layer = {'kernel': jnp.asarray(rng.normal(size=(23, 12)), jnp.float32),
-           'bias': jnp.asarray(rng.normal(size=12), jnp.float32)}
-
-  def folded(layer, hidden, enc):  # The skip layer's form: the ones column after the hidden part, then enc.
-    kernel = mip_nerf.folded_kernel(layer, 16, ones_out=True)
-    return jax.nn.relu(sum(mip_nerf.matmuls(kernel, mip_nerf.with_ones(hidden), enc, precision='highest')))
-  out, pullback = jax.vjp(folded, layer, jnp.asarray(hidden), jnp.asarray(enc))
-  grads, dhidden, _ = pullback(jnp.concatenate([g, jnp.full((50, mip_nerf.FOLD_PAD), 5.)], axis=-1))
-  x = np.concatenate([hidden, enc], axis=-1).astype(np.float64)
-  kernel, bias = (np.asarray(layer[k], np.float64) for k in ('kernel', 'bias'))
-  pre = x @ kernel + bias
-  masked = g * (pre > 0)
-  assert out.shape == (50, 12 + mip_nerf.FOLD_PAD)
-  np.testing.assert_allclose(out[:, :12], np.maximum(pre, 0), rtol=1e-6, atol=1e-6)
-  np.testing.assert_array_equal(out[:, 12:], np.tile([1.] + [0.] * (mip_nerf.FOLD_PAD - 1), (50, 1)))
-  np.testing.assert_allclose(grads['kernel'], x.T @ masked, rtol=1e-6, atol=1e-5)
-  np.testing.assert_allclose(grads['bias'], masked.sum(0), rtol=1e-6, atol=1e-5)  # The kernel's ones row.
-  np.testing.assert_allclose(dhidden, (masked @ kernel.T)[:, :16], rtol=1e-6, atol=1e-5)
-
-
 def _rendered(kernel, precision, bindings=()):
   """Fine rgb, weight gradients and coarse normals of a model with 3 hidden layers, the skip into the third."""
   gin.parse_config(TINY + ['MLP.net_depth = 3', 'MLP.skip_layer = 1', f"MLP.dense_kernel = '{kernel}'",

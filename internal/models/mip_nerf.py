@@ -9,6 +9,7 @@ import jax.numpy as jnp
 from jax import random
 
 from internal.models import activations
+from internal.models import dense
 from internal.models import encoding
 from internal.models import fused_dense
 from internal.models import gaussians
@@ -21,69 +22,6 @@ gin.config.external_configurable(nn.softplus, name='softplus', module='flax.nn')
 gin.config.external_configurable(nn.sigmoid, name='sigmoid', module='flax.nn')
 gin.config.external_configurable(activations.relu_from_output, name='relu_from_output')  # A step variant.
 DENSE_KERNELS = ('xla', 'pallas', 'folded_bias')
-FOLD_PAD = 8  # 'folded_bias' widens activations by a ones column and zeros, to keep their rows 16-byte aligned.
-
-
-def _dense_init(in_dim: int, out_dim: int):
-  """Initializer of one dense layer's {'kernel' [in, out] (Glorot uniform), 'bias' [out] (zeros)}."""
-  def init(key):
-    return {'kernel': jax.nn.initializers.glorot_uniform()(key, (in_dim, out_dim)),
-            'bias': jnp.zeros((out_dim,))}
-  return init
-
-
-def matmul(x, kernel, precision=None):
-  """x [..., d] @ kernel [d, o] in x's dtype (the float32 kernel is cast at use) at a matmul precision."""
-  if x.dtype == kernel.dtype:
-    return jnp.matmul(x, kernel, precision=precision)
-  return precision_lib.low_precision_matmul(x, kernel)
-
-
-def add_bias(x, bias):
-  """x [..., o] + bias [o] in x's dtype; at a lower precision than the bias's, its gradient summed in float32."""
-  return x + bias if x.dtype == bias.dtype else precision_lib.add_low_precision_bias(x, bias)
-
-
-def matmuls(kernel, *parts, precision=None):
-  """[part @ its rows of kernel] of parts [..., d_i]: their concatenation @ kernel, the concatenation never made."""
-  products, start = [], 0
-  for part in parts:
-    products.append(matmul(part, kernel[start:start + part.shape[-1]], precision))
-    start += part.shape[-1]
-  return products
-
-
-def dense(layer, *parts, precision=None):
-  """Dense layer {'kernel', 'bias'} of the concatenation of parts [..., d_i], never materialized."""
-  products = matmuls(layer['kernel'], *parts, precision=precision)
-  if parts[0].dtype == layer['bias'].dtype:  # The released order of the float32 sums: bias first.
-    return sum(products, layer['bias'])
-  return add_bias(sum(products[1:], products[0]), layer['bias'])
-
-
-def with_ones(x):
-  """x [N, K] widened to [N, K + FOLD_PAD]: a ones column, then zeros ('folded_bias' layers read the bias there)."""
-  fill = jnp.zeros((x.shape[0], FOLD_PAD), x.dtype).at[:, 0].set(1)
-  return jnp.concatenate([x, fill], axis=-1)
-
-
-def folded_kernel(layer, width: int, ones_out: bool):
-  """The kernel [K + FOLD_PAD, N (+ FOLD_PAD)] of a dense layer {'kernel' [K, N], 'bias' [N]} whose input's first
-  part has `width` columns and then with_ones' columns: the bias is the row the ones column meets. With
-  ones_out it passes that column on as its own output's (ReLU keeps 1), so the next layer can fold its bias too."""
-  kernel, bias = layer['kernel'], layer['bias']
-  columns = kernel.shape[1]
-  folded = jnp.concatenate([kernel[:width], bias[None], jnp.zeros((FOLD_PAD - 1, columns)), kernel[width:]])
-  if not ones_out:
-    return folded
-  return jnp.concatenate([folded, jnp.zeros((folded.shape[0], FOLD_PAD)).at[width, 0].set(1)], axis=1)
-
-
-def _sum(products):
-  """The sum of a list of arrays, in their dtype."""
-  return sum(products[1:], products[0])
-
-
 @gin.configurable(denylist=['precision'])
 class MLP(nn.Module):
   """The shared NeRF MLP, as pure functions of its Dense_i parameters (released names and shapes)."""
@@ -114,7 +52,7 @@ class MLP(nn.Module):
   precision: str = 'float32'  # One of precision.PRECISIONS, set from Config.precision (not a gin binding).
 
   def setup(self):
-    self.layers = {name: self.param(name, _dense_init(i, o)) for name, i, o in self.layer_shapes()}
+    self.layers = {name: self.param(name, dense.glorot_layer(i, o)) for name, i, o in self.layer_shapes()}
     self.dtype, self.matmul_precision = precision_lib.settings(self.precision)
     self.tiles, self.passes = self.check_dense_kernel()
 
@@ -141,9 +79,9 @@ class MLP(nn.Module):
     """Dense layer `name` of parts [..., d_i] at this MLP's matmul precision; ones: parts[0] carries with_ones'
     columns (MLP.dense_kernel = 'folded_bias'), which meet the bias folded into the kernel."""
     if not ones:
-      return dense(self.layers[name], *parts, precision=self.matmul_precision)
-    kernel = folded_kernel(self.layers[name], parts[0].shape[-1] - FOLD_PAD, ones_out=False)
-    return _sum(matmuls(kernel, *parts, precision=self.matmul_precision))
+      return dense.dense(self.layers[name], *parts, precision=self.matmul_precision)
+    kernel = dense.folded_kernel(self.layers[name], parts[0].shape[-1] - dense.FOLD_PAD, ones_out=False)
+    return dense.sum_of(dense.matmuls(kernel, *parts, precision=self.matmul_precision))
 
   def _hidden(self, i: int, *parts):
     """net_activation(dense layer i) [N, width] of parts [N, d_i], in the kernel MLP.dense_kernel names (with
@@ -152,8 +90,8 @@ class MLP(nn.Module):
     if self.dense_kernel == 'xla':
       return self.net_activation(self._dense(f'Dense_{i}', *parts))
     if self.dense_kernel == 'folded_bias':
-      kernel = folded_kernel(layer, parts[0].shape[-1] - FOLD_PAD, ones_out=True)
-      return self.net_activation(_sum(matmuls(kernel, *parts, precision=self.matmul_precision)))
+      kernel = dense.folded_kernel(layer, parts[0].shape[-1] - dense.FOLD_PAD, ones_out=True)
+      return self.net_activation(dense.sum_of(dense.matmuls(kernel, *parts, precision=self.matmul_precision)))
     # Each hidden layer's output feeds the next one only, which can then mask its gradient (mask_at_store).
     masks = self.passes.mask_at_store
     return fused_dense.dense_relu(parts, layer['kernel'], layer['bias'], self.matmul_precision, self.tiles,
@@ -192,7 +130,7 @@ class MLP(nn.Module):
       enc = enc * mask_point
     enc = enc.astype(self.dtype)  # The IPE (sines of large arguments) and its mask stay float32.
     ones = self.dense_kernel == 'folded_bias'
-    x = (with_ones(enc) if ones else enc,)
+    x = (dense.with_ones(enc) if ones else enc,)
     for i in range(self.net_depth):
       x = (self._hidden(i, *x),)
       if self._skip_after(i):
@@ -209,8 +147,8 @@ class MLP(nn.Module):
       layer = self.layers[next(names)]
       # [bottleneck, view] @ kernel, with the view term computed once per ray, not per sample.
       width = bottleneck.shape[-1]
-      per_sample = matmul(bottleneck, layer['kernel'][:width], self.matmul_precision)
-      per_ray = add_bias(matmul(view, layer['kernel'][width:], self.matmul_precision), layer['bias'])
+      per_sample = dense.matmul(bottleneck, layer['kernel'][:width], self.matmul_precision)
+      per_ray = dense.add_bias(dense.matmul(view, layer['kernel'][width:], self.matmul_precision), layer['bias'])
       x = per_sample.reshape((-1, num_samples) + per_sample.shape[1:]) + per_ray[:, None]
       features = (self.net_activation(x.reshape(per_sample.shape)),)
       for _ in range(self.net_depth_viewdirs - 1):

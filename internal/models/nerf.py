@@ -13,7 +13,7 @@ import jax.numpy as jnp
 from jax import random
 
 from internal.models import encoding
-from internal.models import mip_nerf
+from internal.models import dense
 from internal.models import precision as precision_lib
 from internal.models import sampling
 from internal.models import volume_render
@@ -104,7 +104,7 @@ class NerfMLP(nn.Module):
 
   def _dense(self, index: int, *parts):
     """Dense layer Dense_index of parts [..., d_i] at this MLP's matmul precision."""
-    return mip_nerf.dense(self.layers[f'Dense_{index}'], *parts, precision=self.matmul_precision)
+    return dense.dense(self.layers[f'Dense_{index}'], *parts, precision=self.matmul_precision)
 
   def _trunk(self, points, mask_point):
     """Trunk features [N, W] of points [N, 3] (mask_point [63] or None multiplies their encoding)."""
@@ -137,8 +137,8 @@ class NerfMLP(nn.Module):
     layer = self.layers[f'Dense_{d + 2}']
     width = feature.shape[-1]
     # [feature, view] @ kernel with the view term computed once per ray, not per sample.
-    per_sample = mip_nerf.matmul(feature, layer['kernel'][:width], self.matmul_precision)
-    per_ray = mip_nerf.add_bias(mip_nerf.matmul(view, layer['kernel'][width:], self.matmul_precision), layer['bias'])
+    per_sample = dense.matmul(feature, layer['kernel'][:width], self.matmul_precision)
+    per_ray = dense.add_bias(dense.matmul(view, layer['kernel'][width:], self.matmul_precision), layer['bias'])
     x = per_sample.reshape((-1, num_samples) + per_sample.shape[1:]) + per_ray[:, None]
     h = nn.relu(x.reshape(per_sample.shape))
     return nn.sigmoid(self._dense(d + 3, h).astype(jnp.float32))
