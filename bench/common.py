@@ -16,7 +16,7 @@ from internal import configs
 from internal import rays as rays_lib
 from internal.datasets import random_poses
 from internal.evaluation import inference
-from internal.run import flops
+from internal.training import flops
 from internal.training import train_step as ts
 
 

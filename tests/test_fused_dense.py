@@ -18,7 +18,7 @@ from jax._src.lib.mlir import ir
 from bench import step_variants
 from conftest import random_rays
 from internal.models import fused_dense
-from internal.run import flops
+from internal.training import flops
 from internal.models import mip_nerf
 
 SMALL = fused_dense.Tiles(rows=16, block=32, chunk=16, splits=2, num_warps=4, num_stages=2)
@@ -231,7 +231,7 @@ def _for_an_h100():
 
 
 def test_the_platform_lowered_for_picks_triton_or_the_interpreter():
-  """A GPU run's flop count lowers its step for the CPU (internal/run/flops.py): the kernel must follow the
+  """A GPU run's flop count lowers its step for the CPU (internal/training/flops.py): the kernel must follow the
   platform lowered for, not the process's backend."""
   model, variables, rays = _tiny_model('pallas', 'bfloat16')
   loss = jax.jit(jax.grad(lambda p: jnp.sum(model.apply({'params': p}, None, rays)[0][-1]['rgb'])))

@@ -12,7 +12,7 @@ from jax import random
 from bench import common
 from bench import roofline
 from internal.models import registry
-from internal.run import flops
+from internal.training import flops
 from internal.training import train_step as ts
 from conftest import random_rays
 

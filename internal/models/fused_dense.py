@@ -170,7 +170,7 @@ def _call(body, grid, in_specs, out_specs, out_shape, tiles: Tiles):
                                             out_specs=out_specs, interpret=interpret, compiler_params=params,
                                             name=name)
   # Chosen by the platform the step is lowered for, not the default backend: a GPU run's flop count lowers the
-  # same step for the CPU (internal/run/flops.py), where only the interpreter runs.
+  # same step for the CPU (internal/training/flops.py), where only the interpreter runs.
   return lambda *args: jax.lax.platform_dependent(*args, cuda=kernel(False), rocm=kernel(False),
                                                   default=kernel(True))
 

@@ -136,7 +136,8 @@ def _train_and_evaluate(path: str, stop) -> dict:
   # pylint: disable=import-outside-toplevel
   from internal.evaluation import evaluate
   from internal.pipeline import loop
-  from internal.run import checkpoints, flops
+  from internal.run import checkpoints
+  from internal.training import flops
   commit, changed = provenance.code_state(REPO)  # The code it starts with.
   spec, config = _cell_config(path)
   try:
