@@ -21,7 +21,7 @@ from internal.models import fused_dense
 from internal.training import flops
 from internal.models import mip_nerf
 
-SMALL = fused_dense.Tiles(rows=16, block=32, chunk=16, splits=2, num_warps=4, num_stages=2)
+SMALL = fused_dense.FusedDenseTiles(rows=16, block=32, chunk=16, splits=2, num_warps=4, num_stages=2)
 HIGHEST = jax.lax.Precision.HIGHEST
 
 
@@ -146,9 +146,9 @@ def test_nonfinite_inputs_stay_in_their_rows_as_in_xla():
 def test_every_tile_setting_gives_the_same_layer():
   x, w, b, g = _inputs(3, 100, 70, 64)
   first = _fused(x, w, b, g)
-  others = (fused_dense.Tiles(rows=32, block=16, chunk=32, dw_rows=16, splits=3, num_warps=2, num_stages=1),
-            fused_dense.Tiles(rows=16, block=32, chunk=16, dw_rows=32, splits=2))  # Weight-gradient steps > rows.
-  for tiles in others + (fused_dense.Tiles(),):  # The defaults halve their loop steps for float32.
+  others = (fused_dense.FusedDenseTiles(rows=32, block=16, chunk=32, dw_rows=16, splits=3, num_warps=2, num_stages=1),
+            fused_dense.FusedDenseTiles(rows=16, block=32, chunk=16, dw_rows=32, splits=2))  # Weight-gradient steps > rows.
+  for tiles in others + (fused_dense.FusedDenseTiles(),):  # The defaults halve their loop steps for float32.
     for a, c in zip(first, _fused(x, w, b, g, tiles=tiles)):
       np.testing.assert_allclose(a, c, rtol=2e-5, atol=2e-6)
 
@@ -244,7 +244,7 @@ def test_the_platform_lowered_for_picks_triton_or_the_interpreter():
   assert flops.lowered_flops(loss, variables['params']) > 0
 
 
-def _lowered_for_an_h100(rows, depth, dtype, precision=None, tiles=None, passes=fused_dense.Passes()):
+def _lowered_for_an_h100(rows, depth, dtype, precision=None, tiles=None, passes=fused_dense.FusedDensePasses()):
   """The gradient of the fused layer [rows, depth] -> [rows, 256] in dtype, lowered for CUDA (an abstract H100);
   past 256 inputs as the skip layer's two parts (the first a ReLU's output) with passes' settings."""
   def loss(w, b, g, *parts):
@@ -271,7 +271,7 @@ def test_the_paper_layer_lowers_to_three_triton_kernels_for_an_nvidia_gpu(depth)
 @pytest.mark.parametrize('mask_at_store', [False, True])
 @pytest.mark.parametrize('two_inputs', [False, True])
 def test_the_passes_left_out_are_out_of_the_lowered_program(mask_at_store, two_inputs):
-  lowered = _lowered_for_an_h100(8192, 355, jnp.bfloat16, passes=fused_dense.Passes(mask_at_store, two_inputs))
+  lowered = _lowered_for_an_h100(8192, 355, jnp.bfloat16, passes=fused_dense.FusedDensePasses(mask_at_store, two_inputs))
   # Copies of the activations: the skip layer's inputs concatenated and padded, its input gradient sliced.
   copies = re.findall(r'stablehlo\.(?:concatenate|pad)\b[^\n]*tensor<8192x\d+xbf16>', lowered.as_text())
   assert bool(copies) != two_inputs, copies
@@ -326,7 +326,7 @@ H100_SHARED_MEMORY = 227 * 1024  # Bytes a block may use (Triton's limit for sm_
                                      if step_variants.PALLAS[0] in bindings])
 def test_each_tiling_fits_an_h100s_shared_memory_float32_taking_half_steps(variant):
   gin.parse_config(step_variants.VARIANTS[variant][0])
-  tiles, passes = fused_dense.Tiles(), fused_dense.Passes()
+  tiles, passes = fused_dense.FusedDenseTiles(), fused_dense.FusedDensePasses()
   sizes = {'bf16': 2, 'f32': 4}
   stages = {}
   for dtype, precision in ((jnp.bfloat16, None), (jnp.float32, HIGHEST)):
@@ -358,7 +358,7 @@ def test_a_profile_counts_the_fused_kernels_apart_from_xlas_matmuls_and_fusions(
 @pytest.mark.parametrize('dtype, precision, tolerance', [(jnp.bfloat16, None, 1e-2), (jnp.float32, HIGHEST, 1e-5)])
 def test_on_a_gpu_the_compiled_kernels_equal_float64(variant, dtype, precision, tolerance):
   gin.parse_config(step_variants.VARIANTS[variant][0])
-  tiles, passes = fused_dense.Tiles(), fused_dense.Passes()
+  tiles, passes = fused_dense.FusedDenseTiles(), fused_dense.FusedDensePasses()
   x, w, b, g = _inputs(5, 8192 + 100, 355, 256, dtype)  # The skip layer: a ReLU's output and the encoding.
   x = x.at[:, :256].set(jnp.maximum(x[:, :256], 0))
   layer = lambda a, c, w, b: fused_dense.dense_relu((a, c), w, b, precision, tiles, passes.two_inputs,

@@ -32,9 +32,9 @@ from jax.experimental.pallas import triton as pallas_triton
 from internal.models import activations
 
 
-@gin.configurable('FusedDenseTiles')
+@gin.configurable
 @dataclasses.dataclass(frozen=True)
-class Tiles:
+class FusedDenseTiles:
   """Tile sizes (powers of two, >= 16) and launch settings of the fused kernels."""
   rows: int = 64  # Rows of a forward / dx tile: each tile reads a [K, block] weight block, so more rows re-read less.
   block: int = 128  # Output columns of a forward tile, inputs of a dx tile, each side of a weight-gradient tile.
@@ -57,9 +57,9 @@ class Tiles:
         raise ValueError(f'FusedDenseTiles.{name} = {value!r}; expected an integer >= 1')
 
 
-@gin.configurable('FusedDensePasses')
+@gin.configurable
 @dataclasses.dataclass(frozen=True)
-class Passes:
+class FusedDensePasses:
   """Passes over the activations the fused layer leaves out beyond its default (each a step variant)."""
   mask_at_store: bool = False  # The previous ReLU's mask applied as dx is stored: 8 -> 7 passes a hidden layer.
   two_inputs: bool = False  # Skip and first layers read without concatenated or padded copies: a masked tail.
@@ -84,25 +84,25 @@ class _Layout:
   """How the kernels read one fused layer: its tiles and matmul precision, the depth of each input part, how many
   leading columns of the first part are a ReLU's output whose mask dx takes as it is stored, and whether the
   output gradient arrives masked already (by the next layer's dx), so that y need not be loaded to mask it."""
-  tiles: Tiles
+  tiles: FusedDenseTiles
   precision: object
   depths: tuple
   relu_columns: int = 0
   gradient_masked: bool = False
 
 
-def dense_relu(x, kernel, bias, precision=None, tiles: Tiles = None, two_inputs: bool = False,
+def dense_relu(x, kernel, bias, precision=None, tiles: FusedDenseTiles = None, two_inputs: bool = False,
                mask_input_gradient: bool = False, gradient_masked: bool = False):
   """relu(x @ kernel [K, N] + bias [N]) [M, N] in x's dtype, x [M, K] or the parts of it (x_1 [M, K_1], ...);
   the gradients of kernel and bias in float32.
 
-  tiles: None for Tiles() as gin binds them (FusedDenseTiles.*). two_inputs: the parts read as they are (the
+  tiles: None for FusedDenseTiles() as gin binds them. two_inputs: the parts read as they are (the
   tail of each one's depth masked), not concatenated and padded to whole tiles. mask_input_gradient: the first
   part is a ReLU's output, and its gradient is stored masked by x > 0, as that ReLU's own gradient would mask it
   (a gradient for nothing else). gradient_masked: the output gradient arrives masked by y > 0 (the next layer
   takes this layer's output with mask_input_gradient), so it is loaded without y.
   """
-  tiles = tiles or Tiles()
+  tiles = tiles or FusedDenseTiles()
   parts = tuple(x) if isinstance(x, (tuple, list)) else (x,)
   depths = tuple(part.shape[1] for part in parts)
   rows, width = (_round_up(parts[0].shape[0], max(tiles.rows, tiles.dw_rows) * tiles.splits),
@@ -161,7 +161,7 @@ def _step_size(size: int, dtype) -> int:
   return max(16, size * 2 // jnp.dtype(dtype).itemsize)
 
 
-def _call(body, grid, in_specs, out_specs, out_shape, tiles: Tiles):
+def _call(body, grid, in_specs, out_specs, out_shape, tiles: FusedDenseTiles):
   """pallas_call of body over grid with the tiles' launch settings, its kernel named fused_dense_<body's name>:
   compiled by Triton for an NVIDIA or AMD GPU, interpreted for any other platform."""
   params = pallas_triton.CompilerParams(num_warps=tiles.num_warps, num_stages=tiles.num_stages)

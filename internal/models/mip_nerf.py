@@ -73,7 +73,7 @@ class MLP(nn.Module):
                        f'{getattr(self.net_activation, "__name__", self.net_activation)}, expected relu')
     if self.dense_kernel == 'pallas':
       fused_dense.warn_if_interpreted()
-    return fused_dense.Tiles(), fused_dense.Passes()
+    return fused_dense.FusedDenseTiles(), fused_dense.FusedDensePasses()
 
   def _dense(self, name: str, *parts, ones: bool = False):
     """Dense layer `name` of parts [..., d_i] at this MLP's matmul precision; ones: parts[0] carries with_ones'
