@@ -18,7 +18,7 @@ from PIL import Image
 from conftest import SHARED_DATA
 from internal import config_loader
 from internal.datasets import colmap, colmap_model, load_dataset
-from tools.capture import CaptureError, __main__ as capture, bench, output, photos, poses, sfm
+from tools.capture import CaptureError, __main__ as capture, bench, output, photos, pipeline, poses, sfm
 
 CUP = SHARED_DATA / 'colmap' / 'cup'
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -133,21 +133,21 @@ def test_inputs_are_checked_and_written_upright(cup_capture):
 
 def test_the_loader_reads_the_capture_with_the_reported_views(cup_capture):
   folder, report, _ = cup_capture
-  config = config_loader.load_config([os.path.join(REPO, capture.CONFIG)], [f"Config.data_dir = '{folder}'"])
+  config = config_loader.load_config([os.path.join(REPO, pipeline.CONFIG)], [f"Config.data_dir = '{folder}'"])
   test = load_dataset('test', config)
   found = colmap.read_capture(config)
   assert [found.names[i] for i in test.ids] == report['views']['test']
   assert report['rig'] == ('forward' if found.forward else 'inward') and test.images.shape[1:3] == (150, 200)
   # 12 images hold 2 test views: the command binds the learning curve's views to those two.
-  assert report['next'] == (f'python train.py --gin_configs={capture.CONFIG} --gin_bindings="Config.data_dir = '
+  assert report['next'] == (f'python train.py --gin_configs={pipeline.CONFIG} --gin_bindings="Config.data_dir = '
                             f"'{folder}'\" \"Config.curve_test_ids = [0, 1]\" \"Config.checkpoint_dir = 'out/cup'\"")
 
 
 def test_the_printed_command_fits_the_capture():
-  assert capture.bindings('c', 4, 77) == ["Config.data_dir = 'c'"]
-  assert capture.bindings('c', 8, 20) == ["Config.data_dir = 'c'", 'Config.factor = 8', 'Config.render_factor = 8']
-  assert capture.bindings('c', 4, 5) == ["Config.data_dir = 'c'", 'Config.curve_test_ids = [0]']  # 1 test view.
-  assert capture.bindings('c', 4, 3) == ["Config.data_dir = 'c'", 'Config.n_input_views = 2',
+  assert pipeline.bindings('c', 4, 77) == ["Config.data_dir = 'c'"]
+  assert pipeline.bindings('c', 8, 20) == ["Config.data_dir = 'c'", 'Config.factor = 8', 'Config.render_factor = 8']
+  assert pipeline.bindings('c', 4, 5) == ["Config.data_dir = 'c'", 'Config.curve_test_ids = [0]']  # 1 test view.
+  assert pipeline.bindings('c', 4, 3) == ["Config.data_dir = 'c'", 'Config.n_input_views = 2',
                                          'Config.curve_test_ids = [0]']
 
 

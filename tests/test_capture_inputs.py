@@ -24,7 +24,7 @@ from internal.datasets import load_dataset
 from internal.evaluation import learning_curve
 from test_capture import CUP, REPO, _photos, needs_cup, needs_pycolmap
 from test_capture_parts import _bash_words, _video
-from tools.capture import __main__ as capture
+from tools.capture import __main__ as capture, pipeline
 
 pytestmark = [needs_cup, needs_pycolmap, pytest.mark.filterwarnings('ignore:os.fork:RuntimeWarning')]
 ODD_PATH = "dir with spaces/日本語 ü/it's"
@@ -50,9 +50,9 @@ def test_a_few_photos_chosen_from_a_folder_make_a_capture_of_those_alone(tmp_pat
   assert sorted(os.listdir(out / 'images')) == sorted(chosen) and report['photos'] == 6
   assert report['flags'][0]['check'] == 'few_photos' and 'Config.train_view_ids' in report['flags'][0]['message']
   words = _printed_command(printed.getvalue())
-  assert words[:3] == ['python', 'train.py', f'--gin_configs={capture.CONFIG}'] and words[3].startswith('--gin_')
+  assert words[:3] == ['python', 'train.py', f'--gin_configs={pipeline.CONFIG}'] and words[3].startswith('--gin_')
   gin.clear_config()
-  config = config_loader.load_config([os.path.join(REPO, capture.CONFIG)],
+  config = config_loader.load_config([os.path.join(REPO, pipeline.CONFIG)],
                                      [words[3].split('=', 1)[1]] + words[4:])
   assert config.data_dir == str(out)
   train = load_dataset('train', config)  # The colmap loader reads the capture as training does.
@@ -90,7 +90,7 @@ def test_the_tools_960x540_copies_are_what_the_loader_makes_of_the_full_frames(v
   curves = []
   for data_dir in (folder, only_colmap):  # At the learning curve's factor 8: images_8/, else images/ cropped.
     gin.clear_config()
-    config = config_loader.load_config([os.path.join(REPO, capture.CONFIG)], [words[3].split('=', 1)[1]] + words[4:]
+    config = config_loader.load_config([os.path.join(REPO, pipeline.CONFIG)], [words[3].split('=', 1)[1]] + words[4:]
                                        + [f'Config.data_dir = {str(data_dir)!r}'])
     with warnings.catch_warnings(record=True) as warned:
       warnings.simplefilter('always')

@@ -17,7 +17,8 @@ from conftest import SHARED_DATA
 from internal import cli
 from internal import config_loader
 from internal.datasets import cameras, colmap_model
-from tools.capture import CaptureError, __main__ as capture, bench, model, output, photos, poses, report, sfm, video
+from tools.capture import CaptureError, bench, model, output, photos, pipeline, poses, report, sfm
+from tools.capture import video
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 CUP = SHARED_DATA / 'colmap' / 'cup'
@@ -240,12 +241,12 @@ def _bash_words(line: str) -> list:
 
 def test_the_printed_command_gives_its_words_back_from_bash_for_any_folder_name():
   out = "/data/dir with spaces/日本語 ü/it's/a \"b\" $HOME `x` \\ !"
-  line = capture.next_command(out, capture.bindings(out, 4, 20))
+  line = pipeline.next_command(out, pipeline.bindings(out, 4, 20))
   words = _bash_words(line[len('python train.py '):])
-  assert words[:2] == [f'--gin_configs={capture.CONFIG}', '--gin_bindings=' + words[1].split('=', 1)[1]]
+  assert words[:2] == [f'--gin_configs={pipeline.CONFIG}', '--gin_bindings=' + words[1].split('=', 1)[1]]
   bindings = [words[1].split('=', 1)[1]] + words[2:]
   gin.clear_config()
-  parsed = config_loader.load_config([os.path.join(capture.REPO, capture.CONFIG)], bindings)
+  parsed = config_loader.load_config([os.path.join(pipeline.REPO, pipeline.CONFIG)], bindings)
   assert parsed.data_dir == out and parsed.checkpoint_dir == 'out/' + os.path.basename(out)
 
 

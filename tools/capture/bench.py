@@ -27,7 +27,7 @@ from internal import atomic
 from internal import cli
 from internal.datasets import cameras, colmap_model, dtu
 from tools import provenance
-from tools.capture import CaptureError, __main__ as capture, photos, poses, sfm
+from tools.capture import CaptureError, photos, pipeline, poses, sfm
 
 # The targets for the cup's 77 photos.
 TARGETS = {'median_rotation_deg': 2., 'median_position': .05, 'total_seconds': 120.}
@@ -66,7 +66,8 @@ def run(args, matching: str) -> dict:
   scene = os.path.basename(os.path.dirname(os.path.abspath(args.reference)))
   out = os.path.join(args.work, f'{scene}_{matching}')
   load_before, cpu = os.getloadavg(), cpu_seconds()
-  capture.main([args.photos, '--out', out, '--matching', matching, '--max_size', str(args.max_size), '--overwrite'])
+  pipeline.make(pipeline.Options(args.photos, out, max_size=args.max_size, matching=matching, overwrite=True),
+                cli.command_line('tools.capture.bench'))  # The report names the command that made the capture.
   cpu, load_after = cpu_seconds() - cpu, os.getloadavg()
   with open(os.path.join(out, 'report.json'), encoding='utf-8') as f:
     report = json.load(f)
@@ -121,11 +122,11 @@ def main(argv=None) -> int:
   parser.add_argument('--out', required=True, help='the results file to write (.json; a .md beside it)')
   parser.add_argument('--work', default='out/capture', help='where the captures go (kept for training)')
   parser.add_argument('--matching', nargs='+', choices=sfm.MATCHING, default=list(sfm.MATCHING))
-  parser.add_argument('--max_size', type=int, default=capture.MAX_SIZE)
+  parser.add_argument('--max_size', type=int, default=pipeline.MAX_SIZE)
   args = parser.parse_args(argv)
   rows = [run(args, matching) for matching in args.matching]
   record = {'command': cli.command_line('tools.capture.bench', argv),
-            'commit': provenance.git_commit(capture.REPO), 'machine': provenance.machine(),
+            'commit': provenance.git_commit(pipeline.REPO), 'machine': provenance.machine(),
             'pycolmap': sfm.require_pycolmap().__version__, 'targets': TARGETS, 'runs': rows}
   os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
   atomic.write_text(args.out, json.dumps(record, indent=1))

@@ -35,7 +35,7 @@ from internal import cli
 from internal import config_loader
 from internal.datasets import colmap, colmap_model
 from tools import provenance
-from tools.capture import CaptureError, __main__ as capture, poses, sfm
+from tools.capture import CaptureError, pipeline, poses, sfm
 
 KINDS = {'spread': 1., 'half': .5, 'quarter': .25, 'random': None}  # The fraction of the arc a subset spans.
 JITTER = .25  # Spread subsets: each photo moved by up to this fraction of the spacing.
@@ -46,7 +46,7 @@ OFF_DEGREES = 5.  # A capture whose cameras are this far off at the median has w
 def arc_names(capture_dir: str) -> list:
   """The capture's registered images in the loader's order along the arc."""
   gin.clear_config()
-  config = config_loader.load_config([os.path.join(capture.REPO, capture.CONFIG)],
+  config = config_loader.load_config([os.path.join(pipeline.REPO, pipeline.CONFIG)],
                                      [f'Config.data_dir = {capture_dir!r}'])
   found = colmap.read_capture(config)
   return [found.names[i] for i in colmap.arc_order(found)]
@@ -90,7 +90,8 @@ def run(photo_dir: str, names: list, out: str, max_size: int, reference, distanc
   start, error = time.perf_counter(), None
   try:
     with contextlib.redirect_stdout(io.StringIO()):
-      capture.main([photo_dir, '--photos', *names, '--out', out, '--max_size', str(max_size), '--overwrite'])
+      pipeline.make(pipeline.Options(photo_dir, out, photos=names, max_size=max_size, overwrite=True),
+                    cli.command_line('tools.capture.few_photos'))
   except CaptureError as err:
     error = cli.one_line(err).split(' (what it wrote stays')[0]
   model = largest_model(out)
@@ -104,7 +105,7 @@ def run(photo_dir: str, names: list, out: str, max_size: int, reference, distanc
          'best_pair_matches': sfm.best_pair(database) if os.path.isfile(database) else None,
          'all_registered': error is None and len(registered) == len(names),
          'unregistered': [n for n in names if n not in registered], 'seconds': time.perf_counter() - start}
-  if len(registered) >= capture.MIN_REGISTERED:
+  if len(registered) >= pipeline.MIN_REGISTERED:
     row.update(camera_errors(model, reference, distance))
   return row
 
@@ -175,7 +176,7 @@ def markdown(record: dict) -> str:
           f'alone\n\n`{record["command"]}` at commit {record["commit"][:12]} on {record["machine"]["cpu"]} '
           f'({record["machine"]["cpu_count"]} CPUs, shared), pycolmap {record["pycolmap"]}, {record["date"]}.\n\n'
           'Registered whole: every photo of the subset in the model. A capture is made from '
-          f'{capture.MIN_REGISTERED} registered photos up; inward: how many of them train as an inward rig (the '
+          f'{pipeline.MIN_REGISTERED} registered photos up; inward: how many of them train as an inward rig (the '
           "others as forward-facing, the loader's choice from their viewing directions). Errors of the captures' "
           "registered cameras against the all-photo model's, after a similarity fit: the median over the captures "
           "of each one's median (and the worst single camera); positions as a percentage of the all-photo "
@@ -191,7 +192,7 @@ def main(argv=None) -> int:
   parser.add_argument('--sizes', nargs='+', type=int, default=[3, 6, 9])
   parser.add_argument('--subsets', type=int, default=8, help='subsets of each kind and size')
   parser.add_argument('--seed', type=int, default=0)
-  parser.add_argument('--max_size', type=int, default=capture.MAX_SIZE)
+  parser.add_argument('--max_size', type=int, default=pipeline.MAX_SIZE)
   parser.add_argument('--work', default=os.path.join('out', 'capture', 'few_photos'), help='where the captures go')
   args = parser.parse_args(argv)
   # The code as the runs start (a run takes minutes, in which the worktree may change).
