@@ -141,12 +141,12 @@ def test_ray_beside_a_local_shard_gives_the_local_executors_results(reference, c
 
 def test_the_overhead_benchmark_records_both_executors(cluster, tmp_path):
   out = tmp_path / 'overhead.json'
-  result = subprocess.run([sys.executable, '-m', 'tools.study.overhead', '--cells', '2', '--address', cluster,
+  result = subprocess.run([sys.executable, '-m', 'tools.study.executor_overhead', '--cells', '2', '--address', cluster,
                            '--out', str(out)], cwd=REPO, env=ENV, capture_output=True, text=True, timeout=600,
                           check=False)
   assert result.returncode == 0, result.stderr[-3000:]
   record = json.loads(out.read_text())
-  assert record['command'].startswith('python -m tools.study.overhead --cells 2') and record['cluster'] == cluster
+  assert record['command'].startswith('python -m tools.study.executor_overhead --cells 2') and record['cluster'] == cluster
   for name, cells in (('local', 2), ('ray', 1)):  # Ray's first cell (its worker starting) is recorded apart.
     assert record[name]['cells'] == cells and record[name]['cell_startup_median_s'] > 0.
   for times in record['per_cell']['local'] + record['per_cell']['ray']:

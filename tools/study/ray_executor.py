@@ -17,7 +17,7 @@ import socket
 import sys
 
 from tools.study import claim as study_claim
-from tools.study import schedule as study_schedule
+from tools.study import dispatch
 from tools.study import spec as study_spec
 
 CANCEL_WAIT_SECONDS = 120.  # Ctrl-C: how long the cancelled cells get to save a checkpoint and stop.
@@ -30,7 +30,7 @@ HTTP2_PREFACE = b'PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n' + bytes(3) + b'\x04' + bytes
 
 def _cell_task(path: str, job: str, cwd: str):
   """The Ray task: runs the cell's process in the driver's working directory; (exit status, seconds)."""
-  return study_schedule.run_cell_process(path, job, {}, cwd=cwd)
+  return dispatch.run_cell_process(path, job, {}, cwd=cwd)
 
 
 def _token_auth_if_token() -> None:
@@ -125,7 +125,7 @@ class RayExecutor:
       check_answers(address, _resolved(self.ray, address))
     try:
       self.ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False,
-                    runtime_env={'env_vars': {'PYTHONPATH': study_schedule.python_path()}})
+                    runtime_env={'env_vars': {'PYTHONPATH': dispatch.python_path()}})
     except ConnectionError as e:
       raise ValueError(f'--address {address}: no Ray cluster answered ({e}); expected the address that `ray start '
                        '--head` printed, e.g. 10.0.0.1:6379') from None

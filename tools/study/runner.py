@@ -23,7 +23,7 @@ the cells' learning curves (Config.curve_every > 0) into psnr_vs_step.png (and p
 With seeds (a `seeds` key or an axis named seed) results also give per cell the mean, spread and n over seeds and
 the paired comparisons with their 95% intervals (tools/study/stats.py). `--list --estimate` measures each distinct
 setting of the pending cells on this machine (about a minute each) and prints the expected wall time before any
-cell runs (tools/study/cost.py); with --cluster-gpus N, the GPU-hours and the wall time on N GPUs from the step
+cell runs (tools/study/estimate.py); with --cluster-gpus N, the GPU-hours and the wall time on N GPUs from the step
 times measured on a GPU (results/gpu). Bad input is one line (exit status 2, internal/cli.py).
 """
 
@@ -43,26 +43,26 @@ from typing import Dict, List, Optional
 from internal import atomic
 from internal import cli
 from tools import provenance
-from tools.study import budget as study_budget
+from tools.study import time_budgets
 from tools.study import cells_file
 from tools.study import claim as study_claim
-from tools.study import cost as study_cost
+from tools.study import estimate
 from tools.study import export as study_export
 from tools.study import plots as study_plots
 from tools.study import reuse as study_reuse
-from tools.study import schedule as study_schedule
+from tools.study import dispatch
 from tools.study import spec as study_spec
 from tools.study import stats as study_stats
 
 CELL_FILE = 'cell.json'
 SPEC_FILE = 'cell_spec.json'
-LOG_FILE = study_schedule.LOG_FILE
+LOG_FILE = dispatch.LOG_FILE
 RUN_SUBDIR = study_export.RUN_SUBDIR  # The cell's run directory (Config.checkpoint_dir) inside its folder.
 RESULTS_FILE = 'results.csv'
 SUMMARY_FILE = 'summary.csv'          # Per cell pooled over seeds: mean, std, n of each plotted metric.
 COMPARISONS_FILE = 'comparisons.csv'  # The paired comparisons with their intervals and verdicts.
 COMPARISONS_MD = 'comparisons.md'
-REPO = study_schedule.REPO
+REPO = dispatch.REPO
 
 
 def study_dir(study: study_spec.Study, out: str) -> str:
@@ -169,7 +169,7 @@ def _train_and_evaluate(path: str, stop) -> dict:
 def measure_cell(path: str) -> dict:
   """The estimated {'train', 'eval'} seconds of the cell in folder path, measured on this machine."""
   config = _cell_config(path)[1]
-  return study_cost.cell_seconds(config, study_cost.measure(config))
+  return estimate.cell_seconds(config, estimate.measure(config))
 
 
 def _cell_config(path: str) -> tuple:
@@ -182,16 +182,16 @@ def _cell_config(path: str) -> tuple:
   return spec, config_loader.load_config(spec['gin_configs'], spec['gin_bindings'])
 
 
-def estimate(paths: List[str]) -> List[tuple]:
+def measured_estimates(paths: List[str]) -> List[tuple]:
   """(path, {'train', 'eval'} seconds) of each cell folder; one measuring process per distinct setting."""
   known, estimates = {}, []
   for path in paths:
     with open(os.path.join(path, SPEC_FILE)) as f:
-      key = study_cost.signature(json.load(f))
+      key = estimate.signature(json.load(f))
     if key not in known:
       print(f'measuring {path} ...', flush=True)
       result = subprocess.run([sys.executable, '-m', 'tools.study', '--measure-cell', path], capture_output=True,
-                              text=True, env={**os.environ, 'PYTHONPATH': study_schedule.python_path()},
+                              text=True, env={**os.environ, 'PYTHONPATH': dispatch.python_path()},
                               check=False)
       if result.returncode:
         raise RuntimeError(f'measuring {path} failed: {result.stderr.strip().splitlines()[-1:]}')
@@ -207,19 +207,19 @@ def _list(study: study_spec.Study, args) -> None:
   for cell in study_spec.cells(study):
     path, record = cell_dir(study, cell, args.out), read_cell(cell_dir(study, cell, args.out))
     if record:
-      lines.append(f'done    {path}  (took {study_cost.format_duration(record["train_seconds"] + record["eval_seconds"])})')
+      lines.append(f'done    {path}  (took {estimate.format_duration(record["train_seconds"] + record["eval_seconds"])})')
     else:
       lines.append(f'pending {path}')
       pending.append(cell)
   if args.cluster_gpus:
     print(f'{study.path}: {len(pending)} pending cell(s) estimated, {len(lines) - len(pending)} done not counted')
-    print('\n'.join(study_cost.cluster_lines([(c.cell_id, c.method, _gpu_config(study, c, args)) for c in pending],
-                                            *study_cost.device_bench(args.device_bench), args.cluster_gpus)))
+    print('\n'.join(estimate.cluster_lines([(c.cell_id, c.method, _gpu_config(study, c, args)) for c in pending],
+                                            *estimate.device_bench(args.device_bench), args.cluster_gpus)))
     return
   print('\n'.join(lines))
   if args.estimate and pending:
     paths = [write_spec(study, c, args.out, args.data_root, tuple(args.gin_bindings)) for c in pending]
-    print('\n'.join(study_cost.summary_lines(estimate(paths), args.jobs)))
+    print('\n'.join(estimate.summary_lines(measured_estimates(paths), args.jobs)))
 
 
 def _gpu_config(study: study_spec.Study, cell: study_spec.Cell, args):
@@ -337,7 +337,7 @@ def write_results(study: study_spec.Study, out: str) -> List[str]:
   path = _write_csv(os.path.join(out_dir, RESULTS_FILE), rows)
   return ([path] + write_statistics(study, rows, out_dir) + study_plots.write_plots(study, rows, out_dir)
           + study_plots.write_curve_plots(study, curve_rows, out_dir)
-          + study_budget.write_budget_results(study, curve_rows, out_dir, study_plots.CURVE_METRICS))
+          + time_budgets.write_budget_results(study, curve_rows, out_dir, study_plots.CURVE_METRICS))
 
 
 def run_study(study: study_spec.Study, out: str, data_root: str = 'data', shard: Optional[str] = None,
@@ -346,11 +346,11 @@ def run_study(study: study_spec.Study, out: str, data_root: str = 'data', shard:
   writes results and plots; returns {cell dir: error}."""
   todo = [write_spec(study, c, out, data_root, extra_bindings) for c in _shard(study_spec.cells(study), shard)]
   todo = [p for p in todo if read_cell(p) is None]
-  job = job or study_schedule.new_job()
+  job = job or dispatch.new_job()
   if executor is None:
     failed = _run_in_process(todo, job)
   else:
-    failed = study_schedule.run(todo, executor, lambda path: read_cell(path) is not None) if todo else {}
+    failed = dispatch.run(todo, executor, lambda path: read_cell(path) is not None) if todo else {}
   with study_claim.claimed(study_dir(study, out), job, wait=True):  # One runner at a time writes the results.
     for path in write_results(study, out):
       print(path)
@@ -432,7 +432,7 @@ def _executor(study: study_spec.Study, args, job: str):
   if args.executor == 'ray':
     from tools.study import ray_executor as study_ray  # pylint: disable=import-outside-toplevel  (Ray is an optional extra)
     return study_ray.RayExecutor(args.address, _resources(study, args), job)
-  return study_schedule.LocalExecutor(_worker_envs(args.jobs, args.gpus), job)
+  return dispatch.LocalExecutor(_worker_envs(args.jobs, args.gpus), job)
 
 
 def _run_one_cell(path: str, job: Optional[str]) -> int:
@@ -447,12 +447,12 @@ def _run_one_cell(path: str, job: Optional[str]) -> int:
   stop = loop.StopFlag()
   for signum in (signal.SIGINT, signal.SIGTERM):
     signal.signal(signum, stop.raise_unless_stopped)
-  study_schedule.stop_with_runner()
+  dispatch.stop_with_runner()
   try:
-    record = run_cell(path, job or study_schedule.new_job(), stop)
+    record = run_cell(path, job or dispatch.new_job(), stop)
   except study_claim.Held as e:
     print(f'not run: {e}')
-    return study_schedule.CLAIMED_STATUS
+    return dispatch.CLAIMED_STATUS
   except CellStopped as e:
     for signum in (signal.SIGINT, signal.SIGTERM):  # Ignored to its end (Python's exit resets its own handlers).
       signal.signal(signum, signal.SIG_IGN)
@@ -482,7 +482,7 @@ def main(argv=None) -> int:
       print(path)
     _export(study, args, argv)
     return 0
-  job = study_schedule.new_job()
+  job = dispatch.new_job()
   executor = _executor(study, args, job)
   try:
     failed = run_study(study, args.out, args.data_root, args.shard, executor, job, tuple(args.gin_bindings))

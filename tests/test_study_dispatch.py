@@ -1,4 +1,4 @@
-"""schedule.run (tools/study/schedule.py) with a stand-in executor: finished cells counted, cells held by another runner waited for
+"""dispatch.run (tools/study/dispatch.py) with a stand-in executor: finished cells counted, cells held by another runner waited for
 (not submitted), a cell whose process lost the claim race looked at again, failures reported, Ctrl-C cancels."""
 
 import concurrent.futures
@@ -10,7 +10,7 @@ import threading
 import pytest
 
 from tools.study import claim as study_claim
-from tools.study import schedule as study_schedule
+from tools.study import dispatch
 
 
 class FakeExecutor:
@@ -47,15 +47,15 @@ def _done(path):
 
 
 def test_cells_run_once_each_and_failures_are_reported(tmp_path, monkeypatch):
-  monkeypatch.setattr(study_schedule, 'POLL_SECONDS', 0.01)
+  monkeypatch.setattr(dispatch, 'POLL_SECONDS', 0.01)
   paths = _cells(tmp_path, ['done', 'ok', 'raced', 'bad', 'lost', 'held'])
   open(os.path.join(paths[0], 'cell.json'), 'w').close()
   (tmp_path / 'held' / study_claim.CLAIM_FILE).write_text(json.dumps(
       {'host': socket.gethostname(), 'pid': os.getpid(), 'job': 'another', 'token': 't'}))
   threading.Timer(0.3, lambda: open(os.path.join(paths[5], 'cell.json'), 'w').close()).start()  # Finished there.
-  executor = FakeExecutor({'ok': [0], 'raced': [study_schedule.CLAIMED_STATUS, 0], 'bad': [1],
+  executor = FakeExecutor({'ok': [0], 'raced': [dispatch.CLAIMED_STATUS, 0], 'bad': [1],
                            'lost': [RuntimeError('WorkerCrashedError after 3 retries\nmore')]})
-  failed = study_schedule.run(paths, executor, _done)
+  failed = dispatch.run(paths, executor, _done)
   assert sorted(executor.submitted) == ['bad', 'lost', 'ok', 'raced', 'raced']
   assert failed == {paths[3]: f'exit status 1; see {os.path.join(paths[3], "log.txt")}',
                     paths[4]: 'RuntimeError: WorkerCrashedError after 3 retries'}
@@ -74,7 +74,7 @@ def test_ctrl_c_cancels_what_runs_and_stops(tmp_path, monkeypatch):
   def interrupt(*_):
     raise KeyboardInterrupt
 
-  monkeypatch.setattr(study_schedule, '_collect', interrupt)
+  monkeypatch.setattr(dispatch, '_collect', interrupt)
   with pytest.raises(KeyboardInterrupt):
-    study_schedule.run(paths, executor, _done)
+    dispatch.run(paths, executor, _done)
   assert len(executor.cancelled) == 2 and executor.submitted == paths

@@ -1,4 +1,4 @@
-"""tools.study.budget: a metric at training-time budgets from learning curves, on constructed curves."""
+"""tools.study.time_budgets: a metric at training-time budgets from learning curves, on constructed curves."""
 
 import re
 
@@ -6,7 +6,7 @@ import numpy as np
 from PIL import Image
 import pytest
 
-from tools.study import budget as study_budget
+from tools.study import time_budgets
 from tools.study import spec as study_spec
 from tools.study import stats as study_stats
 
@@ -40,15 +40,15 @@ def _curve_rows():
 
 def test_value_at_takes_the_last_point_within_the_budget():
   curve = [(10., 1.), (20., 2.), (30., 3.)]
-  assert study_budget.value_at(curve, 9.9) is None
-  assert study_budget.value_at(curve, 10.) == 1. and study_budget.value_at(curve, 29.) == 2.
-  assert study_budget.value_at(curve, 1e9) == 3.
+  assert time_budgets.value_at(curve, 9.9) is None
+  assert time_budgets.value_at(curve, 10.) == 1. and time_budgets.value_at(curve, 29.) == 2.
+  assert time_budgets.value_at(curve, 1e9) == 3.
 
 
 def test_each_budget_names_the_best_setting_with_its_spread_and_paired_interval():
   study = study_spec.parse(STUDY, 'budget.toml')
   assert study.plot.budgets == (5., 25., 60.)
-  rows = study_budget.budget_rows(study, _curve_rows(), 'psnr', study.plot.budgets)
+  rows = time_budgets.budget_rows(study, _curve_rows(), 'psnr', study.plot.budgets)
   assert [r['budget_s'] for r in rows] == [25., 60.]  # Nothing was recorded within 5 s.
   at_25, at_60 = rows
   values = np.array(list(FAST.values()))
@@ -68,18 +68,18 @@ def test_a_noisy_difference_is_undecided_with_the_t_interval():
   for row in rows:
     if row['method'] == 'slow' and row['seconds'] == 40.:
       row['psnr'] += noise[row['seed']]
-  (row,) = study_budget.budget_rows(study, rows, 'psnr', (60.,))
+  (row,) = time_budgets.budget_rows(study, rows, 'psnr', (60.,))
   differences = np.array([3. + n for n in noise.values()])
   half = T_975_DF3 * differences.std(ddof=1) / 2.
   assert row['best'] == 'slow' and row['mean_a_minus_b'] == pytest.approx(differences.mean())
   assert (row['ci_low'], row['ci_high']) == pytest.approx((differences.mean() - half, differences.mean() + half))
   assert row['verdict'].startswith(study_stats.UNDECIDED)
-  assert '**UNDECIDED' in study_budget.budget_markdown([row])
+  assert '**UNDECIDED' in time_budgets.budget_markdown([row])
 
 
 def test_curves_against_seconds_are_plotted_and_budgets_written(tmp_path):
   study = study_spec.parse(STUDY, 'budget.toml')
-  written = study_budget.write_budget_results(study, _curve_rows(), str(tmp_path), ('psnr', 'psnr_masked'))
+  written = time_budgets.write_budget_results(study, _curve_rows(), str(tmp_path), ('psnr', 'psnr_masked'))
   assert [p.split('/')[-1] for p in written] == ['psnr_vs_seconds.png', 'budgets.md']
   with Image.open(tmp_path / 'psnr_vs_seconds.png') as image:
     assert image.format == 'PNG' and image.size == (640, 440)
@@ -103,10 +103,10 @@ def test_with_three_settings_the_interval_holds_for_all_three_pairs_as_the_best_
       row['psnr'] += noise[row['seed']]
     if row['method'] == 'fast':
       rows.append(dict(row, method='third', psnr=row['psnr'] - 5.))
-  (row,) = study_budget.budget_rows(study, rows, 'psnr', (60.,))
+  (row,) = time_budgets.budget_rows(study, rows, 'psnr', (60.,))
   differences = np.array([3. + n for n in noise.values()])
   half = T_99167_DF3 * differences.std(ddof=1) / 2.  # 3 pairs: each at 1 - 0.05 / 3.
   assert row['best'] == 'slow' and row['runner_up'] == 'fast'
   assert (row['ci_low'], row['ci_high']) == pytest.approx((differences.mean() - half, differences.mean() + half))
-  assert study_budget.selection_level(2) == pytest.approx(0.95)
-  assert study_budget.selection_level(3) == pytest.approx(1 - 0.05 / 3)
+  assert time_budgets.selection_level(2) == pytest.approx(0.95)
+  assert time_budgets.selection_level(3) == pytest.approx(1 - 0.05 / 3)

@@ -1,4 +1,4 @@
-"""tools.study.cost and `tools.study --list --estimate`: a study's expected wall time before it runs."""
+"""tools.study.estimate and `tools.study --list --estimate`: a study's expected wall time before it runs."""
 
 import json
 import os
@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from internal import configs
-from tools.study import cost as study_cost
+from tools.study import estimate
 from tools.study import spec as study_spec
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -30,7 +30,7 @@ bindings = ["Config.generated_rig = 'object'"]
 def test_cell_seconds_scale_the_measurement():
   config = configs.Config(max_steps=1000, curve_every=100, curve_test_ids=(0, 1), curve_factor=4, eval_factor=1)
   measured = {'setup_seconds': 30., 'step_seconds': .2, 'view_seconds': 3.2, 'eval_views': 5, 'curve_views': 2}
-  seconds = study_cost.cell_seconds(config, measured)
+  seconds = estimate.cell_seconds(config, measured)
   # 10 curve points x 2 views at 1/16 of the pixels of an evaluated view.
   assert seconds == {'train': pytest.approx(30. + 200. + 10 * 2 * 3.2 / 16), 'eval': pytest.approx(16.)}
 
@@ -40,12 +40,12 @@ def test_signature_ignores_seeds_run_folder_and_name():
                                                      'Config.np_rng_seed = 1', "Config.checkpoint_dir = 'x'"]}
   other = {'gin_configs': ['a.gin'], 'gin_bindings': ['Config.max_steps = 5', 'Config.jax_rng_seed = 2',
                                                       'Config.np_rng_seed = 2', "Config.expname = 'y'"]}
-  assert study_cost.signature(spec) == study_cost.signature(other)
-  assert study_cost.signature(spec) != study_cost.signature({**spec, 'gin_bindings': ['Config.max_steps = 6']})
+  assert estimate.signature(spec) == estimate.signature(other)
+  assert estimate.signature(spec) != estimate.signature({**spec, 'gin_bindings': ['Config.max_steps = 6']})
 
 
 def test_durations_read_as_a_person_would():
-  assert [study_cost.format_duration(s) for s in (40, 720, 3900)] == ['40 s', '12 min', '1 h 05 min']
+  assert [estimate.format_duration(s) for s in (40, 720, 3900)] == ['40 s', '12 min', '1 h 05 min']
 
 
 def test_list_estimate_measures_each_setting_once(tmp_path):
@@ -76,23 +76,23 @@ BENCH = {'device': 'GPU X', 'jax_version': '0', 'batch_size': 4096,
 
 
 def _cpu_ratio():
-  methods = json.loads((REPO / study_cost.CPU_RATIO_FILE).read_text())['results']['float32']['methods']
+  methods = json.loads((REPO / estimate.CPU_RATIO_FILE).read_text())['results']['float32']['methods']
   return methods['regnerf']['step_seconds'] / methods['mipnerf']['step_seconds']
 
 
 def test_gpu_step_seconds_per_precision_method_and_batch():
-  assert study_cost.gpu_step_seconds(BENCH, 'float32', 'freenerf', 4096) == (0.3, '')
-  seconds, note = study_cost.gpu_step_seconds(BENCH, 'float32', 'regnerf', 4096)
+  assert estimate.gpu_step_seconds(BENCH, 'float32', 'freenerf', 4096) == (0.3, '')
+  seconds, note = estimate.gpu_step_seconds(BENCH, 'float32', 'regnerf', 4096)
   assert 1.5 < _cpu_ratio() < 2.2 and seconds == pytest.approx(0.1 * _cpu_ratio())
   assert note == (f"regnerf not benchmarked: mip-NeRF's step x {_cpu_ratio():.2f}, as measured on a CPU "
-                  f'({study_cost.CPU_RATIO_FILE}), not yet on a GPU')
-  seconds, note = study_cost.gpu_step_seconds({**BENCH, 'results': {'float32': {'methods': {
+                  f'({estimate.CPU_RATIO_FILE}), not yet on a GPU')
+  seconds, note = estimate.gpu_step_seconds({**BENCH, 'results': {'float32': {'methods': {
       'freenerf': {'step_seconds': 0.3}, 'nerf': {'step_seconds': 0.1}}}}}, 'float32', 'regnerf', 4096)
   assert seconds == pytest.approx(0.2) and note == 'regnerf not benchmarked: the mean of freenerf, nerf'
-  seconds, note = study_cost.gpu_step_seconds(BENCH, 'bfloat16', 'mipnerf', 1024)
+  seconds, note = estimate.gpu_step_seconds(BENCH, 'bfloat16', 'mipnerf', 1024)
   assert seconds == pytest.approx(0.005) and note == 'batch 1024 scaled from 4096'
   with pytest.raises(ValueError, match=r"Config.precision 'default' has no GPU step time.*\['bfloat16', 'float32'\]"):
-    study_cost.gpu_step_seconds(BENCH, 'default', 'mipnerf', 4096)
+    estimate.gpu_step_seconds(BENCH, 'default', 'mipnerf', 4096)
 
 
 def _device_record(path, date, regnerf_ms, precision='bfloat16'):
@@ -102,21 +102,21 @@ def _device_record(path, date, regnerf_ms, precision='bfloat16'):
 
 
 def test_regnerf_costs_the_ratio_a_gpu_window_timed_once_one_did(tmp_path, monkeypatch):
-  monkeypatch.setattr(study_cost, 'REPO', str(tmp_path))
-  _device_record(tmp_path / study_cost.CPU_RATIO_FILE, '2026-01-01', 40, 'float32')
-  assert study_cost.regnerf_ratio('bfloat16')[0] == pytest.approx(2.)
+  monkeypatch.setattr(estimate, 'REPO', str(tmp_path))
+  _device_record(tmp_path / estimate.CPU_RATIO_FILE, '2026-01-01', 40, 'float32')
+  assert estimate.regnerf_ratio('bfloat16')[0] == pytest.approx(2.)
   variants = tmp_path / 'results' / 'gpu' / 'ledger' / 'variants'
   _device_record(variants / 'nvidia_h100_abc' / 'bench_device.json', '2026-12-02', 34)
   _device_record(variants / 'nvidia_h200_abc' / 'bench_device.json', '2026-12-01', 30)
-  ratio, where = study_cost.regnerf_ratio('bfloat16')
+  ratio, where = estimate.regnerf_ratio('bfloat16')
   newest = os.path.relpath(variants / 'nvidia_h100_abc' / 'bench_device.json', tmp_path)
   assert ratio == pytest.approx(1.7) and where == f'as timed on GPU of 2026-12-02 ({newest})'
 
 
 def test_wall_seconds_packs_the_longest_cells_first():
-  assert study_cost.wall_seconds([3., 3., 2., 2., 2.], 2) == 7.   # 3+2+2 | 3+2, as longest-first packs them.
-  assert study_cost.wall_seconds([3., 1., 2.], 1) == 6. and study_cost.wall_seconds([3., 1., 2.], 10) == 3.
-  assert study_cost.wall_seconds([], 4) == 0.
+  assert estimate.wall_seconds([3., 3., 2., 2., 2.], 2) == 7.   # 3+2+2 | 3+2, as longest-first packs them.
+  assert estimate.wall_seconds([3., 1., 2.], 1) == 6. and estimate.wall_seconds([3., 1., 2.], 10) == 3.
+  assert estimate.wall_seconds([], 4) == 0.
 
 
 def test_cluster_estimate_of_the_dtu_table_from_the_committed_gpu_record():

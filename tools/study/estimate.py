@@ -165,13 +165,13 @@ def regnerf_ratio(precision: str) -> Tuple[float, str]:
   """(RegNeRF's step time over mip-NeRF's, where it was measured): the newest GPU window's that timed both, else
   the CPU's of CPU_RATIO_FILE."""
   timed = [(record.get('provenance', {}).get('date', ''), path, record) for path in
-           glob.glob(os.path.join(REPO, GPU_RATIO_GLOB)) for record in [study_export.read_json(path)]
+           glob.glob(os.path.join(REPO, GPU_RATIO_GLOB)) for record in [cells_file.read_json(path)]
            if _ratio(record, precision) is not None]
   if timed:
     _, path, record = max(timed, key=lambda found: found[:2])
     return _ratio(record, precision), f'as timed on {record.get("device")} ({os.path.relpath(path, REPO)})'
   path = os.path.join(REPO, CPU_RATIO_FILE)
-  return _ratio(study_export.read_json(path), precision), f'as measured on a CPU ({CPU_RATIO_FILE}), not yet on a GPU'
+  return _ratio(cells_file.read_json(path), precision), f'as measured on a CPU ({CPU_RATIO_FILE}), not yet on a GPU'
 
 
 def wall_seconds(durations: List[float], gpus: int) -> float:
