@@ -46,8 +46,8 @@ FILE_STAGES = {'internal/models/encoding.py': 'encoding', 'internal/models/trig.
                'internal/models/volume_render.py': 'volume rendering',
                'internal/models/freq_schedule.py': 'frequency masks',
                'internal/training/optim.py': 'clipping and Adam', 'internal/training/schedule.py': 'clipping and Adam'}
-MODEL_FILES = ('internal/models/mip_nerf.py', 'internal/models/nerf.py', 'internal/models/precision.py',
-               'internal/models/activations.py')
+MODEL_FILES = ('internal/models/mip_nerf.py', 'internal/models/nerf.py', 'internal/models/dense.py',
+               'internal/models/precision.py', 'internal/models/activations.py')
 DIR_STAGES = {'internal/losses/': 'losses', 'optax/': 'clipping and Adam'}
 
 
@@ -168,7 +168,7 @@ def stage_of(source) -> str:
   """The stage an operation's (file, function, is a matmul) belongs to."""
   file, function, is_matmul = source
   if file in MODEL_FILES:
-    return 'MLP matmuls' if is_matmul or function in ('matmul', 'dense') else 'MLP activations and layout'
+    return 'MLP matmuls' if is_matmul or function in ('matmul', 'matmuls', 'dense') else 'MLP activations and layout'
   if file in FILE_STAGES:
     return FILE_STAGES[file]
   folder = next((folder for folder in DIR_STAGES if file.startswith(folder)), None)

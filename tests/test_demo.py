@@ -22,7 +22,7 @@ from tools import demo_seeds
 from tools import provenance
 import train
 
-REGULARIZERS = {'freq_reg', 'freq_reg_end', 'occ_reg_loss_mult'}
+REGULARIZERS = {'freq_reg', 'freq_reg_end', 'freq_reg_end_fraction', 'occ_reg_loss_mult'}
 # The demo's results, per seed, as `python -m tools.demo_seeds` recorded them (results/demo/README.md). The tests
 # below train with the default seed and compare with what was recorded for it (what the demo shows:
 # results/README.md).
@@ -79,7 +79,8 @@ def test_the_two_demo_configs_differ_only_in_name_run_and_regularizers():
   cfgs = demo.method_configs()
   free, base = dataclasses.asdict(cfgs['FreeNeRF']), dataclasses.asdict(cfgs['NeRF'])
   assert {k for k in free if free[k] != base[k]} == {'expname', 'checkpoint_dir'} | REGULARIZERS
-  assert (base['freq_reg'], base['freq_reg_end'], base['occ_reg_loss_mult']) == (False, 0, 0.)
+  assert (base['freq_reg'], base['freq_reg_end'], base['freq_reg_end_fraction'], base['occ_reg_loss_mult']) == (
+      False, 0, 0., 0.)
   assert free['freq_reg'] and free['freq_reg_end'] == free['max_steps'] * 9 // 10 and free['occ_reg_loss_mult'] > 0
   assert (free['model'], free['freq_mask_layout']) == ('nerf', 'paper')
   assert (free['generated_rig'], free['n_input_views'], free['near'], free['far']) == ('forward', 2, 0., 1.)

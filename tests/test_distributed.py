@@ -113,7 +113,7 @@ def test_two_processes_train_like_one(tmp_path, scene_dir, one_process):
   _finish(_launch(scene_dir, run))
   _assert_close(_state(scene_dir, run), _losses(run), one_process)
   assert sorted(os.listdir(run)) == ['checkpoints', 'config.gin', 'config.json', run_dir_lib.MARKER_FILE,
-                                     learning_curve.CSV_FILE, 'tensorboard']
+                                     learning_curve.CSV_FILE, learning_curve.CLOCK_FILE, 'tensorboard']
   assert len(glob.glob(str(run / 'tensorboard' / 'events.*'))) == 1  # Written by process 0 only.
   curve, ref_curve = learning_curve.read_rows(learning_curve.csv_path(run)), one_process[2]
   assert [r['step'] for r in curve] == [r['step'] for r in ref_curve] == [STEPS]  # The demo's curve: last step only.

@@ -9,6 +9,7 @@ import subprocess
 import pytest
 
 from internal import atomic
+from internal.evaluation import learning_curve
 from internal.run import checkpoints
 from internal.run import run_dir as run_dir_lib
 from internal.pipeline import loop
@@ -92,7 +93,7 @@ def test_a_failed_first_start_records_nothing_and_the_corrected_retry_runs(tmp_p
   assert run_dir_lib.read_fingerprint(str(run))['Config.n_input_views'] == 8
   assert checkpoints.latest_step(str(run)) == 2 and not (run / run_dir_lib.LOCK_FILE).exists()
   assert sorted(os.listdir(run)) == ['checkpoints', 'config.gin', 'config.json', run_dir_lib.MARKER_FILE,
-                                     'learning_curve.csv', 'tensorboard']  # demo.gin records learning curves.
+                                     'learning_curve.csv', learning_curve.CLOCK_FILE, 'tensorboard']  # demo.gin records curves.
 
 
 def test_training_checks_the_test_split_before_it_starts(tmp_path, scene_dir):

@@ -10,6 +10,7 @@ import render as render_script
 import train as train_script
 from internal import cli
 from internal.evaluation import evaluate
+from internal.evaluation import learning_curve
 from internal.evaluation import render_path
 from internal.run import checkpoints
 from internal.pipeline import loop
@@ -119,7 +120,8 @@ def test_overwrite_of_a_run_deletes_everything_it_wrote_and_nothing_else(tmp_pat
     (run / name).write_text(text)
   assert len(_contents(run)) > 30  # Checkpoints, tensorboard, the evaluation and the renders.
   loop.train(tiny_config(scene_dir, run, 'Config.max_steps = 3', 'Config.overwrite = True'), stop_at_step=1)
-  fresh = {'config.gin', 'config.json', run_dir_lib.MARKER_FILE, 'notes.txt', *owned}  # No learning curve at step 1.
+  fresh = {'config.gin', 'config.json', run_dir_lib.MARKER_FILE, 'notes.txt', learning_curve.CLOCK_FILE, *owned}
+  # No learning curve at step 1, only its clock (saved with every checkpoint).
   assert set(os.listdir(run)) == fresh
   assert {name: (run / name).read_text() for name in user} == user
   for name in outputs:  # Of the evaluation's and the renders' folders only the user's file is left.
