@@ -333,11 +333,18 @@ def test_the_strict_form_reads_a_model_of_the_training_photos_in_its_own_frame(s
   for got, expected in zip(sfm_depth.training_prior(train, strict), sfm_depth.training_prior(train, config)):
     np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
   # A model that lacks a training image, or whose cameras are not the capture's, is named.
+  # A training image the model left out gets no depth (said in a warning); the others keep theirs.
   missing = dict(images)
-  missing.pop(next(iter(missing)))
+  left_out = missing.pop(next(iter(missing))).name
   cm.write_binary(cm.Model(model.cameras, missing, points), str(tmp_path / 'missing'))
-  with pytest.raises(DatasetError, match=r"sfm_depth_model = .*missing.* did not register training images \['view"):
-    sfm_depth.training_prior(train, dataclasses.replace(config, sfm_depth_model=str(tmp_path / 'missing')))
+  view = [colmap.read_capture(config).names[i] for i in train.ids].index(left_out)
+  lacking = dataclasses.replace(config, sfm_depth_model=str(tmp_path / 'missing'))
+  with pytest.warns(UserWarning, match=rf"missing.* did not register training images \['{left_out}'\]"):
+    _, weight = sfm_depth.training_prior(train, lacking)
+  assert not weight[view].any()
+  others = [k for k in range(len(train.ids)) if k != view]
+  kept = sfm_depth.training_prior(train, strict)
+  assert (weight[others] > 0).sum() > 0 and np.all((weight[others] > 0) <= (kept[1][others] > 0))
   moved = {k: dataclasses.replace(i, tvec=i.tvec + np.random.default_rng(k).normal(size=3)) for k, i in images.items()}
   cm.write_binary(cm.Model(model.cameras, moved, points), str(tmp_path / 'moved'))
   with pytest.raises(DatasetError, match=r'moved.*cameras fit the capture\'s only to'):

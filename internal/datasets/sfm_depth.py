@@ -13,6 +13,7 @@ Depths are the rays' parameter t: camera z-depth for world rays, NDC t for forwa
 
 import dataclasses
 import os
+import warnings
 from typing import Callable, List
 
 import numpy as np
@@ -123,8 +124,8 @@ def training_prior(dataset: base.Dataset, config) -> tuple:
   model, where = _model(config, capture)
   names = [capture.names[i] for i in dataset.ids]
   missing = [name for name in names if name not in {image.name for image in model.images.values()}]
-  if missing:
-    raise base.DatasetError(f'{where} did not register training images {missing}; its points give them no depth')
+  if missing:  # Structure-from-motion on few photos often leaves some out: they get no sparse depth.
+    warnings.warn(f'{where} did not register training images {missing}: they get no sparse depth', stacklevel=2)
   chosen = set(names)
   depth, weight = view_depths(model, align(model, capture, where), names, dataset.height, dataset.width,
                               lambda track: len(track & chosen) >= MIN_TRAINING_VIEWS, capture.forward)
