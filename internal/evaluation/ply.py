@@ -30,13 +30,18 @@ def write(path: str, verts, faces, colours) -> None:
   atomic.write_bytes(path, encode(verts, faces, colours))
 
 
-def read(path: str) -> tuple:
-  """(vertices [V, 3] f32, faces [F, 3] int, colours [V, 3] uint8) of a PLY written by write."""
+def _read(path: str) -> tuple:
+  """(bytes, header lines, offset of the body, {element: count}) of a PLY file."""
   with open(path, 'rb') as f:
     data = f.read()
   end = data.index(b'end_header\n') + len(b'end_header\n')
   header = data[:end].decode('ascii').split('\n')
-  counts = {line.split()[1]: int(line.split()[2]) for line in header if line.startswith('element')}
+  return data, header, end, {line.split()[1]: int(line.split()[2]) for line in header if line.startswith('element')}
+
+
+def read(path: str) -> tuple:
+  """(vertices [V, 3] f32, faces [F, 3] int, colours [V, 3] uint8) of a PLY written by write."""
+  data, _, end, counts = _read(path)
   vertex = np.frombuffer(data, VERTEX, counts['vertex'], end)
   face = np.frombuffer(data, FACE, counts['face'], end + counts['vertex'] * VERTEX.itemsize)
   verts = np.stack([vertex[n] for n in 'xyz'], -1)
@@ -75,12 +80,8 @@ def write_points(path: str, points, colours, normals=None) -> None:
 
 def read_points(path: str) -> tuple:
   """(points [P, 3] f32, colours [P, 3] uint8, normals [P, 3] f32 or None) of a PLY written by write_points."""
-  with open(path, 'rb') as f:
-    data = f.read()
-  end = data.index(b'end_header\n') + len(b'end_header\n')
-  header = data[:end].decode('ascii').split('\n')
-  count = int(next(line.split()[2] for line in header if line.startswith('element vertex')))
+  data, header, end, counts = _read(path)
   has_normals = 'property float nx' in header
-  vertex = np.frombuffer(data, _point_dtype(has_normals), count, end)
+  vertex = np.frombuffer(data, _point_dtype(has_normals), counts['vertex'], end)
   stack = lambda names: np.stack([vertex[n] for n in names], -1)
   return stack('xyz'), stack(('red', 'green', 'blue')), stack(('nx', 'ny', 'nz')) if has_normals else None
