@@ -128,18 +128,19 @@ def write_colmap(folder: str, model: colmap_model.Model, image_paths, text: bool
 
 
 def save_picture(path: str, found: dict, views=((20, -100), (20, 20))) -> None:
-  """A PNG of the cloud from each (elevation, azimuth), orthographic, far points first."""
+  """A PNG of the cloud from each (elevation, azimuth), orthographic, far points first, each a dot of a size that
+  fills the picture about once."""
   fig = matplotlib.figure.Figure(figsize=(6 * len(views), 4))
   for i, angles in enumerate(views):
     right, up, forward = mesh_tool.camera_axes(*angles)
     order = np.argsort(-(found['points'] @ forward))
     ax = fig.add_subplot(1, len(views), i + 1)
-    ax.scatter(found['points'][order] @ right, found['points'][order] @ up, s=1., c=found['colours'][order],
-               linewidths=0)
+    ax.scatter(found['points'][order] @ right, found['points'][order] @ up, c=found['colours'][order],
+               s=min(max(6e4 / len(order), .5), 20.), linewidths=0)
     ax.set_aspect('equal')
     ax.set_axis_off()
   fig.tight_layout()
-  fig.savefig(path, dpi=100)
+  fig.savefig(path, dpi=100, bbox_inches='tight')
 
 
 def main(argv=None) -> int:
@@ -177,6 +178,8 @@ def main(argv=None) -> int:
     raise ValueError(f'no pixel of the {len(views) + len(others)} views is {args.min_opacity} opaque with '
                      f'{args.min_views} training views agreeing within {args.tolerance:.0%}: no point to write '
                      '(--min_opacity, --tolerance and --min_views set the rule)')
+  for path in filter(None, (args.out, args.picture, args.scores)):
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
   ply.write_points(args.out, found['points'], found['colours'], found['normals'])
   print(f'{len(found["points"])} points of step {int(state.step)} from {len(views)} training and {len(others)} path '
         f'views in {args.out!r}')

@@ -118,7 +118,7 @@ def cloud(train: List[View], others: List[View], min_opacity: float, tolerance: 
     good = np.flatnonzero(agrees.sum(1) >= min_views)
     good = np.sort(rng.choice(good, share, replace=False)) if len(good) > share else good
     kept['points'].append(candidates[good])
-    kept['colours'].append(view.rgb.reshape(-1, 3)[opaque[good]])
+    kept['colours'].append(np.clip(view.rgb.reshape(-1, 3)[opaque[good]], 0., 1.))  # White backgrounds add 1 - acc.
     kept['normals'].append(None if view.normals is None else view.normals.reshape(-1, 3)[opaque[good]])
     kept['agrees'].append(agrees[good])
     kept['pixels'].append(pixels[good])
