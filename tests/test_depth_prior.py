@@ -214,10 +214,11 @@ def _project(rotation, translation, camera, xyz):
   return np.stack([f * local[:, 0] / local[:, 2] + cx, f * local[:, 1] / local[:, 2] + cy], -1), local[:, 2]
 
 
-def _capture_with_points(tmp_path, scene_dir, n_points=150):
-  """A capture of the generated object scene (all 24 training views) whose points lie on its exact surfaces, each
-  observed in every view that sees it (its depth there within 1% of the exact one), with random errors."""
-  config = Config(data_dir=str(scene_dir), n_input_views=0)
+def _capture_with_points(tmp_path, scene_dir, n_points=150, **settings):
+  """A capture of the generated scene (object rig unless settings say otherwise; its whole training pool) whose
+  points lie on its exact surfaces, each observed in every view that sees it (its depth there within 1% of the
+  exact one), with random errors."""
+  config = Config(data_dir=str(scene_dir), n_input_views=0, **settings)
   data = load_dataset('train', config, ground_truth=True)
   data.source_paths = data.image_paths
   _capture_from(data, tmp_path / 'capture')
@@ -382,3 +383,32 @@ def test_the_cup_from_three_views_has_a_sparse_prior_in_front_of_its_cameras():
   depth, weight = sfm_depth.training_prior(train, config)
   assert (weight > 0).sum() > 100 and np.all(weight <= 1.)
   assert train.near <= depth[weight > 0].min() and depth[weight > 0].max() <= train.far
+
+
+def test_a_forward_captures_prior_is_the_ndc_t_where_each_pixels_ray_reaches_its_points_depth(tmp_path):
+  forward = dict(generated_rig='forward', generated_size=(24, 32), near=0., far=1., white_background=False)
+  model, _, folder = _capture_with_points(tmp_path, tmp_path / 'scene', 60, **forward)
+  config = _sfm_config(folder, n_input_views=4, llffhold=8)
+  train = load_dataset('train', config)
+  capture = colmap.read_capture(config)
+  assert capture.forward and (train.near, train.far) == (0., 1.)
+  depth, weight = sfm_depth.training_prior(train, config)
+  found = sfm_depth.align(model, capture, 'model')
+  names = [capture.names[i] for i in train.ids]
+  by_name = {image.name: image for image in model.images.values()}
+  def depth_of(view, row, col, point_id):  # The NDC t at which the pixel's ray reaches the point's world z.
+    world_z = (found.scale * found.rotation @ model.points[int(point_id)].xyz + found.translation)[2]
+    origin, direction = train.rays.origins[view, row, col], train.rays.directions[view, row, col]
+    return (1. + 2. / world_z - origin[2]) / direction[2]
+
+  checked = 0
+  for view, name in enumerate(names):
+    image = by_name[name]
+    for x, y, point_id in image.points2d:
+      row, col = int(y * train.height // model.cameras[image.camera_id].height), int(
+          x * train.width // model.cameras[image.camera_id].width)
+      if weight[view, row, col] == 0 or not np.isclose(depth[view, row, col], depth_of(view, row, col, point_id),
+                                                       rtol=1e-5):
+        continue  # A pixel observing several points keeps the best-weighted one.
+      checked += 1
+  assert checked >= 0.5 * (weight > 0).sum() > 5
