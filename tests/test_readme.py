@@ -7,8 +7,8 @@ scenes instead of data/, 2 steps, a small model, low resolution (tools.mesh: a 1
 crosses; tools.points: every pixel's point; a paper table's study: its first cell; tools.capture: 18 of the
 shared cup's photos as the `photos` folder, at half size). It turns `python -m pytest` into a collection run (the
 suite is not run inside itself). `python3 -m venv`, `. .venv/bin/activate` and `pip install` steps are dropped:
-the test runs in the installed environment (the GPU install, `pip install -r requirements-gpu.txt`, cannot run on a CPU machine; tests/test_gpu_install.py checks
-that it resolves).
+the test runs in the installed environment (the GPU install, `pip install -r requirements-gpu.txt`, cannot run on
+a CPU machine; tests/test_gpu_install.py checks that it resolves).
 """
 
 import importlib.util
