@@ -24,6 +24,7 @@ from internal.models import sampling
 from internal.training import train_step
 from internal.datasets import base
 from internal.datasets import batching
+from internal.datasets import depth_prior
 from internal.datasets import image_io
 from internal.datasets import loader
 from internal.datasets import raygen
@@ -165,6 +166,7 @@ def validate(config: Config) -> None:
   _validate_regnerf(config)
   _validate_curve(config)
   _validate_blender_code_settings(config)
+  depth_prior.check_settings(config)
 
 
 def _check_ranges(config: Config) -> None:

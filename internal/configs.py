@@ -226,6 +226,27 @@ class Config:
   # Curve views load at Config.factor * this (in place of eval_factor).
   curve_factor: int = setting(4, POSITIVE, BOOKKEEPING)
 
+  # Depth priors (docs/running.md, 'Depth priors'; internal/datasets/depth_prior.py and sfm_depth.py, the losses in
+  # internal/losses/depth_ranking.py, depth_pearson.py, sparse_depth.py). Every weight 0 = off: the paper's configs
+  # are unchanged. Read for the training views only.
+  # Folder of one depth map per training image, <image stem>.npy (float, any size of the image's aspect ratio) or
+  # .png (16-bit grey); 0 and non-finite values are "no prior" there.
+  depth_prior_dir: str = setting('', PATH)
+  depth_prior_kind: str = setting('')  # What the maps hold: 'depth' or 'disparity' (up to scale and shift).
+  depth_rank_loss_mult: float = setting(0., NON_NEGATIVE)  # SparseNeRF's local ranking loss on the maps; 0 = off.
+  depth_rank_margin: float = setting(1e-4, NON_NEGATIVE)  # Its margin, in units of the rays' t (NDC for LLFF).
+  depth_pearson_loss_mult: float = setting(0., NON_NEGATIVE)  # 1 - Pearson correlation per patch; 0 = off.
+  depth_patch_size: int = setting(8, POSITIVE)  # Side of the training-view patches the two losses above compare.
+  # Rays per step rendered for the depth losses: depth_prior_rays // depth_patch_size**2 patches of the training
+  # views (ranking, Pearson), and this many rays through structure-from-motion points (sparse depth).
+  depth_prior_rays: int = setting(512, POSITIVE)
+  # Captures: DS-NeRF's sparse depth, the COLMAP points whose tracks hold >= 2 training views; 0 = off.
+  sfm_depth_loss_mult: float = setting(0., NON_NEGATIVE)
+  # '' = the capture's own model (its points were triangulated with every photo, test views included); the strict
+  # form: a COLMAP model made from the training photos alone (e.g. python -m tools.capture on a folder of them),
+  # aligned to the capture by its cameras.
+  sfm_depth_model: str = setting('', PATH)
+
 
 def declared(prop: str) -> tuple:
   """Names of the Config fields that declare a property, in field order."""

@@ -2,13 +2,13 @@
 
 Each block runs in bash in a copy of the repository, with one scene per loop (the README's scene-list variables)
 and a `python` on PATH that appends tiny model and data bindings to train.py / eval.py / render.py and to the
-tools that take them (tools.study, tools.pack_scene, tools.mesh): the shared scenes instead of data/, 2 steps, a
-small model, low resolution (tools.mesh: a 16^3 grid at a level a 2-step field crosses; a paper table's study:
-its first cell; tools.capture: 18 of the shared cup's photos as the `photos` folder, at half size). It turns
-`python -m pytest` into a collection run (the suite is not run inside itself). `python3 -m venv`,
-`. .venv/bin/activate` and `pip install` steps are dropped: the test runs in the installed environment (the GPU
-install, `pip install -r requirements-gpu.txt`, cannot run on a CPU machine; tests/test_gpu_install.py checks
-that it resolves).
+tools that take them (tools.study, tools.pack_scene, tools.mesh, tools.points, tools.synthetic_depth): the shared
+scenes instead of data/, 2 steps, a small model, low resolution (tools.mesh: a 16^3 grid at a level a 2-step field
+crosses; tools.points: every pixel's point; a paper table's study: its first cell; tools.capture: 18 of the
+shared cup's photos as the `photos` folder, at half size). It turns `python -m pytest` into a collection run (the
+suite is not run inside itself). `python3 -m venv`, `. .venv/bin/activate` and `pip install` steps are dropped:
+the test runs in the installed environment (the GPU install, `pip install -r requirements-gpu.txt`, cannot run on
+a CPU machine; tests/test_gpu_install.py checks that it resolves).
 """
 
 import importlib.util
@@ -63,7 +63,8 @@ SHIM = '''#!{python}
 """README test shim: runs the real interpreter with tiny bindings appended; logs each call and its status."""
 import json, subprocess, sys
 args = sys.argv[1:]
-TAKES_BINDINGS = (['-m', 'tools.study'], ['-m', 'tools.pack_scene'], ['-m', 'tools.mesh'])
+TAKES_BINDINGS = (['-m', 'tools.study'], ['-m', 'tools.pack_scene'], ['-m', 'tools.mesh'],
+                  ['-m', 'tools.points'], ['-m', 'tools.synthetic_depth'])
 if args[:1] in (['train.py'], ['eval.py'], ['render.py']) or args[:2] in (TAKES_BINDINGS):
   configs = ' '.join(a for a in args if 'configs/' in a or 'studies/' in a)
   args += ['--gin_bindings'] + {tiny!r} + [x for name, extra in {data!r}.items() if name in configs for x in extra]
@@ -71,6 +72,8 @@ if args[:2] == ['-m', 'tools.study'] and any('studies/table_' in a for a in args
   args += ['--shard', '0/1000']
 if args[:2] == ['-m', 'tools.mesh']:  # A 2-step field crosses softplus(-1), the density of a zero pre-activation.
   args += ['--resolution', '16', '--level', '0.3133']
+elif args[:2] == ['-m', 'tools.points']:  # A 2-step field is nowhere near opaque: keep every pixel's point.
+  args += ['--min_opacity', '0.001', '--min_views', '1']
 elif args[:2] == ['-m', 'tools.capture']:  # Structure-from-motion at half size.
   args += ['--max_size', '400']
 elif args[:2] == ['-m', 'pytest']:

@@ -24,10 +24,12 @@ IMAGE = ('psnr', 'ssim', 'lpips', 'avg_error')
 MASKED = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'avg_error_masked')
 DEPTH = ('depth_mae', 'depth_within_1pct', 'depth_within_5pct')
 PSEUDO = ('pseudo_depth_mae', 'pseudo_depth_within_1pct', 'pseudo_depth_within_5pct')
+SFM = ('sfm_depth_mae', 'sfm_depth_within_1pct', 'sfm_depth_within_5pct')
 
 
-def _written_metrics(tmp_path) -> set:
-  """Every key the evaluation's scorers write for one view: image metrics with a mask, exact and pseudo depths."""
+def _written_metrics(tmp_path, monkeypatch) -> set:
+  """Every key the evaluation's scorers write for one view: image metrics with a mask, exact, pseudo and SfM
+  depths."""
   rng = np.random.default_rng(0)
   gt, pred = rng.random((8, 8, 3)), rng.random((8, 8, 3))
   keys = set(metrics.image_metrics(pred, gt, lambda a, b: .1, mask=np.ones_like(gt)))
@@ -38,20 +40,23 @@ def _written_metrics(tmp_path) -> set:
   np.savez(depth_metrics.depth_file(str(eval_dir), 0), distance=depth[0], acc=np.ones((8, 8)))
   keys |= set(depth_metrics.scorer(test_set, False)(0, depth[0] + .01))
   keys |= set(depth_metrics.reference_scorer(test_set, False, str(tmp_path / 'reference'), [0])(0, depth[0]))
+  monkeypatch.setattr(depth_metrics.sfm_depth, 'evaluation_depths', lambda test_set, config: depth)
+  keys |= set(depth_metrics.sfm_scorer(test_set, False, None)(0, depth[0]))
   return keys
 
 
-def test_every_metric_the_evaluation_writes_is_registered(tmp_path):
-  written = _written_metrics(tmp_path)
-  assert written == set(IMAGE + MASKED + DEPTH + PSEUDO)
+def test_every_metric_the_evaluation_writes_is_registered(tmp_path, monkeypatch):
+  written = _written_metrics(tmp_path, monkeypatch)
+  assert written == set(IMAGE + MASKED + DEPTH + PSEUDO + SFM)
   assert written == set(metric_registry.METRICS)
 
 
 def test_derived_metric_lists_equal_the_former_literal_lists():
   assert metrics.FULL_METRICS == IMAGE and metrics.MASKED_METRICS == MASKED
   assert depth_metrics.DEPTH_METRICS == DEPTH and metric_registry.names(metric_registry.PSEUDO_DEPTH) == PSEUDO
-  assert set(study_spec.LOWER_IS_BETTER) == {'lpips', 'avg_error', 'depth_mae', 'pseudo_depth_mae', 'lpips_masked',
-                                             'avg_error_masked'}
+  assert metric_registry.names(metric_registry.SFM_DEPTH) == SFM
+  assert set(study_spec.LOWER_IS_BETTER) == {'lpips', 'avg_error', 'depth_mae', 'pseudo_depth_mae', 'sfm_depth_mae',
+                                             'lpips_masked', 'avg_error_masked'}
   assert tables.METRIC_GROUPS == {'dtu': (('object', MASKED), ('full', IMAGE)), 'llff': (('', IMAGE),),
                                   'blender': (('', IMAGE),), 'colmap': (('', IMAGE),)}
   former_display = {'psnr': 'PSNR', 'ssim': 'SSIM', 'lpips': 'LPIPS', 'avg_error': 'Avg'}

@@ -1,5 +1,6 @@
-"""tools.mesh, tools.pack_scene and tools.tables end a bad input in one `error:` line and exit status 2, as the
-scripts do (internal/cli.py), when run as `python -m tools.<name>`."""
+"""tools.mesh, tools.pack_scene, tools.tables, tools.points, tools.synthetic_depth and tools.depth_shape end a bad
+input in one `error:` line and exit status 2, as the scripts do (internal/cli.py), when run as
+`python -m tools.<name>`."""
 
 import json
 import subprocess
@@ -26,13 +27,19 @@ for argv in json.loads(sys.argv[1]):
 def test_each_tool_run_as_a_module_ends_a_bad_input_in_one_line(tmp_path):
   calls = [['tools.tables', str(tmp_path / 'absent'), '--out', str(tmp_path / 'tables')],
            ['tools.pack_scene', '--out', str(tmp_path / 'scene.zip')],
-           ['tools.mesh', '--level', 'nan']]
+           ['tools.mesh', '--level', 'nan'],
+           ['tools.points', '--out', str(tmp_path / 'x.ply'), '--max_points', '0'],
+           ['tools.synthetic_depth', '--out', str(tmp_path / 'maps'), '--gamma', '0'],
+           ['tools.depth_shape', 'studies/absent.toml', '--export', str(tmp_path / 'shape')]]
   result = subprocess.run([sys.executable, '-c', RUN_AS_MAIN, json.dumps(calls)], cwd=ROOT, capture_output=True,
                           text=True, timeout=300, check=False)
   lines = [line for line in result.stderr.splitlines() if line.startswith(('error: ', 'status '))]
   assert lines == [f"error: run root {str(tmp_path / 'absent')!r} does not exist", 'status 2',
                    f"error: --out {str(tmp_path / 'scene.zip')!r}: expected a file name ending in .npz", 'status 2',
-                   'error: --level nan: expected a positive finite density (the density is >= 0)', 'status 2'], \
+                   'error: --level nan: expected a positive finite density (the density is >= 0)', 'status 2',
+                   'error: --max_points 0, --path_views 0, --min_views 2: expected >= 1, >= 0, >= 1', 'status 2',
+                   'error: --gamma 0.0, --blur 1.0, --noise 0.02: expected > 0, >= 0, >= 0', 'status 2',
+                   "error: study file 'studies/absent.toml' does not exist", 'status 2'], \
       result.stderr
   assert 'Traceback' not in result.stderr
 

@@ -38,6 +38,8 @@ class Dataset:
   name: str
   depths: Optional[np.ndarray] = None        # f32 [N,H,W] exact z-depth (generated scene), 0 = no hit.
   object_masks: Optional[np.ndarray] = None  # f32 [N,H,W] object coverage (generated scene).
+  # The image file of each view, in load order (depth priors are named after them); None: a pack keeps none.
+  image_paths: Optional[List[str]] = None
 
 
 def check_split(split: str) -> None:

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from internal.datasets import base, loader, random_poses
+from internal.datasets import base, depth_prior, loader, random_poses, sfm_depth
 from internal.rays import Rays
 
 BATCHING_MODES = ('single_image', 'all_images')
@@ -38,7 +38,8 @@ def central_crop(height: int, width: int, frac: float) -> np.ndarray:
 def make_batcher(dataset: base.Dataset, config):
   """callable(step) -> {'rays': Rays [B,...] f32, 'rgb': [B,3] f32}, pixels drawn with replacement (step >= 1).
 
-  When a geometry loss needs them, the batch also holds 'patch_rays': Rays [P, ps, ps, ...] of random poses.
+  When a geometry loss needs them, the batch also holds 'patch_rays': Rays [P, ps, ps, ...] of random poses; when
+  a depth-prior loss is on, the rays and priors of make_prior_sampler.
   """
   base.check_choice('Config.batching', config.batching, BATCHING_MODES)
   n, n_pixels = dataset.images.shape[0], dataset.height * dataset.width
@@ -47,6 +48,7 @@ def make_batcher(dataset: base.Dataset, config):
   mode, batch_size, seed = config.batching, config.batch_size, config.np_rng_seed
   patches = random_poses.make_patch_sampler(dataset, config, loader.random_pose_cameras)
   crop = central_crop(dataset.height, dataset.width, config.precrop_frac) if config.precrop_steps > 0 else None
+  priors = make_prior_sampler(dataset, config, rays)
 
   def batch(step: int) -> dict:
     """The training batch of this step (steps 1..Config.precrop_steps: from the central crop only)."""
@@ -56,5 +58,56 @@ def make_batcher(dataset: base.Dataset, config):
     out = {'rays': Rays(*[x[index].astype(np.float32) for x in rays]), 'rgb': rgb[index].astype(np.float32)}
     if patches is not None:
       out['patch_rays'] = patches(step)
+    if priors is not None:
+      out.update(priors(step))
     return out
   return batch
+
+
+# ---------------------------------------------------------------- depth priors: patches and points of real views
+
+PRIOR_STREAM = 3  # The depth-prior rays of step s come from np.random.default_rng([Config.np_rng_seed, s, 3]).
+
+
+def patch_indices(rng: np.random.Generator, n_images: int, height: int, width: int, count: int,
+                  size: int) -> tuple:
+  """(image [count], flat pixel [count, size * size]) of count square patches, each inside one random image."""
+  image = rng.integers(n_images, size=count)
+  top, left = rng.integers(height - size + 1, size=count), rng.integers(width - size + 1, size=count)
+  offsets = (np.arange(size)[:, None] * width + np.arange(size)[None]).reshape(-1)
+  return image, (top * width + left)[:, None] + offsets
+
+
+def make_prior_sampler(dataset: base.Dataset, config, rays: Rays):
+  """callable(step) -> the depth-prior part of a batch, or None when no depth-prior loss is on.
+
+  rays: the dataset's Rays [N, H*W, ...]. With a dense prior: 'prior_rays' Rays [P, n, ...] and 'prior' [P, n],
+  P = Config.depth_prior_rays // n patches of n = Config.depth_patch_size**2 pixels of the training views; with
+  the SfM prior: 'sfm_rays' Rays [K, ...], 'sfm_depth' and 'sfm_weight' [K], K = Config.depth_prior_rays rays
+  drawn among the training pixels that observe a point.
+  """
+  dense, sparse = depth_prior.dense_losses_on(config), config.sfm_depth_loss_mult > 0
+  if not (dense or sparse):
+    return None
+  n, height, width = len(dataset.ids), dataset.height, dataset.width
+  size = config.depth_patch_size
+  if dense and size > min(height, width):
+    raise ValueError(f'Config.depth_patch_size = {size} exceeds the {width} x {height} training images')
+  maps = depth_prior.load_maps(dataset, config).reshape(n, -1) if dense else None
+  points = sfm_depth.training_prior(dataset, config) if sparse else None
+  where = np.nonzero(points[1].reshape(-1))[0] if sparse else None
+  take = lambda index: Rays(*[x[index].astype(np.float32) for x in rays])
+
+  def sample(step: int) -> dict:
+    """The depth-prior rays of this step."""
+    rng = np.random.default_rng([config.np_rng_seed, int(step), PRIOR_STREAM])
+    out = {}
+    if dense:
+      index = patch_indices(rng, n, height, width, config.depth_prior_rays // size**2, size)
+      out.update(prior_rays=take((index[0][:, None], index[1])), prior=maps[index[0][:, None], index[1]])
+    if sparse:
+      index = np.divmod(where[rng.integers(len(where), size=config.depth_prior_rays)], height * width)
+      out.update(sfm_rays=take(index), sfm_depth=points[0].reshape(n, -1)[index],
+                 sfm_weight=points[1].reshape(n, -1)[index])
+    return out
+  return sample

@@ -86,7 +86,7 @@ def load_blender(split: str, config, scene_dir: str, name: str, mode: str, test_
   return base.Dataset(images=images.astype(np.float32), camtoworlds=c2w.astype(np.float32),
                       pixtocams=np.repeat(pixtocam[None], len(ids), 0).astype(np.float32), ids=list(ids),
                       height=height, width=width, near=config.near, far=config.far, masks=None, rays=rays,
-                      split=split, name=name)
+                      split=split, name=name, image_paths=paths)
 
 
 def render_cameras(scene_dir: str, factor: int):

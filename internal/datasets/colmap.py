@@ -246,7 +246,8 @@ def load_scene(split: str, config) -> base.Dataset:
   pixtocams = [np.linalg.inv(_intrinsics(capture.params[i], capture.sizes[i, 1] / width)) for i in ids]
   return base.Dataset(images=images, camtoworlds=capture.camtoworlds[ids].astype(np.float32),
                       pixtocams=np.stack(pixtocams).astype(np.float32), ids=list(ids), height=height, width=width,
-                      near=near, far=far, masks=None, rays=rays, split=split, name=f'colmap/{scene_name(config)}')
+                      near=near, far=far, masks=None, rays=rays, split=split, name=f'colmap/{scene_name(config)}',
+                      image_paths=[paths[i] for i in ids])
 
 
 def _intrinsics(params: np.ndarray, factor: float) -> np.ndarray:

@@ -215,7 +215,7 @@ def load_scene(split: str, config) -> base.Dataset:
   return base.Dataset(images=images, camtoworlds=poses[ids].astype(np.float32),
                       pixtocams=pixtocams[ids].astype(np.float32), ids=list(ids), height=height, width=width,
                       near=config.near, far=config.far, masks=masks, rays=rays, split=split,
-                      name=f'dtu/{config.dtu_scan}')
+                      name=f'dtu/{config.dtu_scan}', image_paths=list(paths))
 
 
 def mask_region(test_set: base.Dataset):

@@ -111,7 +111,8 @@ def load_llff(split: str, config, scene_dir: str, name: str) -> base.Dataset:
   near, far = raygen.NDC_NEAR_FAR
   return base.Dataset(images=images, camtoworlds=c2w[ids].astype(np.float32),
                       pixtocams=np.repeat(pixtocam[None], len(ids), 0).astype(np.float32), ids=list(ids),
-                      height=height, width=width, near=near, far=far, masks=None, rays=rays, split=split, name=name)
+                      height=height, width=width, near=near, far=far, masks=None, rays=rays, split=split, name=name,
+                      image_paths=[paths[i] for i in ids])
 
 
 def scene_path(config) -> str:

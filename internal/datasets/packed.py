@@ -181,9 +181,12 @@ def rays_equal(a, b) -> bool:
 
 
 def datasets_equal(a: base.Dataset, b: base.Dataset) -> list:
-  """Names of the Dataset fields that differ (rays compared bitwise, arrays exactly)."""
+  """Names of the Dataset fields that differ (rays compared bitwise, arrays exactly); where the images were read
+  from (image_paths) is not data, and a pack does not keep it."""
   diff = []
   for f in dataclasses.fields(base.Dataset):
+    if f.name == 'image_paths':
+      continue
     x, y = getattr(a, f.name), getattr(b, f.name)
     same = rays_equal(x, y) if f.name == 'rays' else (
         (x is None and y is None) if x is None or y is None else np.array_equal(np.asarray(x), np.asarray(y)))

@@ -2,7 +2,8 @@
 
 Against a pseudo ground truth (the depths another run rendered for the same test views, as in the paper's
 appendix: mip-NeRF trained on many views) the same errors are reported as pseudo_depth_*, over the pixels that
-run rendered opaque.
+run rendered opaque. On a capture, against its structure-from-motion points where each test view observed them,
+as sfm_depth_* (a sparse reference, in the capture's units: its median camera is 1 from the centre).
 
 Depths here are the ray parameter t along the loaders' (unnormalized) ray directions, whose camera-frame |z| is
 1: that is the camera z-depth, the generated scene's stored depth and, for non-NDC rays, the rendered
@@ -16,6 +17,7 @@ from typing import Dict, Optional
 
 import numpy as np
 
+from internal.datasets import sfm_depth
 from internal.evaluation import metric_registry
 
 DEPTH_METRICS = metric_registry.names(metric_registry.DEPTH)
@@ -111,4 +113,17 @@ def scorer(test_set, ndc: bool):
 
   def score(i: int, distance):
     return depth_errors(world_depth(test_set, i, distance, ndc), gt[i], valid[i], depth_range)
+  return score
+
+
+def sfm_scorer(test_set, ndc: bool, config):
+  """(position, rendered distance [H,W]) -> sfm_depth_* at the capture's own points each test view observed
+  (internal/datasets/sfm_depth.evaluation_depths); the tolerance range is that of their depths over the views."""
+  points = sfm_depth.evaluation_depths(test_set, config)
+  valid = points > 0
+  depth_range = float(points[valid].max() - points[valid].min()) if valid.any() else 0.
+
+  def score(i: int, distance):
+    errors = depth_errors(world_depth(test_set, i, distance, ndc), points[i], valid[i], depth_range)
+    return {metric_registry.SFM_PREFIX + k: v for k, v in errors.items()}
   return score

@@ -117,6 +117,8 @@ def evaluate(config) -> dict:
   depth_scores = [depth_metrics.scorer(test_set, ndc)]  # Exact depths (generated scenes).
   if config.depth_reference_dir:
     depth_scores.append(depth_metrics.reference_scorer(test_set, ndc, config.depth_reference_dir, positions))
+  if config.dataset_loader == 'colmap':  # A capture's structure-from-motion points (#51).
+    depth_scores.append(depth_metrics.sfm_scorer(test_set, ndc, config))
   per_image = []
   for i in positions:
     rendering = inference.render_image(render_fn, jax.tree.map(lambda x, i=i: x[i], test_set.rays),

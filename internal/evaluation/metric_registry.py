@@ -10,8 +10,10 @@ FULL = 'full'                  # Image metrics over every pixel (every dataset).
 MASKED = 'masked'              # DTU object metrics: inside the evaluation mask, background set to white.
 DEPTH = 'depth'                # Depth errors against exact depths (generated scenes).
 PSEUDO_DEPTH = 'pseudo_depth'  # The depth errors against another run's depths (Config.depth_reference_dir).
+SFM_DEPTH = 'sfm_depth'        # The depth errors at the capture's structure-from-motion points (captures).
 MASKED_SUFFIX = '_masked'
 PSEUDO_PREFIX = 'pseudo_'
+SFM_PREFIX = 'sfm_'
 
 
 @dataclasses.dataclass(frozen=True)
@@ -24,7 +26,7 @@ class Metric:
 
 
 # (name, display name, lower is better) of the image metrics (FULL, and MASKED with MASKED_SUFFIX) and of the
-# depth errors (DEPTH, and PSEUDO_DEPTH with PSEUDO_PREFIX).
+# depth errors (DEPTH, PSEUDO_DEPTH with PSEUDO_PREFIX, SFM_DEPTH with SFM_PREFIX).
 _IMAGE = (('psnr', 'PSNR', False), ('ssim', 'SSIM', False), ('lpips', 'LPIPS', True), ('avg_error', 'Avg', True))
 _DEPTH = (('depth_mae', 'depth MAE', True), ('depth_within_1pct', 'depth within 1%', False),
           ('depth_within_5pct', 'depth within 5%', False))
@@ -33,7 +35,8 @@ METRICS: Dict[str, Metric] = {m.name: m for m in (
     [Metric(name, display, lower, FULL) for name, display, lower in _IMAGE]
     + [Metric(name + MASKED_SUFFIX, display, lower, MASKED) for name, display, lower in _IMAGE]
     + [Metric(name, display, lower, DEPTH) for name, display, lower in _DEPTH]
-    + [Metric(PSEUDO_PREFIX + name, 'pseudo ' + display, lower, PSEUDO_DEPTH) for name, display, lower in _DEPTH])}
+    + [Metric(PSEUDO_PREFIX + name, 'pseudo ' + display, lower, PSEUDO_DEPTH) for name, display, lower in _DEPTH]
+    + [Metric(SFM_PREFIX + name, 'SfM ' + display, lower, SFM_DEPTH) for name, display, lower in _DEPTH])}
 
 
 def names(group: str) -> Tuple[str, ...]:

@@ -26,6 +26,7 @@ from internal.run import out_of_memory
 from internal.run import sharding
 from internal.run import stuck
 from internal.training import train_step as train_step_lib
+from internal.training import prior_losses
 from internal.evaluation import vis
 from internal import progress
 from internal.datasets import random_poses
@@ -193,6 +194,11 @@ def _check_batch(config, mesh) -> None:
     raise ValueError(f'Config.batch_size_random = {config.batch_size_random} makes {patches} patches of '
                      f'{config.patch_size}x{config.patch_size}; expected a multiple of the number of devices '
                      f'({mesh.size}) so that every device gets whole patches')
+  prior_patches = config.depth_prior_rays // config.depth_patch_size**2
+  if prior_losses.any_on(config) and (prior_patches % mesh.size or config.depth_prior_rays % mesh.size):
+    raise ValueError(f'Config.depth_prior_rays = {config.depth_prior_rays} makes {prior_patches} patches of '
+                     f'Config.depth_patch_size = {config.depth_patch_size}; expected both counts to be multiples of '
+                     f'the number of devices ({mesh.size})')
 
 
 def train(config, stop_at_step: int = 0, stop: Optional[StopFlag] = None) -> TrainResult:

@@ -18,6 +18,7 @@ from internal.losses import reconstruction
 from internal.training import anneal
 from internal.training import optim
 from internal.training import schedule
+from internal.training import prior_losses
 
 
 @flax.struct.dataclass
@@ -86,6 +87,11 @@ def compute_loss(config, model, params, batch, key, step):
     level_mults = [config.coarse_loss_mult] * (len(tvs) - 1) + [schedule.depth_tv_weight(config, step)]
     stats['loss_depth_tv'] = sum(mult * tv for mult, tv in zip(level_mults, tvs))
     loss += stats['loss_depth_tv']
+  if prior_losses.any_on(config):  # Depth priors (#51): their own rays, rendered with the step's masks.
+    prior_loss, prior_stats = prior_losses.loss_terms(config, model, params, batch, key, step,
+                                                      (mask_point, mask_view))
+    stats.update(prior_stats)
+    loss += prior_loss
   if mask_point is not None:
     stats['mask_visible_point'] = jnp.mean(mask_point)
     stats['mask_visible_view'] = jnp.mean(mask_view)

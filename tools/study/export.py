@@ -34,7 +34,7 @@ REPO = study_spec.REPO
 TABLE_FILE = 'table.md'
 # Columns of table.md, where the cells report them: DTU's object-masked metrics first, as the paper's tables.
 TABLE_METRICS = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'psnr', 'ssim', 'lpips', 'depth_mae',
-                 'pseudo_depth_mae', 'pseudo_depth_within_5pct')
+                 'pseudo_depth_mae', 'pseudo_depth_within_5pct', 'sfm_depth_mae')
 
 
 def eval_dir(cell_path: str, step: int) -> str:
