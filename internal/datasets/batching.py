@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from internal.datasets import base, loader, random_poses
+from internal.datasets import base, loader, pose_correction, random_poses
 from internal.rays import Rays
 
 BATCHING_MODES = ('single_image', 'all_images')
@@ -47,6 +47,7 @@ def make_batcher(dataset: base.Dataset, config):
   mode, batch_size, seed = config.batching, config.batch_size, config.np_rng_seed
   patches = random_poses.make_patch_sampler(dataset, config, loader.random_pose_cameras)
   crop = central_crop(dataset.height, dataset.width, config.precrop_frac) if config.precrop_steps > 0 else None
+  space = loader.ray_space(config, dataset) if config.optimize_cameras else None
 
   def batch(step: int) -> dict:
     """The training batch of this step (steps 1..Config.precrop_steps: from the central crop only)."""
@@ -56,5 +57,7 @@ def make_batcher(dataset: base.Dataset, config):
     out = {'rays': Rays(*[x[index].astype(np.float32) for x in rays]), 'rgb': rgb[index].astype(np.float32)}
     if patches is not None:
       out['patch_rays'] = patches(step)
+    if space is not None:  # Camera refinement: the views of the rays (and NDC radii's neighbours).
+      out.update(pose_correction.camera_fields(index, rays.viewdirs, space, dataset.height, dataset.width))
     return out
   return batch

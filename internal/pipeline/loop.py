@@ -12,10 +12,12 @@ from jax import random
 import tensorboardX
 import tqdm
 
+from internal.run import camera_export
 from internal.run import checkpoints
 from internal.run import disk_full
 from internal import datasets
 from internal.run import distributed
+from internal.evaluation import camera_evaluation
 from internal.evaluation import evaluate
 from internal.evaluation import inference
 from internal.evaluation import learning_curve
@@ -28,6 +30,7 @@ from internal.training import train_step as train_step_lib
 from internal.evaluation import vis
 from internal import progress
 from internal.datasets import random_poses
+from internal.training import camera_refinement
 
 PREVIEW_INDEX = 0  # The test view rendered every Config.train_render_every steps.
 
@@ -206,7 +209,8 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
   batcher = _host_memory_named(config, datasets.make_batcher(dataset, config))
   curve_views = learning_curve.load_views(config, evaluate.check_eval_inputs(config))
   init_key, train_key = random.split(random.PRNGKey(config.jax_rng_seed))
-  model, state = train_step_lib.create_train_state(config, init_key, _example_rays(batcher))
+  cameras = camera_refinement.init(config, dataset) if config.optimize_cameras else None
+  model, state = train_step_lib.create_train_state(config, init_key, _example_rays(batcher), cameras)
   distributed.on_primary(lambda: run_dir_lib.record_settings(run_dir, config), 'recording the settings')
   mngr = checkpoints.manager(run_dir, config.checkpoint_keep)
   state = sharding.replicate(state, mesh)
@@ -214,7 +218,9 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
   state = restored if restored is not None else state
   primary = distributed.is_primary()
   writer = tensorboardX.SummaryWriter(os.path.join(run_dir, 'tensorboard')) if primary else NullWriter()
-  curve = learning_curve.Recorder(config, model, curve_views, run_dir, writer, int(state.step)) if (
+  moving = camera_evaluation.CurveCameras(config, dataset) if (
+      curve_views is not None and primary and camera_evaluation.needs_alignment(config)) else None
+  curve = learning_curve.Recorder(config, model, curve_views, run_dir, writer, int(state.step), moving) if (
       curve_views is not None and primary) else None
   last = min(config.max_steps, stop_at_step) if stop_at_step > 0 else config.max_steps
   with disk_full.stop_when_disk_full(run_dir):
@@ -225,6 +231,8 @@ def _train_in(config, run_dir: str, stop_at_step: int) -> TrainResult:
     finally:
       mngr.wait_until_finished()
       mngr.close()
+  if cameras is not None and primary:
+    camera_export.write(run_dir, config, dataset, sharding.local_copy(state.cameras))
   return TrainResult(model, state, run_dir, stop.signum, skipped)
 
 
@@ -255,7 +263,7 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
           test_set = test_set if test_set is not None else datasets.load_dataset('test', config)
           preview(config, model, state, step, test_set, writer)
         if curve is not None and curve.due(step):
-          curve.record(step, state.params)
+          curve.record(step, state.params, getattr(state, 'cameras', None))
         if step % config.checkpoint_every == 0 and step < last:
           report.flush(step)
           checkpoints.save(mngr, state)

@@ -169,7 +169,8 @@ def latest_step(run_dir: str) -> int:
   return max(intact)
 
 
-def restore_model(config, run_dir: str, example_rays):
-  """(model, newest TrainState) of a run, for eval and render; the model is built from Config and gin."""
-  model, template = train_step.create_train_state(config, random.PRNGKey(config.jax_rng_seed), example_rays)
+def restore_model(config, run_dir: str, example_rays, cameras=None):
+  """(model, newest TrainState) of a run, for eval and render; the model is built from Config and gin; cameras:
+  the CameraState template of a run that refines its cameras."""
+  model, template = train_step.create_train_state(config, random.PRNGKey(config.jax_rng_seed), example_rays, cameras)
   return model, load_latest(run_dir, template)
