@@ -3,7 +3,8 @@
 The paper's story is dynamic (the baseline overfits early, FreeNeRF does not): a curve shows it. A row is
 {'step', 'psnr', 'psnr_masked' (DTU only), 'seconds'}: the mean over the curve's views of their PSNR computed as
 evaluation computes it (and the DTU protocol's object-masked PSNR), and the wall-clock seconds of training so far,
-the curve's own evaluations left out. Rows go to tensorboard (curve/psnr, curve/psnr_masked, curve/eval_seconds)
+the curve's own evaluations left out; where the training cameras may move (camera_evaluation.py) also the camera
+errors at that step, the views then carried into the training frame as evaluation carries them. Rows go to tensorboard (curve/psnr, curve/psnr_masked, curve/eval_seconds)
 and to <run dir>/learning_curve.csv, rewritten atomically at every row. A resumed run keeps the rows up to its
 checkpoint's step, and its seconds go on from the last kept row (training time after that row, lost with the
 interrupted steps, is not counted).
@@ -126,8 +127,10 @@ class CurveLog:
 class Recorder:
   """Scores the curve's views every Config.curve_every steps and at the last step; tensorboard and the CSV."""
 
-  def __init__(self, config, model, views: Views, run_dir: str, writer, resumed_step: int):
-    self.config, self.model, self.views, self.writer = config, model, views, writer
+  def __init__(self, config, model, views: Views, run_dir: str, writer, resumed_step: int, cameras=None):
+    """cameras: where the training cameras may move (camera_evaluation.CurveCameras), what carries the views into
+    the training frame at each point and gives the camera errors of the row."""
+    self.config, self.model, self.views, self.writer, self.cameras = config, model, views, writer, cameras
     self.log = CurveLog(run_dir, resumed_step)
     self.compiled = inference.compile_render(config, model)  # One compilation for every curve point.
     self.seconds_before = self.log.rows[-1]['seconds'] if self.log.rows else 0.
@@ -137,19 +140,23 @@ class Recorder:
     """Whether step gets a curve point."""
     return step % self.config.curve_every == 0 or step == self.config.max_steps
 
-  def record(self, step: int, params) -> dict:
-    """Renders and scores the views with the parameters of step; logs and appends the row; returns it."""
+  def record(self, step: int, params, camera_state=None) -> dict:
+    """Renders and scores the views with the parameters of step (and the camera corrections camera_state, if
+    refined); logs and appends the row; returns it."""
     params = jax.block_until_ready(sharding.local_copy(params))  # The steps dispatched so far count as training.
     tic = time.perf_counter()
     seconds = self.seconds_before + tic - self.start - self.eval_seconds
+    rays, camera_values = self.views.rays, {}
+    if self.cameras is not None:
+      rays, camera_values = self.cameras.at(None if camera_state is None else sharding.local_copy(camera_state))
     render_fn = inference.make_render_fn(self.config, self.model, params, step, compiled=self.compiled)
-    renders = [inference.render_image(render_fn, rays_lib.map_rays(lambda x, i=i: x[i], self.views.rays),
+    renders = [inference.render_image(render_fn, rays_lib.map_rays(lambda x, i=i: x[i], rays),
                                       self.config.render_chunk_size)['rgb'] for i in range(len(self.views.ids))]
-    row = curve_row(step, seconds, self.views.images, renders, self.views.masks)
+    row = {**curve_row(step, seconds, self.views.images, renders, self.views.masks), **camera_values}
     self.log.append(row)
     elapsed = time.perf_counter() - tic
     self.eval_seconds += elapsed
-    for name in ('psnr', 'psnr_masked'):
+    for name in ('psnr', 'psnr_masked', *camera_values):
       if name in row:
         self.writer.add_scalar(f'curve/{name}', row[name], step)
     self.writer.add_scalar('curve/eval_seconds', elapsed, step)
