@@ -241,9 +241,9 @@ class Config:
   # Evaluation: steps of test-time pose optimization per test view, the model frozen (0 = none; BARF: 100).
   test_pose_steps: int = setting(0, NON_NEGATIVE, BOOKKEEPING)
   test_pose_lr: float = setting(1e-3, FINITE, POSITIVE, BOOKKEEPING)  # Its learning rate (Adam, constant).
-  # Captures: a second COLMAP model (e.g. structure-from-motion on the training photos alone, relative to the capture
-  # folder) whose cameras the training views take, in its own frame; '' = Config.capture_model's.
-  capture_train_model: str = setting('', shapes=('colmap',))
+  # Captures: a second COLMAP model folder (e.g. structure-from-motion on the training photos alone, tools.capture's
+  # <out>/sparse/0) whose cameras the training views take, in its own frame; '' = Config.capture_model's.
+  capture_train_model: str = setting('', PATH, shapes=('colmap',))
 
 
 def declared(prop: str) -> tuple:

@@ -237,14 +237,16 @@ def load_scene(split: str, config) -> base.Dataset:
 
 def _camera_source(config, split: str, capture: Capture, ids) -> tuple:
   """(capture, indices into it) whose cameras the views ids of capture take: for the training split those of
-  Config.capture_train_model (matched by image name, in that model's own frame), else capture's own."""
+  Config.capture_train_model (matched by image name, in that model's own frame and capture's rig), else capture's
+  own."""
   if split != 'train' or not config.capture_train_model:
     return capture, list(ids)
-  own = read_capture(dataclasses.replace(config, capture_model=config.capture_train_model))
+  model = os.path.abspath(config.capture_train_model)
+  own = read_capture(dataclasses.replace(config, capture_model=model,
+                                         capture_rig='forward' if capture.forward else 'inward'))
   position = {name: i for i, name in enumerate(own.names)}
   missing = [capture.names[i] for i in ids if capture.names[i] not in position]
   if missing:
-    model = os.path.join(capture.folder, config.capture_train_model)
     raise base.DatasetError(f'Config.capture_train_model = {config.capture_train_model!r}: the training photos '
                             f'{missing} are not registered in {model!r} (it registers {own.names[:10]}); choose '
                             'training views among its photos (Config.train_view_ids)')
