@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from conftest import SHARED_DATA
 from internal import config_loader
+from internal import configs
 from internal.datasets import camera_alignment, camera_noise, cameras, load_dataset, loader, pose_correction
 from internal.datasets import raygen
 
@@ -195,3 +196,48 @@ def test_errors_measure_one_disturbed_camera_among_many():
   assert errors['rotation_deg'][3] == pytest.approx(2., abs=.25)
   assert errors['translation'][3] == pytest.approx(.01, abs=.002)
   assert np.median(errors['rotation_deg']) < .2
+
+
+# ------------------------------------------------------------------ every loader's rays follow the noisy cameras
+
+def _real(loader_name: str, **kw):
+  """A Config of a shared real scene, or None when it is absent."""
+  found = {'llff': (SHARED_DATA / 'llff' / 'fern', dict(dataset_loader='llff', data_dir=str(SHARED_DATA / 'llff'),
+                                                         llff_scan='fern', factor=8, near=0., far=1.)),
+           'dtu': (SHARED_DATA / 'dtu' / 'dtu_scan24', dict(dataset_loader='dtu', data_dir=str(SHARED_DATA / 'dtu'),
+                                                            dtu_scan='dtu_scan24', factor=4, near=.5, far=3.5,
+                                                            near_origin=.1, white_background=False,
+                                                            allow_missing_test_views=True)),
+           'blender': (SHARED_DATA / 'blender' / 'lego', dict(dataset_loader='blender',
+                                                              data_dir=str(SHARED_DATA / 'blender'), factor=8)),
+           'colmap': (SHARED_DATA / 'colmap' / 'cup', dict(dataset_loader='colmap',
+                                                           data_dir=str(SHARED_DATA / 'colmap' / 'cup'), factor=4,
+                                                           white_background=False))}[loader_name]
+  if not found[0].is_dir():
+    pytest.skip(f'{found[0]} is absent')
+  return configs.Config(n_input_views=3, **found[1], **kw)
+
+
+@pytest.mark.parametrize('name', ['llff', 'dtu', 'blender', 'colmap'])
+def test_every_loaders_rays_follow_its_noisy_cameras(name):
+  clean = load_dataset('train', _real(name))
+  noisy = load_dataset('train', _real(name, camera_noise_rotation_deg=5., camera_noise_translation=.05))
+  turn = noisy.camtoworlds[:, :, :3].astype(np.float64) @ np.swapaxes(clean.camtoworlds[:, :, :3], 1, 2)
+  np.testing.assert_allclose(np.rad2deg(pose_correction.rotation_angle(turn)), 5., atol=2e-3)
+  world = noisy.rays.viewdirs  # NDC rays keep the world directions there; world rays' viewdirs are unit directions.
+  np.testing.assert_allclose(world, np.einsum('nij,nhwj->nhwi', turn, clean.rays.viewdirs), atol=2e-5)
+  space = loader.ray_space(_real(name), clean)
+  if name == 'llff':  # The loader's NDC rays of the noisy cameras.
+    expected = raygen.llff_rays(noisy.camtoworlds[0].astype(np.float64), clean.pixtocams[0], clean.height,
+                                clean.width, space.ndc_focal)
+    for field, got, want in zip(expected._fields, noisy.rays, expected):
+      np.testing.assert_allclose(got[0], want, rtol=1e-4, atol=2e-5, err_msg=field)
+  elif name == 'dtu':
+    assert space.plane_z == .1
+    np.testing.assert_allclose(noisy.rays.origins[..., 2], .1, atol=1e-5)
+  else:
+    np.testing.assert_allclose(noisy.rays.origins, np.broadcast_to(noisy.camtoworlds[:, None, None, :, 3],
+                                                                   noisy.rays.origins.shape), atol=1e-5)
+  kept = ('lossmult', 'near', 'far') + (() if name == 'llff' else ('radii',))  # Rotations keep world radii.
+  for field in kept:
+    np.testing.assert_allclose(getattr(noisy.rays, field), getattr(clean.rays, field), rtol=1e-5, atol=1e-7)
