@@ -158,8 +158,8 @@ def test_noise_is_seeded_per_view_and_leaves_the_test_cameras(scene_dir):
 @pytest.mark.skipif(not (SHARED_DATA / 'llff' / 'fern').is_dir(), reason='../shared/data/llff/fern is absent')
 def test_the_ndc_focal_read_back_from_llff_rays_is_the_loaders():
   gin.clear_config()
-  config = config_loader.load_config(['configs/mini/llff3_freenerf.gin'], [f"Config.data_dir = '{SHARED_DATA / 'llff'}'",
-                                                                       "Config.llff_scan = 'fern'"])
+  config = config_loader.load_config(['configs/mini/llff3_freenerf.gin'],
+                                     [f"Config.data_dir = '{SHARED_DATA / 'llff'}'", "Config.llff_scan = 'fern'"])
   data = load_dataset('train', config)
   focal = 1. / data.pixtocams[0, 0, 0]
   assert loader.ray_space(config, data).ndc_focal == pytest.approx(focal, rel=1e-6)

@@ -111,18 +111,28 @@ def test_rays(config, test_set: datasets.Dataset, train_set: datasets.Dataset, r
   return rays._replace(near=np.full_like(rays.near, train_set.near), far=np.full_like(rays.far, train_set.far))
 
 
+def _view_batch(config, test_set: datasets.Dataset, flat, v: int, k: int, space) -> tuple:
+  """(rays [B,...], colours [B,3], NDC neighbour directions or None) of Config.batch_size pixels of test view v for
+  its k-th step, drawn from np.random.default_rng([Config.np_rng_seed, view id, k]); flat: its rays [M,H*W,...]."""
+  size = test_set.height * test_set.width
+  pixel = np.random.default_rng([config.np_rng_seed, int(test_set.ids[v]), k]).integers(size, size=config.batch_size)
+  fields = pose_correction.camera_fields((np.full(len(pixel), v), pixel), flat.viewdirs, space, test_set.height,
+                                         test_set.width)
+  colours = test_set.images[v].reshape(-1, 3)[pixel]
+  return type(flat)(*[x[v, pixel] for x in flat]), colours, fields.get('neighbour_dirs')
+
+
 def test_time_poses(config, model, params, step: int, test_set: datasets.Dataset, rotations, shifts) -> tuple:
-  """(rotations [M,3,3], shifts [M,3]) refined per test view on its own image, the model frozen: Config.
-  test_pose_steps Adam steps (Config.test_pose_lr) on Config.batch_size random pixels of the view, the fine
-  level's squared colour error; pixels from np.random.default_rng([Config.np_rng_seed, view id, step])."""
+  """(rotations [M,3,3], shifts [M,3]) refined per test view on its own image, the model frozen (as at step):
+  Config.test_pose_steps Adam steps (Config.test_pose_lr) of the fine level's squared colour error (_view_batch)."""
   space = loader.ray_space(config, test_set)
   masks = freq_schedule.model_masks(config, model, jnp.asarray(step))
   adam = optim.adam(config.adam_eps)
-  height, width = test_set.height, test_set.width
-  flat = type(test_set.rays)(*[x.reshape(len(test_set.ids), height * width, -1) for x in test_set.rays])
+  flat = type(test_set.rays)(*[x.reshape(len(test_set.ids), test_set.height * test_set.width, -1)
+                               for x in test_set.rays])
   centres = np.asarray(test_set.camtoworlds, np.float32)[:, :, 3]
 
-  def loss(delta, rays, rgb, rotation, centre, shift, neighbours):
+  def loss(delta, rays, rgb, neighbours, rotation, centre, shift):
     turned = pose_correction.so3_exp(delta[:3], jnp) @ rotation
     moved = pose_correction.corrected_rays(rays, turned, centre, shift + delta[3:], space, neighbours, jnp)
     renderings, _ = model.apply({'params': params}, None, moved, *masks, config.resample_padding_final)
@@ -130,22 +140,16 @@ def test_time_poses(config, model, params, step: int, test_set: datasets.Dataset
 
   @jax.jit
   def adam_step(delta, opt_state, *args):
-    grad = jax.grad(loss)(delta, *args)
-    updates, opt_state = adam.update(grad, opt_state, delta)
+    updates, opt_state = adam.update(jax.grad(loss)(delta, *args), opt_state, delta)
     return delta - config.test_pose_lr * updates, opt_state
 
   out_rotations, out_shifts = [], []
-  for v, view in enumerate(test_set.ids):
+  for v in range(len(test_set.ids)):
     delta = jnp.zeros(6, jnp.float32)
     opt_state = adam.init(delta)
-    fixed = (jnp.asarray(rotations[v], jnp.float32), centres[v], jnp.asarray(shifts[v], jnp.float32))
+    camera = (jnp.asarray(rotations[v], jnp.float32), centres[v], jnp.asarray(shifts[v], jnp.float32))
     for k in range(config.test_pose_steps):
-      pixel = np.random.default_rng([config.np_rng_seed, int(view), k]).integers(height * width,
-                                                                                 size=config.batch_size)
-      rays = type(flat)(*[x[v, pixel] for x in flat])
-      neighbours = flat.viewdirs[v][pose_correction.neighbour_pixels(pixel, height, width)] if space.ndc_focal else None
-      delta, opt_state = adam_step(delta, opt_state, rays, test_set.images[v].reshape(-1, 3)[pixel],
-                                   *fixed, neighbours)
+      delta, opt_state = adam_step(delta, opt_state, *_view_batch(config, test_set, flat, v, k, space), *camera)
     delta = np.asarray(delta, np.float64)
     out_rotations.append(pose_correction.so3_exp(delta[:3]) @ rotations[v])
     out_shifts.append(shifts[v] + delta[3:])

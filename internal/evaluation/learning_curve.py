@@ -4,10 +4,10 @@ The paper's story is dynamic (the baseline overfits early, FreeNeRF does not): a
 {'step', 'psnr', 'psnr_masked' (DTU only), 'seconds'}: the mean over the curve's views of their PSNR computed as
 evaluation computes it (and the DTU protocol's object-masked PSNR), and the wall-clock seconds of training so far,
 the curve's own evaluations left out; where the training cameras may move (camera_evaluation.py) also the camera
-errors at that step, the views then carried into the training frame as evaluation carries them. Rows go to tensorboard (curve/psnr, curve/psnr_masked, curve/eval_seconds)
-and to <run dir>/learning_curve.csv, rewritten atomically at every row. A resumed run keeps the rows up to its
-checkpoint's step, and its seconds go on from the last kept row (training time after that row, lost with the
-interrupted steps, is not counted).
+errors at that step, the views then carried into the training frame as evaluation carries them. Rows go to
+tensorboard (curve/psnr, curve/psnr_masked, curve/eval_seconds) and to <run dir>/learning_curve.csv, rewritten
+atomically at every row. A resumed run keeps the rows up to its checkpoint's step, and its seconds go on from the
+last kept row (training time after that row, lost with the interrupted steps, is not counted).
 """
 
 import csv
