@@ -1,5 +1,6 @@
 """Camera refinement (Config.optimize_cameras): a learned rigid correction of every training camera, trained with
-the model in the one jitted step, with its own learning rate, warm-up and decay (Adam).
+the model in the one jitted step, with its own learning rate, warm-up and decay (Adam with a large epsilon,
+Config.camera_adam_eps: steps in proportion to small gradients).
 
 A view's correction is an axis-angle rotation omega [3] about the camera's centre and a translation tau [3], both
 in world axes, zero at the start (datasets/pose_correction.py: c2w = [R | C] -> [exp(omega) R | C + tau]). The
@@ -38,7 +39,7 @@ class CameraState:
 def init(config, dataset: base.Dataset) -> CameraState:
   """Zero corrections of the training views of dataset (as loaded: noise included)."""
   free = jnp.zeros((len(dataset.ids), 6), jnp.float32)
-  return CameraState(free=free, opt_state=optim.adam(config.adam_eps).init(free),
+  return CameraState(free=free, opt_state=optim.adam(config.camera_adam_eps).init(free),
                      centres=jnp.asarray(dataset.camtoworlds[:, :, 3], jnp.float32),
                      space=loader.ray_space(config, dataset))
 
@@ -86,7 +87,7 @@ def learning_rate(config, step):
 def update(config, cameras: CameraState, grads, step) -> tuple:
   """(CameraState after one Adam step on the gradients [N, 6], stats: its learning rate and mean rotation)."""
   lr = learning_rate(config, step)
-  updates, opt_state = optim.adam(config.adam_eps).update(grads, cameras.opt_state, cameras.free)
+  updates, opt_state = optim.adam(config.camera_adam_eps).update(grads, cameras.opt_state, cameras.free)
   cameras = cameras.replace(free=cameras.free - lr * updates, opt_state=opt_state)
   angles = jnp.linalg.norm(gauge_fixed(cameras.free, cameras.centres)[:, :3], axis=1)
   return cameras, {'camera_lr': lr, 'camera_correction_deg': jnp.rad2deg(jnp.mean(angles))}
