@@ -48,15 +48,6 @@ class TrainingCameras(NamedTuple):
   distance: float
 
 
-def training_split(config) -> tuple:
-  """(the training split as trained on, the CameraState template of a run that refines its cameras, else None);
-  (None, None) when needs_alignment is False."""
-  if not needs_alignment(config):
-    return None, None
-  train_set = datasets.load_dataset('train', config)
-  return train_set, camera_refinement.init(config, train_set) if config.optimize_cameras else None
-
-
 def reference_cameras(config, train_set: datasets.Dataset) -> tuple:
   """(reference training cameras [N,3,4], their camera distance) of the training views of train_set."""
   reference = datasets.load_dataset('train', reference_config(config))

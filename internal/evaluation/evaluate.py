@@ -103,9 +103,10 @@ def evaluate(config) -> dict:
   run_dir = run_dir_lib.check_run_dir(config)
   test_set = datasets.load_dataset('test', config, ground_truth=True)  # Exact depths for the depth metrics.
   positions = select_positions(config, len(test_set.ids))
-  train_set, camera_template = camera_evaluation.training_split(config)  # (None, None) unless cameras may move.
+  # The training split as trained on, where the training cameras may move (None otherwise).
+  train_set = datasets.load_dataset('train', config) if camera_evaluation.needs_alignment(config) else None
   model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], test_set.rays),
-                                           camera_template)
+                                           train_set)
   step = int(state.step)  # The newest intact checkpoint's.
   out_dir = output_dir(run_dir_lib.outputs_root(config), step)
   metrics_path = os.path.join(out_dir, results.METRICS_FILENAME)
