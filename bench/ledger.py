@@ -37,7 +37,7 @@ import subprocess
 import sys
 import tarfile
 import tomllib
-from typing import Dict, Optional, Tuple
+from typing import Optional, Tuple
 
 from internal import cli
 from tools import tables

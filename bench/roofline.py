@@ -116,7 +116,7 @@ def pass_savings(mlp, tile_depth: int = 128) -> dict:
 def savings_table(mlp, rows: int) -> str:
   """Markdown: per variant the passes saved a step and their bytes and milliseconds at each GPU's bandwidth."""
   pass_bytes = rows * mlp.net_width * ACTIVATION_BYTES['bfloat16']
-  lines = [f'| variant | passes saved a step | GB | ' + ' | '.join(f'{gpu} ms' for gpu in GPUS) + ' |',
+  lines = ['| variant | passes saved a step | GB | ' + ' | '.join(f'{gpu} ms' for gpu in GPUS) + ' |',
            '|---' * (3 + len(GPUS)) + '|']
   for variant, passes in pass_savings(mlp).items():
     gb = passes * pass_bytes / 1e9

@@ -246,6 +246,32 @@ class Config:
   # form: a COLMAP model made from the training photos alone (e.g. python -m tools.capture on a folder of them),
   # aligned to the capture by its cameras.
   sfm_depth_model: str = setting('', PATH)
+  # Cameras that are only roughly right (internal/training/camera_refinement.py, docs/running.md). Off by default,
+  # so the paper's configs train as released.
+  # Learn a rigid correction of every training camera (axis-angle rotation about its centre, translation) with the
+  # model; test cameras are then brought into the refined frame for evaluation.
+  optimize_cameras: bool = setting(False)
+  # The corrections' learning rate at step 0 after their warm-up (BARF: 1e-3).
+  camera_lr_init: float = setting(1e-3, FINITE, POSITIVE, hint=LR_HINT)
+  camera_lr_final: float = setting(1e-5, FINITE, POSITIVE, hint=LR_HINT)  # At max_steps, log-linear in between.
+  camera_lr_delay_steps: int = setting(0, NON_NEGATIVE)  # Warm-up steps of the corrections' learning rate.
+  camera_lr_delay_mult: float = setting(0.)  # Warm-up's starting multiple of camera_lr_init.
+  # The corrections' Adam epsilon. Large on purpose: while gradients are small (the first steps' rough model pulls
+  # every camera the same way) steps follow their size, as gradient descent's; Adam's normalized steps follow the
+  # pull at the full rate (on the generated scene, 6 exact views drifted by 5-11 degrees with 1e-8, 0.6 with 1).
+  camera_adam_eps: float = setting(1., FINITE, POSITIVE)
+  # Studies: every training camera turned by this angle (degrees) about a random axis through its centre...
+  camera_noise_rotation_deg: float = setting(0., FINITE, NON_NEGATIVE)
+  # ... and moved by this fraction of the camera distance in a random direction (camera_noise.py says the distance).
+  camera_noise_translation: float = setting(0., FINITE, NON_NEGATIVE)
+  # Seed of that noise (a view's draw depends on it and the view's id; not among metrics.json's "seeds").
+  camera_noise_seed: int = setting(0)
+  # Evaluation: steps of test-time pose optimization per test view, the model frozen (0 = none; BARF: 100).
+  test_pose_steps: int = setting(0, NON_NEGATIVE, BOOKKEEPING)
+  test_pose_lr: float = setting(1e-3, FINITE, POSITIVE, BOOKKEEPING)  # Its learning rate (Adam, constant).
+  # Captures: a second COLMAP model folder (e.g. structure-from-motion on the training photos alone, tools.capture's
+  # <out>/sparse/0) whose cameras the training views take, in its own frame; '' = Config.capture_model's.
+  capture_train_model: str = setting('', PATH, shapes=('colmap',))
 
 
 def declared(prop: str) -> tuple:

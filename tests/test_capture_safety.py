@@ -13,7 +13,7 @@ import pytest
 
 from internal import cli
 from internal import interrupt
-from test_capture import CUP, REPO, _photos, needs_cup, needs_pycolmap
+from test_capture import REPO, _photos, needs_cup, needs_pycolmap
 from test_disk_full import small_disk  # pylint: disable=unused-import  (a fixture: a 32 MiB tmpfs)
 from test_interrupts import SIGINT_AT_JAX_IMPORT
 from test_read_only import read_only

@@ -13,7 +13,7 @@ import pytest
 from internal import configs
 from internal.configs import Config
 from internal.datasets import DatasetError, loader
-from internal.evaluation import depth_metrics, metric_registry, metrics, results
+from internal.evaluation import camera_evaluation, depth_metrics, metric_registry, metrics, results
 from tools import tables
 from tools.study import export as study_export
 from tools.study import spec as study_spec
@@ -25,6 +25,7 @@ MASKED = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'avg_error_masked')
 DEPTH = ('depth_mae', 'depth_within_1pct', 'depth_within_5pct')
 PSEUDO = ('pseudo_depth_mae', 'pseudo_depth_within_1pct', 'pseudo_depth_within_5pct')
 SFM = ('sfm_depth_mae', 'sfm_depth_within_1pct', 'sfm_depth_within_5pct')
+CAMERAS = ('camera_rotation_deg', 'camera_translation')
 
 
 def _written_metrics(tmp_path, monkeypatch) -> set:
@@ -42,12 +43,14 @@ def _written_metrics(tmp_path, monkeypatch) -> set:
   keys |= set(depth_metrics.reference_scorer(test_set, False, str(tmp_path / 'reference'), [0])(0, depth[0]))
   monkeypatch.setattr(depth_metrics.sfm_depth, 'evaluation_depths', lambda test_set, config: depth)
   keys |= set(depth_metrics.sfm_scorer(test_set, False, None)(0, depth[0]))
+  summary = {'rotation_deg_median': 1., 'translation_median': .01}
+  keys |= set(camera_evaluation.metrics({'final_vs_reference': summary}))
   return keys
 
 
 def test_every_metric_the_evaluation_writes_is_registered(tmp_path, monkeypatch):
   written = _written_metrics(tmp_path, monkeypatch)
-  assert written == set(IMAGE + MASKED + DEPTH + PSEUDO + SFM)
+  assert written == set(IMAGE + MASKED + DEPTH + PSEUDO + SFM + CAMERAS)
   assert written == set(metric_registry.METRICS)
 
 
@@ -55,8 +58,9 @@ def test_derived_metric_lists_equal_the_former_literal_lists():
   assert metrics.FULL_METRICS == IMAGE and metrics.MASKED_METRICS == MASKED
   assert depth_metrics.DEPTH_METRICS == DEPTH and metric_registry.names(metric_registry.PSEUDO_DEPTH) == PSEUDO
   assert metric_registry.names(metric_registry.SFM_DEPTH) == SFM
+  assert metric_registry.names(metric_registry.CAMERAS) == CAMERAS
   assert set(study_spec.LOWER_IS_BETTER) == {'lpips', 'avg_error', 'depth_mae', 'pseudo_depth_mae', 'sfm_depth_mae',
-                                             'lpips_masked', 'avg_error_masked'}
+                                             'lpips_masked', 'avg_error_masked', *CAMERAS}
   assert tables.METRIC_GROUPS == {'dtu': (('object', MASKED), ('full', IMAGE)), 'llff': (('', IMAGE),),
                                   'blender': (('', IMAGE),), 'colmap': (('', IMAGE),)}
   former_display = {'psnr': 'PSNR', 'ssim': 'SSIM', 'lpips': 'LPIPS', 'avg_error': 'Avg'}
@@ -157,7 +161,7 @@ def test_records_take_the_loader_files_functions_and_settings():
       'blender': ('blender_scene', 'blender_split', 'white_background', 'near', 'far', 'pixel_offset'),
       'generated': ('llffhold', 'white_background', 'near', 'far', 'pixel_offset', 'generated_rig', 'generated_size',
                     'generated_seed'),
-      'colmap': ('llffhold', 'capture_scene', 'capture_images', 'capture_model', 'capture_rig'),
+      'colmap': ('llffhold', 'capture_scene', 'capture_images', 'capture_model', 'capture_rig', 'capture_train_model'),
       'packed': ()}
   assert [name for name, record in loader.REGISTRY.items() if record.mesh_bounds] == [
       'dtu', 'blender', 'generated', 'colmap']

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from internal.datasets import base, depth_prior, loader, random_poses, sfm_depth
+from internal.datasets import base, depth_prior, loader, pose_correction, random_poses, sfm_depth
 from internal.rays import Rays
 
 BATCHING_MODES = ('single_image', 'all_images')
@@ -49,6 +49,7 @@ def make_batcher(dataset: base.Dataset, config):
   patches = random_poses.make_patch_sampler(dataset, config, loader.random_pose_cameras)
   crop = central_crop(dataset.height, dataset.width, config.precrop_frac) if config.precrop_steps > 0 else None
   priors = make_prior_sampler(dataset, config, rays)
+  space = loader.ray_space(config, dataset) if config.optimize_cameras else None
 
   def batch(step: int) -> dict:
     """The training batch of this step (steps 1..Config.precrop_steps: from the central crop only)."""
@@ -60,6 +61,8 @@ def make_batcher(dataset: base.Dataset, config):
       out['patch_rays'] = patches(step)
     if priors is not None:
       out.update(priors(step))
+    if space is not None:  # Camera refinement: the views of the rays (and NDC radii's neighbours).
+      out.update(pose_correction.camera_fields(index, rays.viewdirs, space, dataset.height, dataset.width))
     return out
   return batch
 

@@ -241,13 +241,32 @@ def load_scene(split: str, config) -> base.Dataset:
   warn_cropped([paths[i] for i in ids], extra, config.downsample_mode)
   images = image_io.load_stack([paths[i] for i in ids], load)
   height, width = images.shape[1:3]
-  near, far = near_far(capture)
-  rays = raygen.stack_rays((_rays(capture, i, height, width, near, far) for i in ids), len(ids))
-  pixtocams = [np.linalg.inv(_intrinsics(capture.params[i], capture.sizes[i, 1] / width)) for i in ids]
-  return base.Dataset(images=images, camtoworlds=capture.camtoworlds[ids].astype(np.float32),
-                      pixtocams=np.stack(pixtocams).astype(np.float32), ids=list(ids), height=height, width=width,
-                      near=near, far=far, masks=None, rays=rays, split=split, name=f'colmap/{scene_name(config)}',
-                      image_paths=[paths[i] for i in ids])
+  source, rows = _camera_source(config, split, capture, ids)
+  near, far = near_far(source)
+  rays = raygen.stack_rays((_rays(source, i, height, width, near, far) for i in rows), len(rows))
+  pixtocams = [np.linalg.inv(_intrinsics(source.params[i], source.sizes[i, 1] / width)) for i in rows]
+  return base.Dataset(images=images, camtoworlds=source.camtoworlds[rows].astype(np.float32),
+                      pixtocams=np.stack(pixtocams).astype(np.float32), ids=list(ids), height=height,
+                      width=width, near=near, far=far, masks=None, rays=rays, split=split,
+                      name=f'colmap/{scene_name(config)}', image_paths=[paths[i] for i in ids])
+
+
+def _camera_source(config, split: str, capture: Capture, ids) -> tuple:
+  """(capture, indices into it) whose cameras the views ids of capture take: for the training split those of
+  Config.capture_train_model (matched by image name, in that model's own frame and capture's rig), else capture's
+  own."""
+  if split != 'train' or not config.capture_train_model:
+    return capture, list(ids)
+  model = os.path.abspath(config.capture_train_model)
+  own = read_capture(dataclasses.replace(config, capture_model=model,
+                                         capture_rig='forward' if capture.forward else 'inward'))
+  position = {name: i for i, name in enumerate(own.names)}
+  missing = [capture.names[i] for i in ids if capture.names[i] not in position]
+  if missing:
+    raise base.DatasetError(f'Config.capture_train_model = {config.capture_train_model!r}: the training photos '
+                            f'{missing} are not registered in {model!r} (it registers {own.names[:10]}); choose '
+                            'training views among its photos (Config.train_view_ids)')
+  return own, [position[capture.names[i]] for i in ids]
 
 
 def _intrinsics(params: np.ndarray, factor: float) -> np.ndarray:

@@ -10,7 +10,8 @@ from typing import Callable, Dict, Optional, Tuple
 
 import numpy as np
 
-from internal.datasets import base, blender, colmap, dtu, generated, llff, packed, raygen
+from internal.datasets import base, blender, camera_noise, colmap, dtu, generated, llff, packed, raygen
+from internal.datasets import pose_correction
 
 
 # Loader fields filled from the loader file's attribute of that name where it has one (see Loader.of).
@@ -87,6 +88,8 @@ def load_dataset(split: str, config, ground_truth: bool = False) -> base.Dataset
   base.check_split(split)
   record = loader_of(config)
   data = record.load(split, config)
+  if camera_noise.is_on(config):  # Studies of camera refinement: noise on the training cameras only.
+    data = camera_noise.perturbed(data, config, ray_space(config, data))
   return record.ground_truth(data, config) if ground_truth and record.ground_truth else data
 
 
@@ -125,6 +128,16 @@ def mesh_bounds(config) -> Optional[np.ndarray]:
   if record.ndc(config):
     return np.array(raygen.NDC_BOX)
   return record.mesh_bounds(config) if record.mesh_bounds else None
+
+
+def ray_space(config, dataset: base.Dataset) -> pose_correction.RaySpace:
+  """How the rays of Config's scene (as loaded in dataset) follow from its cameras: those of the dataset it is filed
+  under (world rays, DTU's origin plane, or NDC with the focal length its rays were made with)."""
+  filed, _ = filed_as(config)
+  if REGISTRY[filed].ndc(config):
+    return pose_correction.RaySpace(ndc_focal=pose_correction.ndc_focal(dataset), height=dataset.height,
+                                    width=dataset.width)
+  return pose_correction.RaySpace(plane_z=float(config.near_origin) if filed == 'dtu' else None)
 
 
 def random_pose_cameras(dataset: base.Dataset, config, rng) -> tuple:

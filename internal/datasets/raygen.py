@@ -51,13 +51,14 @@ def shift_origins(origins: np.ndarray, directions: np.ndarray, plane_z: float) -
 
 
 def convert_to_ndc(origins: np.ndarray, directions: np.ndarray, focal: float, height: int, width: int,
-                   near: float = 1.) -> tuple:
-  """Forward-facing NDC: (origins [...,3] on z = -1, directions [...,3]) from world rays looking down -z."""
+                   near: float = 1., xp=np) -> tuple:
+  """Forward-facing NDC: (origins [...,3] on z = -1, directions [...,3]) from world rays looking down -z (arrays
+  of the module xp: numpy, or jax.numpy inside a jitted step)."""
   origins = shift_origins(origins, directions, -near)
-  ox, oy, oz = np.moveaxis(origins, -1, 0)
-  dx, dy, dz = np.moveaxis(directions, -1, 0)
-  ndc_o = np.stack([-2. * focal / width * ox / oz, -2. * focal / height * oy / oz, 1. + 2. * near / oz], -1)
-  ndc_far = np.stack([-2. * focal / width * dx / dz, -2. * focal / height * dy / dz, np.ones_like(dz)], -1)
+  ox, oy, oz = xp.moveaxis(origins, -1, 0)
+  dx, dy, dz = xp.moveaxis(directions, -1, 0)
+  ndc_o = xp.stack([-2. * focal / width * ox / oz, -2. * focal / height * oy / oz, 1. + 2. * near / oz], -1)
+  ndc_far = xp.stack([-2. * focal / width * dx / dz, -2. * focal / height * dy / dz, xp.ones_like(dz)], -1)
   return ndc_o, ndc_far - ndc_o
 
 

@@ -12,6 +12,7 @@ from internal import atomic
 from internal import configs
 from internal.run import checkpoints
 from internal import datasets
+from internal.evaluation import camera_evaluation
 from internal.evaluation import depth_metrics
 from internal.datasets import loader
 from internal.evaluation import inference
@@ -102,7 +103,10 @@ def evaluate(config) -> dict:
   run_dir = run_dir_lib.check_run_dir(config)
   test_set = datasets.load_dataset('test', config, ground_truth=True)  # Exact depths for the depth metrics.
   positions = select_positions(config, len(test_set.ids))
-  model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], test_set.rays))
+  # The training split as trained on, where the training cameras may move (None otherwise).
+  train_set = datasets.load_dataset('train', config) if camera_evaluation.needs_alignment(config) else None
+  model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], test_set.rays),
+                                           train_set)
   step = int(state.step)  # The newest intact checkpoint's.
   out_dir = output_dir(run_dir_lib.outputs_root(config), step)
   metrics_path = os.path.join(out_dir, results.METRICS_FILENAME)
@@ -119,10 +123,13 @@ def evaluate(config) -> dict:
     depth_scores.append(depth_metrics.reference_scorer(test_set, ndc, config.depth_reference_dir, positions))
   if config.dataset_loader == 'colmap':  # A capture's structure-from-motion points (#51).
     depth_scores.append(depth_metrics.sfm_scorer(test_set, ndc, config))
+  test_rays, camera_record, scale = camera_evaluation.evaluation_rays(config, model, state, step, test_set, train_set)
   per_image = []
   for i in positions:
-    rendering = inference.render_image(render_fn, jax.tree.map(lambda x, i=i: x[i], test_set.rays),
+    rendering = inference.render_image(render_fn, jax.tree.map(lambda x, i=i: x[i], test_rays),
                                        config.render_chunk_size)
+    if not ndc:  # Distances in the frame of the test cameras.
+      rendering['distance_mean'] = rendering['distance_mean'] / scale
     mask = None if test_set.masks is None else test_set.masks[i]
     values = metrics.image_metrics(rendering['rgb'], test_set.images[i], lpips_fn, mask)
     for depth_score in filter(None, depth_scores):
@@ -135,6 +142,9 @@ def evaluate(config) -> dict:
   record.update(lpips_missing_reason=lpips_reason, eval_factor=config.eval_factor,
                 seeds=[getattr(config, name) for name in configs.declared(configs.SEED)],
                 test_positions=positions, run_dir=os.path.abspath(run_dir))
+  if camera_record is not None:
+    record['means'].update(camera_evaluation.metrics(camera_record['errors']))
+    record['cameras'] = camera_record
   write_csv(per_image, os.path.join(out_dir, 'metrics.csv'))
   results.write_record(metrics_path, record)
   return record

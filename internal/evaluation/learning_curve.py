@@ -4,12 +4,14 @@ The paper's story is dynamic (the baseline overfits early, FreeNeRF does not): a
 {'step', 'psnr', 'psnr_masked' (DTU only), 'seconds', 'compile_seconds'}: the mean over the curve's views of their
 PSNR computed as evaluation computes it (and the DTU protocol's object-masked PSNR), the wall-clock seconds of
 training so far, the curve's own evaluations left out, and how many of those seconds compiled the step (the first
-step of each call of training: seconds - compile_seconds are the seconds of steps). Rows go to tensorboard
-(curve/psnr, curve/psnr_masked, curve/eval_seconds) and to <run dir>/learning_curve.csv, rewritten atomically at
-every row. Every checkpoint also writes the clock (learning_curve_clock.json: the step and both seconds), so a
-resumed run's seconds go on from its checkpoint's step: a run trained in several calls (GPU windows) reads as one
-run. A resumed run keeps the rows up to its checkpoint's step; without a clock of that step its seconds go on from
-the last kept row (training time after that row, lost with the interrupted steps, is not counted).
+step of each call of training: seconds - compile_seconds are the seconds of steps); where the training cameras may
+move (camera_evaluation.py) also the camera errors at that step, the views then carried into the training frame as
+evaluation carries them. Rows go to tensorboard (curve/psnr, curve/psnr_masked, curve/eval_seconds) and to
+<run dir>/learning_curve.csv, rewritten atomically at every row. Every checkpoint also writes the clock
+(learning_curve_clock.json: the step and both seconds), so a resumed run's seconds go on from its checkpoint's step:
+a run trained in several calls (GPU windows) reads as one run. A resumed run keeps the rows up to its checkpoint's
+step; without a clock of that step its seconds go on from the last kept row (training time after that row, lost
+with the interrupted steps, is not counted).
 """
 
 import csv
@@ -145,8 +147,11 @@ class CurveLog:
 class Recorder:
   """Scores the curve's views every Config.curve_every steps and at the last step; tensorboard and the CSV."""
 
-  def __init__(self, config, model, views: Views, run_dir: str, writer, resumed_step: int):
+  def __init__(self, config, model, views: Views, run_dir: str, writer, resumed_step: int, cameras=None):
+    """cameras: where the training cameras may move (camera_evaluation.CurveCameras), what carries the views into
+    the training frame at each point and gives the camera errors of the row."""
     self.config, self.model, self.views, self.writer, self.run_dir = config, model, views, writer, run_dir
+    self.cameras = cameras
     self.log = CurveLog(run_dir, resumed_step)
     self.compiled = inference.compile_render(config, model)  # One compilation for every curve point.
     last = self.log.rows[-1] if self.log.rows else {}
@@ -171,19 +176,24 @@ class Recorder:
     atomic.write_text(os.path.join(self.run_dir, CLOCK_FILE), json.dumps(
         {'step': int(step), 'seconds': self.seconds(), 'compile_seconds': self.compile_seconds}))
 
-  def record(self, step: int, params) -> dict:
-    """Renders and scores the views with the parameters of step; logs and appends the row; returns it."""
+  def record(self, step: int, params, camera_state=None) -> dict:
+    """Renders and scores the views with the parameters of step (and the camera corrections camera_state, if
+    refined); logs and appends the row; returns it."""
     params = jax.block_until_ready(sharding.local_copy(params))  # The steps dispatched so far count as training.
     tic = time.perf_counter()
     seconds = self.seconds()
+    rays, camera_values = self.views.rays, {}
+    if self.cameras is not None:
+      rays, camera_values = self.cameras.at(None if camera_state is None else sharding.local_copy(camera_state))
     render_fn = inference.make_render_fn(self.config, self.model, params, step, compiled=self.compiled)
-    renders = [inference.render_image(render_fn, rays_lib.map_rays(lambda x, i=i: x[i], self.views.rays),
+    renders = [inference.render_image(render_fn, rays_lib.map_rays(lambda x, i=i: x[i], rays),
                                       self.config.render_chunk_size)['rgb'] for i in range(len(self.views.ids))]
-    row = curve_row(step, seconds, self.views.images, renders, self.views.masks, self.compile_seconds)
+    row = {**curve_row(step, seconds, self.views.images, renders, self.views.masks, self.compile_seconds),
+           **camera_values}
     self.log.append(row)
     elapsed = time.perf_counter() - tic
     self.eval_seconds += elapsed
-    for name in ('psnr', 'psnr_masked'):
+    for name in ('psnr', 'psnr_masked', *camera_values):
       if name in row:
         self.writer.add_scalar(f'curve/{name}', row[name], step)
     self.writer.add_scalar('curve/eval_seconds', elapsed, step)

@@ -11,6 +11,9 @@ MASKED = 'masked'              # DTU object metrics: inside the evaluation mask,
 DEPTH = 'depth'                # Depth errors against exact depths (generated scenes).
 PSEUDO_DEPTH = 'pseudo_depth'  # The depth errors against another run's depths (Config.depth_reference_dir).
 SFM_DEPTH = 'sfm_depth'        # The depth errors at the capture's structure-from-motion points (captures).
+# Training-camera errors where the cameras may move (camera_evaluation.py): medians over the training views against
+# the reference cameras after a similarity, rotation in degrees, translation as a fraction of the camera distance.
+CAMERAS = 'cameras'
 MASKED_SUFFIX = '_masked'
 PSEUDO_PREFIX = 'pseudo_'
 SFM_PREFIX = 'sfm_'
@@ -36,7 +39,9 @@ METRICS: Dict[str, Metric] = {m.name: m for m in (
     + [Metric(name + MASKED_SUFFIX, display, lower, MASKED) for name, display, lower in _IMAGE]
     + [Metric(name, display, lower, DEPTH) for name, display, lower in _DEPTH]
     + [Metric(PSEUDO_PREFIX + name, 'pseudo ' + display, lower, PSEUDO_DEPTH) for name, display, lower in _DEPTH]
-    + [Metric(SFM_PREFIX + name, 'SfM ' + display, lower, SFM_DEPTH) for name, display, lower in _DEPTH])}
+    + [Metric(SFM_PREFIX + name, 'SfM ' + display, lower, SFM_DEPTH) for name, display, lower in _DEPTH]
+    + [Metric('camera_rotation_deg', 'camera rotation error (deg)', True, CAMERAS),
+       Metric('camera_translation', 'camera translation error', True, CAMERAS)])}
 
 
 def names(group: str) -> Tuple[str, ...]:

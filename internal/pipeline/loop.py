@@ -13,10 +13,12 @@ from jax import random
 import tensorboardX
 import tqdm
 
+from internal.run import camera_export
 from internal.run import checkpoints
 from internal.run import disk_full
 from internal import datasets
 from internal.run import distributed
+from internal.evaluation import camera_evaluation
 from internal.evaluation import evaluate
 from internal.evaluation import inference
 from internal.evaluation import learning_curve
@@ -30,6 +32,7 @@ from internal.training import prior_losses
 from internal.evaluation import vis
 from internal import progress
 from internal.datasets import random_poses
+from internal.training import camera_refinement
 
 PREVIEW_INDEX = 0  # The test view rendered every Config.train_render_every steps.
 
@@ -222,7 +225,8 @@ def _train_in(config, run_dir: str, stop_at_step: int, stop: Optional[StopFlag])
   batcher = _host_memory_named(config, datasets.make_batcher(dataset, config))
   curve_views = learning_curve.load_views(config, evaluate.check_eval_inputs(config))
   init_key, train_key = random.split(random.PRNGKey(config.jax_rng_seed))
-  model, state = train_step_lib.create_train_state(config, init_key, _example_rays(batcher))
+  cameras = camera_refinement.init(config, dataset) if config.optimize_cameras else None
+  model, state = train_step_lib.create_train_state(config, init_key, _example_rays(batcher), cameras)
   distributed.on_primary(lambda: run_dir_lib.record_settings(run_dir, config), 'recording the settings')
   mngr = checkpoints.manager(run_dir, config.checkpoint_keep)
   state = sharding.replicate(state, mesh)
@@ -230,7 +234,9 @@ def _train_in(config, run_dir: str, stop_at_step: int, stop: Optional[StopFlag])
   state = restored if restored is not None else state
   primary = distributed.is_primary()
   writer = tensorboardX.SummaryWriter(os.path.join(run_dir, 'tensorboard')) if primary else NullWriter()
-  curve = learning_curve.Recorder(config, model, curve_views, run_dir, writer, int(state.step)) if (
+  moving = camera_evaluation.CurveCameras(config, dataset) if (
+      curve_views is not None and primary and camera_evaluation.needs_alignment(config)) else None
+  curve = learning_curve.Recorder(config, model, curve_views, run_dir, writer, int(state.step), moving) if (
       curve_views is not None and primary) else None
   last = min(config.max_steps, stop_at_step) if stop_at_step > 0 else config.max_steps
   with disk_full.stop_when_disk_full(run_dir), stop_on_signals(stop) as stop:
@@ -241,6 +247,8 @@ def _train_in(config, run_dir: str, stop_at_step: int, stop: Optional[StopFlag])
     finally:
       mngr.wait_until_finished()
       mngr.close()
+  if cameras is not None and primary:
+    camera_export.write(run_dir, config, dataset, sharding.local_copy(state.cameras))
   return TrainResult(model, state, run_dir, stop.signum, skipped)
 
 
@@ -276,7 +284,7 @@ def _loop(config, model, state, batcher, mesh, key, mngr, writer, stop, last: in
         if step % config.print_every == 0 or step == last or stopping:
           report.flush(step)
         if curve is not None and curve.due(step):  # Before a stop: the run resumes after this step.
-          curve.record(step, state.params)
+          curve.record(step, state.params, getattr(state, 'cameras', None))
         if stopping:
           break
         if config.train_render_every > 0 and step % config.train_render_every == 0 and distributed.is_primary():

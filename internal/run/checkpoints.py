@@ -16,7 +16,9 @@ import numpy as np
 import orbax.checkpoint as ocp
 import tensorstore
 
+from internal import datasets
 from internal.run import distributed
+from internal.training import camera_refinement
 from internal.training import train_step
 
 CHECKPOINT_SUBDIR = 'checkpoints'
@@ -169,7 +171,11 @@ def latest_step(run_dir: str) -> int:
   return max(intact)
 
 
-def restore_model(config, run_dir: str, example_rays):
-  """(model, newest TrainState) of a run, for eval and render; the model is built from Config and gin."""
-  model, template = train_step.create_train_state(config, random.PRNGKey(config.jax_rng_seed), example_rays)
+def restore_model(config, run_dir: str, example_rays, train_set=None):
+  """(model, newest TrainState) of a run, for eval, render and meshes; the model is built from Config and gin. A run
+  that refines its cameras restores their corrections too (train_set: its training split, loaded when None)."""
+  cameras = None
+  if config.optimize_cameras:
+    cameras = camera_refinement.init(config, datasets.load_dataset('train', config) if train_set is None else train_set)
+  model, template = train_step.create_train_state(config, random.PRNGKey(config.jax_rng_seed), example_rays, cameras)
   return model, load_latest(run_dir, template)

@@ -16,6 +16,7 @@ from internal.losses import depth_smoothness
 from internal.losses import occlusion
 from internal.losses import reconstruction
 from internal.training import anneal
+from internal.training import camera_refinement
 from internal.training import optim
 from internal.training import schedule
 from internal.training import prior_losses
@@ -27,6 +28,12 @@ class TrainState:
   step: jax.Array
   params: Any
   opt_state: Any
+
+
+@flax.struct.dataclass
+class CameraTrainState(TrainState):
+  """A TrainState that also refines the training cameras (Config.optimize_cameras): camera_refinement.CameraState."""
+  cameras: Any
 
 
 NONFINITE_POLICIES = ('skip', 'raise')  # Config.nonfinite_grad_policy: see SkipCounter.
@@ -41,13 +48,17 @@ GUARD_CHECKS = (('loss_finite', 'loss'), ('grads_finite', 'gradients'), ('lr_val
                 ('update_finite', 'new parameters / optimizer state'))
 
 
-def create_train_state(config, key, example_rays):
-  """(model, TrainState at step 0) for Config, initialized on example rays [B, ...]."""
+def create_train_state(config, key, example_rays, cameras=None):
+  """(model, TrainState at step 0) for Config, initialized on example rays [B, ...]; with a CameraState (camera
+  refinement) a CameraTrainState."""
   model, variables = registry.construct_model(config.model, key, example_rays, config.white_background,
                                              config.precision)
   params = variables['params']
-  return model, TrainState(step=jnp.array(0, jnp.int32), params=params,
-                           opt_state=jax.jit(optim.adam(config.adam_eps).init)(params))
+  state = TrainState(step=jnp.array(0, jnp.int32), params=params,
+                     opt_state=jax.jit(optim.adam(config.adam_eps).init)(params))
+  if cameras is not None:
+    state = CameraTrainState(step=state.step, params=state.params, opt_state=state.opt_state, cameras=cameras)
+  return model, state
 
 
 def compute_loss(config, model, params, batch, key, step):
@@ -119,21 +130,33 @@ def make_train_step(config, model):
 
   def train_step(state, batch, key):
     step = state.step + 1
-    grad_fn = jax.value_and_grad(functools.partial(compute_loss, config, model), has_aux=True)
-    (loss, stats), grads = grad_fn(state.params, batch, random.fold_in(key, step), step)
-    stats.update(loss_finite=jnp.isfinite(loss), grads_finite=optim.all_finite(grads))
+    loss_fn = functools.partial(compute_loss, config, model)
+    cameras = getattr(state, 'cameras', None)
+    if cameras is None:
+      (loss, stats), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params, batch,
+                                                                        random.fold_in(key, step), step)
+      camera_grads = None
+    else:  # The batch's rays made from the corrected cameras; the corrections get their own gradient.
+      (loss, stats), (grads, camera_grads) = camera_refinement.value_and_grads(
+          loss_fn, state.params, cameras, batch, random.fold_in(key, step), step)
+    stats.update(loss_finite=jnp.isfinite(loss), grads_finite=optim.all_finite((grads, camera_grads)))
     grads, clip_stats = optim.clip_gradients(grads, config.grad_max_val, config.grad_max_norm)
     lr = schedule.config_learning_rate(config, step)
     updates, opt_state = adam.update(grads, state.opt_state, state.params)
     params = optax.apply_updates(state.params, jax.tree.map(lambda u: -lr * u, updates))
-    stats.update(lr_valid=jnp.isfinite(lr) & (lr > 0), update_finite=optim.all_finite((params, opt_state)))
+    if cameras is not None:
+      cameras, camera_stats = camera_refinement.update(config, cameras, camera_grads, step)
+      stats.update(camera_stats)
+    stats.update(lr_valid=jnp.isfinite(lr) & (lr > 0), update_finite=optim.all_finite((params, opt_state, cameras)))
     ok = jnp.all(jnp.array([stats[flag] for flag, _ in GUARD_CHECKS]))
     # A skipped step still advances state.step: the batch and key of step t depend on t only, so a resumed
     # run replays exactly the same steps, skipped ones included.
     keep = lambda new, old: jax.tree.map(lambda n, o: jnp.where(ok, n, o), new, old)
     stats.update(clip_stats, lr=lr, skipped=~ok)
-    new_state = TrainState(step=step, params=keep(params, state.params),
-                           opt_state=keep(opt_state, state.opt_state))
+    new_state = state.replace(step=step, params=keep(params, state.params),
+                              opt_state=keep(opt_state, state.opt_state))
+    if cameras is not None:
+      new_state = new_state.replace(cameras=keep(cameras, state.cameras))
     return new_state, stats
 
   return jax.jit(train_step, donate_argnums=(0,))

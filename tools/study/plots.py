@@ -12,7 +12,8 @@ from tools.study import spec as study_spec
 from tools.study import stats as study_stats
 
 # Learning-curve metrics (internal/evaluation/learning_curve.py) plotted against the training step.
-CURVE_METRICS = ('psnr', 'psnr_masked')
+CAMERA_CURVE_METRICS = ('camera_rotation_deg', 'camera_translation')  # Of the training cameras, where they move.
+CURVE_METRICS = ('psnr', 'psnr_masked') + CAMERA_CURVE_METRICS
 
 
 def pareto_front(points: Sequence[Tuple[float, float]], lower_is_better: bool) -> List[Tuple[float, float]]:
@@ -139,7 +140,8 @@ def write_curve_plots(study: study_spec.Study, curve_rows: List[dict], out_dir: 
     if lines:
       path = os.path.join(out_dir, f'{metric}_vs_step.png')
       fig, ax = curve_figure(study, lines)
-      vis.save_figure(fig, ax, 'training step', f'{metric} (learning-curve views)',
+      scored = 'training cameras' if metric in CAMERA_CURVE_METRICS else 'learning-curve views'
+      vis.save_figure(fig, ax, 'training step', f'{metric} ({scored})',
                       f'{study.name}: {metric} vs step', path)
       written.append(path)
   return written

@@ -1,0 +1,62 @@
+"""The similarity that best maps one set of cameras onto another, and the camera errors left after it.
+
+Cameras known only up to a similarity (structure-from-motion, refinement: any rotation, translation and scale of
+every camera and the scene together changes no image) are compared after aligning them, as BARF evaluates: the
+similarity x -> s Q x + t minimizes, over the cameras, the squared distances of the centres (scaled by their spread)
+plus the squared differences of the rotation matrices, one Procrustes problem (Umeyama's, with the orientations
+added), so that it is defined for any number of cameras (one: its rotation and centre; scale 1).
+"""
+
+from typing import NamedTuple
+
+import numpy as np
+
+from internal.datasets import pose_correction
+
+
+class Similarity(NamedTuple):
+  """x -> scale * rotation @ x + shift."""
+  scale: float
+  rotation: np.ndarray  # [3,3]
+  shift: np.ndarray     # [3]
+
+  def cameras(self, camtoworlds: np.ndarray) -> np.ndarray:
+    """[N,3,4] cameras c2w [N,3,4] carried by the similarity (rotations turned, centres mapped)."""
+    c2w = np.asarray(camtoworlds, np.float64)
+    centres = self.scale * c2w[:, :, 3] @ self.rotation.T + self.shift
+    return np.concatenate([self.rotation @ c2w[:, :, :3], centres[..., None]], -1)
+
+
+def fit(source: np.ndarray, target: np.ndarray) -> Similarity:
+  """The Similarity taking cameras source [N,3,4] closest to target [N,3,4] (module docstring)."""
+  source, target = np.asarray(source, np.float64), np.asarray(target, np.float64)
+  src_c, tgt_c = source[:, :, 3], target[:, :, 3]
+  src_mean, tgt_mean = src_c.mean(0), tgt_c.mean(0)
+  src_off, tgt_off = src_c - src_mean, tgt_c - tgt_mean
+  spread = np.sqrt(np.mean(np.sum(src_off**2, -1)))
+  unit = 1. / spread if spread > 0 else 0.
+  # Correlation of the target's axes with the source's: centre offsets (in units of the spread) and rotations.
+  correlation = unit**2 * tgt_off.T @ src_off + np.einsum('nij,nkj->ik', target[:, :, :3], source[:, :, :3])
+  u, _, vt = np.linalg.svd(correlation)
+  fix = np.diag([1., 1., np.sign(np.linalg.det(u @ vt))])
+  rotation = u @ fix @ vt
+  turned = src_off @ rotation.T
+  scale = float(np.sum(turned * tgt_off) / np.sum(src_off**2)) if spread > 0 else 1.
+  return Similarity(scale, rotation, tgt_mean - scale * rotation @ src_mean)
+
+
+def errors(cameras: np.ndarray, reference: np.ndarray, distance: float) -> dict:
+  """{'rotation_deg' [N], 'translation' [N]} of cameras [N,3,4] against reference [N,3,4] after the similarity
+  taking cameras onto reference: rotation angles in degrees, centre distances as a fraction of distance (the
+  reference's camera distance, camera_noise.camera_distance)."""
+  aligned = fit(cameras, reference).cameras(cameras)
+  reference = np.asarray(reference, np.float64)
+  angles = pose_correction.rotation_angle(np.swapaxes(aligned[:, :, :3], 1, 2) @ reference[:, :, :3])
+  gaps = np.linalg.norm(aligned[:, :, 3] - reference[:, :, 3], axis=-1)
+  return {'rotation_deg': np.rad2deg(angles), 'translation': gaps / distance}
+
+
+def summary(values: dict) -> dict:
+  """{'<name>_median', '<name>_mean', '<name>_max'} of errors' arrays, as floats."""
+  return {f'{name}_{stat}': float(fn(v)) for name, v in values.items()
+          for stat, fn in (('median', np.median), ('mean', np.mean), ('max', np.max))}

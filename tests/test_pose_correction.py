@@ -1,0 +1,243 @@
+"""Rays of corrected cameras against the loaders' own ray builders, their gradients against finite differences,
+the seeded camera noise and the similarity alignment of cameras."""
+
+import gin
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from conftest import SHARED_DATA
+from internal import config_loader
+from internal import configs
+from internal.datasets import camera_alignment, cameras, load_dataset, loader, pose_correction
+from internal.datasets import raygen
+
+H, W = 6, 8
+FOCAL = 7.
+OMEGA, SHIFT = np.array([.03, -.05, .02]), np.array([.1, -.05, .08])
+
+
+def _camera(seed: int) -> np.ndarray:
+  """A [3,4] camera 4 units from the origin looking at it (OpenGL axes)."""
+  rng = np.random.default_rng(seed)
+  position = rng.normal(size=3)
+  position = 4. * position / np.linalg.norm(position)
+  return cameras.viewmatrix(position, np.array([0., 0., 1.]), position)
+
+
+def _forward_camera(seed: int) -> np.ndarray:
+  """A [3,4] forward-facing camera near the origin looking down -z (LLFF's frame)."""
+  rng = np.random.default_rng(seed)
+  return np.concatenate([Rotation.from_rotvec(rng.normal(size=3) * .05).as_matrix(),
+                         rng.normal(size=(3, 1)) * .1], 1)
+
+
+PIXTOCAM = cameras.focal_pixtocam(FOCAL, H, W)
+# (name, camera, rays of a camera, RaySpace): every kind of rays a loader makes.
+KINDS = {
+    'pinhole': (_camera, lambda c2w: raygen.pinhole_rays(c2w, PIXTOCAM, H, W, 2., 6., True),
+                pose_correction.RaySpace()),
+    'dtu': (_camera, lambda c2w: raygen.dtu_rays(c2w, PIXTOCAM, H, W, .5, 3.5, .3),
+            pose_correction.RaySpace(plane_z=.3)),
+    'ndc': (_forward_camera, lambda c2w: raygen.llff_rays(c2w, PIXTOCAM, H, W, FOCAL),
+            pose_correction.RaySpace(ndc_focal=FOCAL, height=H, width=W)),
+}
+
+
+def _corrected(kind: str, omega, shift, xp=np):
+  """(rays of the camera of kind corrected by (omega, shift) with pose_correction, the camera)."""
+  make_camera, make_rays, space = KINDS[kind]
+  c2w = make_camera(0)
+  rays = make_rays(c2w)
+  rotation = pose_correction.so3_exp(omega, xp)
+  rays = type(rays)(*[xp.asarray(x[None], jnp.float64 if xp is jnp else np.float64) for x in rays])
+  return pose_correction.image_rays(rays, rotation[None], xp.asarray(c2w[None, :, 3]), shift[None], space, xp), c2w
+
+
+@pytest.mark.parametrize('kind', KINDS)
+def test_corrected_rays_are_the_loaders_rays_of_the_corrected_camera(kind):
+  rays, c2w = _corrected(kind, OMEGA, SHIFT)
+  moved = pose_correction.corrected_cameras(c2w[None], Rotation.from_rotvec(OMEGA).as_matrix()[None], SHIFT[None])
+  expected = KINDS[kind][1](moved[0])
+  for name, got, want in zip(rays._fields, rays, expected):
+    np.testing.assert_allclose(np.asarray(got)[0], want, rtol=2e-6, atol=2e-6, err_msg=name)
+  unmoved, _ = _corrected(kind, np.zeros(3), np.zeros(3))
+  for got, want in zip(unmoved, KINDS[kind][1](c2w)):
+    np.testing.assert_allclose(np.asarray(got)[0], want, rtol=2e-6, atol=2e-6)
+
+
+@pytest.mark.parametrize('kind', KINDS)
+def test_gradients_through_the_corrected_rays_match_finite_differences(kind):
+  weights = [np.random.default_rng(i).normal(size=(1, H, W, x)) for i, x in enumerate((3, 3, 3, 1))]
+
+  def value(params):  # A scalar of every field the corrections move: origins, directions, viewdirs, radii.
+    rays, _ = _corrected(kind, params[:3], params[3:], jnp)
+    return sum(jnp.sum(w * x) for w, x in zip(weights, rays[:4]))
+
+  with jax.enable_x64(True):
+    at = jnp.asarray(np.concatenate([OMEGA, SHIFT]))
+    value = jax.jit(value)
+    grad = np.asarray(jax.grad(value)(at))
+    eps = 1e-6
+    numeric = np.array([(value(at + eps * e) - value(at - eps * e)) / (2 * eps) for e in np.eye(6)])
+    zero = np.asarray(jax.grad(value)(jnp.zeros(6)))  # The start of refinement: no NaN from the angle's norm.
+  np.testing.assert_allclose(grad, numeric, rtol=1e-6, atol=1e-6)
+  assert np.all(np.isfinite(zero)) and np.any(zero != 0)
+
+
+def test_so3_exp_is_rodrigues_and_exact_near_zero():
+  omega = np.array([[.3, -1.2, .5], [1e-5, 2e-5, -1e-5], [0., 0., 0.], [0., 0., np.pi - 1e-3]])
+  np.testing.assert_allclose(pose_correction.so3_exp(omega), Rotation.from_rotvec(omega).as_matrix(), atol=1e-14)
+  np.testing.assert_allclose(np.rad2deg(pose_correction.rotation_angle(pose_correction.so3_exp(omega))),
+                             np.rad2deg(np.linalg.norm(omega, axis=-1)), atol=1e-5)
+
+
+def test_neighbour_pixels_pair_as_the_released_radii():
+  for height, width in ((H, W), (2, 3)):
+    x = np.random.default_rng(0).normal(size=(height, width, 3))
+    flat = x.reshape(-1, 3)[pose_correction.neighbour_pixels(np.arange(height * width), height, width)]
+    gaps = np.linalg.norm(flat[..., 1, :] - flat[..., 0, :], axis=-1)
+    np.testing.assert_allclose(gaps[:, 0], raygen.neighbour_distances(x, 0).reshape(-1), rtol=1e-14)
+    np.testing.assert_allclose(gaps[:, 1], raygen.neighbour_distances(x, 1).reshape(-1), rtol=1e-14)
+
+
+# ------------------------------------------------------------------ noise on the training cameras
+
+def _generated(scene_dir, rig='object', *bindings):
+  gin.clear_config()
+  return config_loader.load_config(['configs/demo.gin'], [
+      f"Config.data_dir = '{scene_dir}_{rig}'", f"Config.generated_rig = '{rig}'", 'Config.generated_size = (32, 40)',
+      *bindings])
+
+
+NOISE = ('Config.camera_noise_rotation_deg = 5.', 'Config.camera_noise_translation = 0.05')
+
+
+@pytest.mark.parametrize('rig', ['object', 'forward'])
+def test_noise_turns_and_moves_each_training_camera_exactly_and_its_rays_follow(scene_dir, rig):
+  clean_config = _generated(scene_dir, rig)
+  clean = load_dataset('train', clean_config)
+  noisy = load_dataset('train', _generated(scene_dir, rig, *NOISE))
+  angles = np.rad2deg(pose_correction.rotation_angle(
+      np.swapaxes(clean.camtoworlds[:, :, :3], 1, 2) @ noisy.camtoworlds[:, :, :3]))
+  np.testing.assert_allclose(angles, 5., atol=2e-3)
+  distance = 2. if rig == 'forward' else 4.  # (near + far) / 2 = (2 + 6) / 2; NDC: camera_noise.NDC_DISTANCE.
+  np.testing.assert_allclose(np.linalg.norm(noisy.camtoworlds[:, :, 3] - clean.camtoworlds[:, :, 3], axis=-1),
+                             .05 * distance, rtol=1e-5)
+  space = loader.ray_space(clean_config, clean)
+  for i in (0, len(clean.ids) - 1):  # The rays are the loader's rays of the noisy cameras.
+    if rig == 'object':
+      expected = raygen.pinhole_rays(noisy.camtoworlds[i].astype(np.float64), clean.pixtocams[i], clean.height,
+                                     clean.width, clean.near, clean.far, True)
+    else:
+      expected = raygen.llff_rays(noisy.camtoworlds[i].astype(np.float64), clean.pixtocams[i], clean.height,
+                                  clean.width, space.ndc_focal)
+    for name, got, want in zip(expected._fields, noisy.rays, expected):
+      np.testing.assert_allclose(got[i], want, rtol=1e-4, atol=1e-5, err_msg=name)
+
+
+def test_noise_is_seeded_per_view_and_leaves_the_test_cameras(scene_dir):
+  noisy = load_dataset('train', _generated(scene_dir, 'object', *NOISE))
+  again = load_dataset('train', _generated(scene_dir, 'object', *NOISE))
+  other = load_dataset('train', _generated(scene_dir, 'object', *NOISE, 'Config.camera_noise_seed = 1'))
+  fewer = load_dataset('train', _generated(scene_dir, 'object', *NOISE, 'Config.n_input_views = 3'))
+  np.testing.assert_array_equal(noisy.camtoworlds, again.camtoworlds)
+  assert not np.allclose(noisy.camtoworlds, other.camtoworlds)
+  shared = [noisy.ids.index(i) for i in fewer.ids]  # A view's noise does not depend on the other views.
+  np.testing.assert_array_equal(fewer.camtoworlds, noisy.camtoworlds[shared])
+  clean_test = load_dataset('test', _generated(scene_dir, 'object'))
+  noisy_test = load_dataset('test', _generated(scene_dir, 'object', *NOISE))
+  for name in ('camtoworlds', 'images'):
+    np.testing.assert_array_equal(getattr(clean_test, name), getattr(noisy_test, name))
+  for a, b in zip(clean_test.rays, noisy_test.rays):
+    np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.skipif(not (SHARED_DATA / 'llff' / 'fern').is_dir(), reason='../shared/data/llff/fern is absent')
+def test_the_ndc_focal_read_back_from_llff_rays_is_the_loaders():
+  gin.clear_config()
+  config = config_loader.load_config(['configs/mini/llff3_freenerf.gin'],
+                                     [f"Config.data_dir = '{SHARED_DATA / 'llff'}'", "Config.llff_scan = 'fern'"])
+  data = load_dataset('train', config)
+  focal = 1. / data.pixtocams[0, 0, 0]
+  assert loader.ray_space(config, data).ndc_focal == pytest.approx(focal, rel=1e-6)
+
+
+# ------------------------------------------------------------------ the similarity between sets of cameras
+
+def _random_cameras(n: int, seed: int) -> np.ndarray:
+  return np.stack([_camera(seed + i) for i in range(n)])
+
+
+@pytest.mark.parametrize('n', [1, 2, 6])
+def test_fit_recovers_a_similarity_and_leaves_no_error(n):
+  source = _random_cameras(n, 10)
+  truth = camera_alignment.Similarity(1.7, Rotation.from_rotvec([.4, -.3, 1.1]).as_matrix(), np.array([1., 2., -3.]))
+  target = truth.cameras(source)
+  fit = camera_alignment.fit(source, target)
+  np.testing.assert_allclose(fit.rotation, truth.rotation, atol=1e-10)
+  np.testing.assert_allclose(fit.cameras(source), target, atol=1e-10)
+  if n > 1:
+    assert fit.scale == pytest.approx(1.7)
+  errors = camera_alignment.errors(source, target, 4.)
+  np.testing.assert_allclose(errors['rotation_deg'], 0., atol=1e-5)
+  np.testing.assert_allclose(errors['translation'], 0., atol=1e-10)
+
+
+def test_errors_measure_one_disturbed_camera_among_many():
+  reference = _random_cameras(12, 20)
+  disturbed = reference.copy()
+  disturbed[3, :, :3] = Rotation.from_rotvec([0., np.deg2rad(2.), 0.]).as_matrix() @ reference[3, :, :3]
+  disturbed[3, :, 3] += np.array([0., .04, 0.])
+  moved = camera_alignment.Similarity(2., Rotation.from_rotvec([.2, .1, 0.]).as_matrix(), np.ones(3))
+  errors = camera_alignment.errors(moved.cameras(disturbed), reference, 4.)
+  assert errors['rotation_deg'][3] == pytest.approx(2., abs=.25)
+  assert errors['translation'][3] == pytest.approx(.01, abs=.002)
+  assert np.median(errors['rotation_deg']) < .2
+
+
+# ------------------------------------------------------------------ every loader's rays follow the noisy cameras
+
+def _real(loader_name: str, **kw):
+  """A Config of a shared real scene, or None when it is absent."""
+  found = {'llff': (SHARED_DATA / 'llff' / 'fern', dict(dataset_loader='llff', data_dir=str(SHARED_DATA / 'llff'),
+                                                         llff_scan='fern', factor=8, near=0., far=1.)),
+           'dtu': (SHARED_DATA / 'dtu' / 'dtu_scan24', dict(dataset_loader='dtu', data_dir=str(SHARED_DATA / 'dtu'),
+                                                            dtu_scan='dtu_scan24', factor=4, near=.5, far=3.5,
+                                                            near_origin=.1, white_background=False,
+                                                            allow_missing_test_views=True)),
+           'blender': (SHARED_DATA / 'blender' / 'lego', dict(dataset_loader='blender',
+                                                              data_dir=str(SHARED_DATA / 'blender'), factor=8)),
+           'colmap': (SHARED_DATA / 'colmap' / 'cup', dict(dataset_loader='colmap',
+                                                           data_dir=str(SHARED_DATA / 'colmap' / 'cup'), factor=4,
+                                                           white_background=False))}[loader_name]
+  if not found[0].is_dir():
+    pytest.skip(f'{found[0]} is absent')
+  return configs.Config(n_input_views=3, **found[1], **kw)
+
+
+@pytest.mark.parametrize('name', ['llff', 'dtu', 'blender', 'colmap'])
+def test_every_loaders_rays_follow_its_noisy_cameras(name):
+  clean = load_dataset('train', _real(name))
+  noisy = load_dataset('train', _real(name, camera_noise_rotation_deg=5., camera_noise_translation=.05))
+  turn = noisy.camtoworlds[:, :, :3].astype(np.float64) @ np.swapaxes(clean.camtoworlds[:, :, :3], 1, 2)
+  np.testing.assert_allclose(np.rad2deg(pose_correction.rotation_angle(turn)), 5., atol=2e-3)
+  world = noisy.rays.viewdirs  # NDC rays keep the world directions there; world rays' viewdirs are unit directions.
+  np.testing.assert_allclose(world, np.einsum('nij,nhwj->nhwi', turn, clean.rays.viewdirs), atol=2e-5)
+  space = loader.ray_space(_real(name), clean)
+  if name == 'llff':  # The loader's NDC rays of the noisy cameras.
+    expected = raygen.llff_rays(noisy.camtoworlds[0].astype(np.float64), clean.pixtocams[0], clean.height,
+                                clean.width, space.ndc_focal)
+    for field, got, want in zip(expected._fields, noisy.rays, expected):
+      np.testing.assert_allclose(got[0], want, rtol=1e-4, atol=2e-5, err_msg=field)
+  elif name == 'dtu':
+    assert space.plane_z == .1
+    np.testing.assert_allclose(noisy.rays.origins[..., 2], .1, atol=1e-5)
+  else:
+    np.testing.assert_allclose(noisy.rays.origins, np.broadcast_to(noisy.camtoworlds[:, None, None, :, 3],
+                                                                   noisy.rays.origins.shape), atol=1e-5)
+  kept = ('lossmult', 'near', 'far') + (() if name == 'llff' else ('radii',))  # Rotations keep world radii.
+  for field in kept:
+    np.testing.assert_allclose(getattr(noisy.rays, field), getattr(clean.rays, field), rtol=1e-5, atol=1e-7)
