@@ -30,7 +30,7 @@ def test_each_tool_run_as_a_module_ends_a_bad_input_in_one_line(tmp_path):
            ['tools.mesh', '--level', 'nan'],
            ['tools.points', '--out', str(tmp_path / 'x.ply'), '--max_points', '0'],
            ['tools.synthetic_depth', '--out', str(tmp_path / 'maps'), '--gamma', '0'],
-           ['tools.depth_shape', 'studies/absent.toml', '--export', str(tmp_path / 'shape')]]
+           ['tools.depth_shape', str(tmp_path / 'absent.toml'), '--export', str(tmp_path / 'shape')]]
   result = subprocess.run([sys.executable, '-c', RUN_AS_MAIN, json.dumps(calls)], cwd=ROOT, capture_output=True,
                           text=True, timeout=300, check=False)
   lines = [line for line in result.stderr.splitlines() if line.startswith(('error: ', 'status '))]
@@ -39,7 +39,7 @@ def test_each_tool_run_as_a_module_ends_a_bad_input_in_one_line(tmp_path):
                    'error: --level nan: expected a positive finite density (the density is >= 0)', 'status 2',
                    'error: --max_points 0, --path_views 0, --min_views 2: expected >= 1, >= 0, >= 1', 'status 2',
                    'error: --gamma 0.0, --blur 1.0, --noise 0.02: expected > 0, >= 0, >= 0', 'status 2',
-                   "error: study file 'studies/absent.toml' does not exist", 'status 2'], \
+                   f"error: study file {str(tmp_path / 'absent.toml')!r} does not exist", 'status 2'], \
       result.stderr
   assert 'Traceback' not in result.stderr
 
