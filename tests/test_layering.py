@@ -52,7 +52,8 @@ def test_internal_does_not_import_tools(path):
 # The pipeline's stages in order (docs/design.md). Every module of internal/ belongs to one and imports only its
 # own stage and earlier ones: the run infrastructure after the step it checkpoints and before the evaluation that
 # reads its runs, the training loop (pipeline/) above training and evaluation, the entry points on top.
-STAGES = ('records', 'datasets', 'models', 'losses', 'training', 'run', 'evaluation', 'pipeline', 'entry')
+STAGES = ('records', 'datasets', 'models', 'losses', 'training', 'run', 'evaluation', 'geometry', 'pipeline',
+          'entry')
 # The modules directly under internal/: plain data and utilities that import nothing of internal/, and the entry
 # points of the scripts (the command line, the demo, config loading that validates every stage's settings).
 RECORDS = {'rays', 'configs', 'atomic', 'progress', 'environment', 'interrupt', 'lock_holders'}

@@ -1,4 +1,4 @@
-"""Meshes (tools.mesh, evaluation/mesh.py, evaluation/ply.py): marching cubes slab by slab, the PLY file, the
+"""Meshes (tools.mesh, geometry/mesh.py, geometry/ply.py): marching cubes slab by slab, the PLY file, the
 empty field, and the mesh of a trained generated scene against its exact surfaces (Chamfer distance)."""
 
 import json
@@ -19,9 +19,9 @@ from internal import datasets
 from internal.configs import Config
 from internal.datasets import dtu
 from internal.datasets import scene_generator
-from internal.evaluation import mesh
-from internal.evaluation import mesh_scores
-from internal.evaluation import ply
+from internal.geometry import mesh
+from internal.geometry import mesh_scores
+from internal.geometry import ply
 from internal.run import checkpoints
 from internal.run import out_of_memory
 from internal.pipeline import loop

@@ -1,11 +1,11 @@
-"""Scoring a mesh against the generated object scene's exact surfaces (evaluation/mesh_scores.py): distances to each
+"""Scoring a mesh against the generated object scene's exact surfaces (geometry/mesh_scores.py): distances to each
 kind of solid by hand, uniform surface samples, the hidden contact surfaces, Chamfer distance and coverage."""
 
 import numpy as np
 import pytest
 
 from internal.datasets import scene_generator
-from internal.evaluation import mesh_scores
+from internal.geometry import mesh_scores
 
 SPHERE = {'shape': 'sphere', 'kind': 'object', 'centre': [0., 0., .5], 'radius': .5}
 # A box of half sizes (0.2, 0.1, 0.3) turned 90 degrees about z (its x extent along y), standing on the ground.

@@ -91,3 +91,18 @@ def test_every_named_path_exists(named_in):
   with open(os.path.join(ROOT, named_in), errors='replace') as f:
     dead = sorted(p for p in named_paths(f.read()) if not _exists(p, named_in))
   assert not dead, f'{named_in} names paths that do not exist: {dead}'
+
+
+def _map_block() -> str:
+  """The folder map of docs/design.md: its first code block."""
+  with open(os.path.join(ROOT, 'docs', 'design.md')) as f:
+    return f.read().split('```text', 1)[1].split('```', 1)[0]
+
+
+@pytest.mark.parametrize('top', ['internal', 'tools', 'bench'])
+def test_the_design_map_names_every_module(top):
+  block = _map_block()
+  unnamed = [os.path.relpath(os.path.join(folder, name), ROOT) for folder, _, names in os.walk(os.path.join(ROOT, top))
+             for name in names if name.endswith(('.py', '.sh', '.toml')) and name != '__init__.py'
+             and '__pycache__' not in folder and not re.search(r'(?<![\w.])%s\b' % re.escape(name), block)]
+  assert not unnamed, f'docs/design.md\'s folder map does not name {unnamed}'

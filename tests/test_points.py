@@ -1,4 +1,4 @@
-"""Point clouds of a field (internal/evaluation/points.py, tools/points.py): from the generated scene's exact depths
+"""Point clouds of a field (internal/geometry/points.py, tools/points.py): from the generated scene's exact depths
 the points lie on its surfaces and the views agree; NDC depths come back to the world; the COLMAP model loads in
 the capture loader; the tool on a trained run, its memory check and its refusals."""
 
@@ -12,8 +12,8 @@ import pytest
 from internal import cli
 from internal.configs import Config
 from internal.datasets import cameras, colmap, load_dataset, raygen, scene_generator
-from internal.evaluation import mesh_scores, ply
-from internal.evaluation import points as points_lib
+from internal.geometry import mesh_scores, ply
+from internal.geometry import points as points_lib
 from internal.pipeline import loop
 from internal.run import out_of_memory
 from test_checkpoints import DEMO, TINY, tiny_config

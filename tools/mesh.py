@@ -8,7 +8,7 @@ around its solids, 5% margin; Blender: the cube [-1.5, 1.5]^3 that holds its obj
 generated forward scene, forward captures): the NDC box, and the mesh is in NDC coordinates; DTU: the region its
 test views' object masks bound; inward captures: the box around the sparse points inside the cameras' orbit;
 packed scenes: --bounds, in the run's world coordinates), z-slab by z-slab so that host memory grows with
-resolution^2 (internal/evaluation/mesh.py), then marching cubes at --level (default: the density that makes one
+resolution^2 (internal/geometry/mesh.py), then marching cubes at --level (default: the density that makes one
 interval of the run's own samples half opaque, ln 2 x samples / (far - near), so it follows the scene's scale).
 The memory --resolution needs on the host and --chunk on the device are checked before any work. Vertex colours
 are the radiance at each vertex seen head-on from outside (view direction = -normal; in NDC scenes the normal is
@@ -16,7 +16,7 @@ an NDC one while the model was trained on world directions, an approximation). W
 <run>/mesh_step_<step>_<resolution>.ply (or --out) and never replaces a file unless Config.overwrite = True. A
 field that stays on one side of the level is an error naming its minimum and maximum, and no file is written.
 On the generated object scene --scores FILE also writes the mesh's distances to the scene's exact surfaces, overall
-and per solid (Chamfer distance and coverage, internal/evaluation/mesh_scores.py), the mesh's size, the seconds
+and per solid (Chamfer distance and coverage, internal/geometry/mesh_scores.py), the mesh's size, the seconds
 meshing took (the grid and the colours, once compiled) and provenance (command, commit, machine), e.g. into
 results/mesh/ to be committed.
 """
@@ -39,9 +39,9 @@ from internal import atomic
 from internal import cli
 from internal import datasets
 from internal.datasets import loader
-from internal.evaluation import mesh
-from internal.evaluation import mesh_scores
-from internal.evaluation import ply
+from internal.geometry import mesh
+from internal.geometry import mesh_scores
+from internal.geometry import ply
 from internal.run import checkpoints
 from internal.run import out_of_memory
 from internal.run import run_dir as run_dir_lib

@@ -7,7 +7,7 @@ Pass the gin configs and bindings used for training. Every training view is rend
 with --path_views, K frames of the render path; world-ray scenes only), its expected depth turned into a world
 point per pixel (NDC scenes: converted back to the world), kept where the ray is at least --min_opacity opaque and
 --min_views training views agree: the point lies in front of them, inside their images, where their own
-renderings are opaque at the same camera depth within --tolerance (relative); internal/evaluation/points.py.
+renderings are opaque at the same camera depth within --tolerance (relative); internal/geometry/points.py.
 Each point is coloured by the rendered radiance of its pixel and has the rendered normal where it is known (world
 rays; NDC scenes' points have none). --max_points caps the cloud, each view keeping an equal share.
 
@@ -39,9 +39,9 @@ from internal.datasets import image_io
 from internal.datasets import loader
 from internal.datasets import scene_generator
 from internal.evaluation import inference
-from internal.evaluation import mesh_scores
-from internal.evaluation import ply
-from internal.evaluation import points as points_lib
+from internal.geometry import mesh_scores
+from internal.geometry import ply
+from internal.geometry import points as points_lib
 from internal.run import checkpoints
 from internal.run import out_of_memory
 from internal.run import run_dir as run_dir_lib

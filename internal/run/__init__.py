@@ -1,1 +1,1 @@
-"""Run infrastructure: run directories and their lock, checkpoints, devices and processes, memory errors, flops."""
+"""Run infrastructure: run directories and their lock, checkpoints, devices and processes, memory errors."""
