@@ -79,7 +79,7 @@ def _raise_missing_include(err: OSError) -> None:
 def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = (), backend: str = '') -> Config:
   """Parses gin and returns a validated Config, its precision resolved for backend ('' = this process's)."""
   parse_gin(gin_configs, gin_bindings)
-  config = _expand_home(_resolve_freq_reg_end(_apply_warmup_end(Config()), gin_bindings))
+  config = _expand_home(_resolve_freq_reg_end(_apply_warmup_end(_current_loader_name(Config())), gin_bindings))
   validate(config)
   # Concrete from here on: a run records (and its fingerprint checks) the numerics it trained with.
   return dataclasses.replace(config, precision=precision.resolve(config.precision, backend))
@@ -97,6 +97,16 @@ def _expand_home(config: Config) -> Config:
       raise ValueError(f'Config.{name} = {path!r}: no home folder of user {path[1:].split(os.sep)[0]!r} to '
                        "expand '~' with; expected a path without '~' or with a known user's")
   return dataclasses.replace(config, **expanded)
+
+
+def _current_loader_name(config: Config) -> Config:
+  """Config with an earlier name of its loader (loader.RENAMED) replaced by the current one, with a warning."""
+  name = loader.RENAMED.get(config.dataset_loader)
+  if name is None:
+    return config
+  warnings.warn(f'Config.dataset_loader = {config.dataset_loader!r} is an earlier name of {name!r}: read as '
+                f'{name!r} (write that in your gin files)', stacklevel=3)
+  return dataclasses.replace(config, dataset_loader=name)
 
 
 def _apply_warmup_end(config: Config) -> Config:

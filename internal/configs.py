@@ -79,7 +79,7 @@ class Config:
   dtu_split_type: str = setting('pixelnerf', shapes=('dtu',))
   dtuhold: int = setting(8, shapes=('dtu',))  # DTU hold-out period for splits other than 'pixelnerf'.
   # LLFF: every llffhold-th image is a test view (the paper: 8).
-  llffhold: int = setting(8, shapes=('llff', 'generated', 'colmap'))
+  llffhold: int = setting(8, shapes=('llff', 'generated', 'capture'))
   blender_split: str = setting('dietnerf', shapes=('blender',))  # 'dietnerf' (8 fixed ids) | 'first_n'.
   allow_missing_test_views: bool = setting(False, BOOKKEEPING)  # Evaluate only the test views present on disk.
   # Image downsampling factor (0 or 1 = full size); the paper: DTU 4, LLFF 8.
@@ -109,14 +109,14 @@ class Config:
   generated_rig: str = setting('object', shapes=('generated',))  # Generated scene: 'object' | 'forward'.
   generated_size: Sequence[int] = setting((64, 80), shapes=('generated',))  # Generated scene image (H, W).
   generated_seed: int = setting(0, shapes=('generated',))  # Generated scene: seed of its layout and textures.
-  # Captures (dataset_loader 'colmap', internal/datasets/colmap.py): a user's photos and their COLMAP model.
+  # Captures (dataset_loader 'capture', internal/datasets/capture.py): a user's photos and their COLMAP model.
   # The capture's folder under Config.data_dir ('' = data_dir is the capture).
-  capture_scene: str = setting('', shapes=('colmap',))
+  capture_scene: str = setting('', shapes=('capture',))
   # Image folder (and <name>_<k>/ copies downsampled by k, as LLFF's).
-  capture_images: str = setting('images', shapes=('colmap',))
-  capture_model: str = setting('sparse/0', shapes=('colmap',))  # COLMAP sparse model folder (binary or text).
+  capture_images: str = setting('images', shapes=('capture',))
+  capture_model: str = setting('sparse/0', shapes=('capture',))  # COLMAP sparse model folder (binary or text).
   # 'auto' | 'inward' (world rays, orbit) | 'forward' (NDC rays, spiral).
-  capture_rig: str = setting('auto', shapes=('colmap',))
+  capture_rig: str = setting('auto', shapes=('capture',))
 
   # Model.
   model: str = setting('mipnerf')  # 'mipnerf' (MipNerfModel, MLP.*) | 'nerf' (NerfModel, NerfMLP.*: plain NeRF).
@@ -271,7 +271,7 @@ class Config:
   test_pose_lr: float = setting(1e-3, FINITE, POSITIVE, BOOKKEEPING)  # Its learning rate (Adam, constant).
   # Captures: a second COLMAP model folder (e.g. structure-from-motion on the training photos alone, tools.capture's
   # <out>/sparse/0) whose cameras the training views take, in its own frame; '' = Config.capture_model's.
-  capture_train_model: str = setting('', PATH, shapes=('colmap',))
+  capture_train_model: str = setting('', PATH, shapes=('capture',))
 
 
 def declared(prop: str) -> tuple:

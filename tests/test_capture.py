@@ -17,7 +17,8 @@ from PIL import Image
 
 from conftest import SHARED_DATA
 from internal import config_loader
-from internal.datasets import colmap, colmap_model, load_dataset
+from internal.datasets import colmap_model, load_dataset
+from internal.datasets import capture as capture_loader
 from tools.capture import CaptureError, __main__ as capture, bench, output, photos, pipeline, poses, sfm
 
 CUP = SHARED_DATA / 'colmap' / 'cup'
@@ -135,7 +136,7 @@ def test_the_loader_reads_the_capture_with_the_reported_views(cup_capture):
   folder, report, _ = cup_capture
   config = config_loader.load_config([os.path.join(REPO, pipeline.CONFIG)], [f"Config.data_dir = '{folder}'"])
   test = load_dataset('test', config)
-  found = colmap.read_capture(config)
+  found = capture_loader.read_capture(config)
   assert [found.names[i] for i in test.ids] == report['views']['test']
   assert report['rig'] == ('forward' if found.forward else 'inward') and test.images.shape[1:3] == (150, 200)
   # 12 images hold 2 test views: the command binds the learning curve's views to those two.

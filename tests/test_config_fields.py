@@ -62,7 +62,12 @@ EXPECTED_RANGES = {
     'render_path_frames': {P}, 'precrop_steps': {NN}, 'max_steps': {P}, 'lr_init': {F, P}, 'lr_final': {F, P},
     'lr_delay_steps': {NN}, 'max_skipped_steps': {P}, 'stuck_warning_steps': {NN}, 'freq_reg_end': {NN},
     'occ_reg_range': {NN}, 'occ_wb_range': {NN}, 'n_random_poses': {P}, 'anneal_nearfar_steps': {P},
-    'eval_factor': {P}, 'curve_every': {NN}, 'curve_spread_views': {NN}, 'curve_factor': {P}}
+    'eval_factor': {P}, 'curve_every': {NN}, 'curve_spread_views': {NN}, 'curve_factor': {P},
+    'depth_rank_loss_mult': {NN}, 'depth_rank_margin': {NN}, 'depth_pearson_loss_mult': {NN},
+    'depth_patch_size': {P}, 'depth_prior_rays': {P}, 'sfm_depth_loss_mult': {NN},
+    'camera_lr_init': {F, P}, 'camera_lr_final': {F, P}, 'camera_lr_delay_steps': {NN}, 'camera_adam_eps': {F, P},
+    'camera_noise_rotation_deg': {F, NN}, 'camera_noise_translation': {F, NN}, 'test_pose_steps': {NN},
+    'test_pose_lr': {F, P}}
 
 
 def test_each_field_declares_exactly_the_ranges_the_table_expects():

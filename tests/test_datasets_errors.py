@@ -70,7 +70,7 @@ def test_data_folder_missing(tmp_path, make):
 
 
 def _capture(root, **kw):
-  return Config(dataset_loader='colmap', data_dir=str(root), **kw)
+  return Config(dataset_loader='capture', data_dir=str(root), **kw)
 
 
 def _generated(root, **kw):

@@ -14,9 +14,10 @@ import pytest
 
 from internal import config_loader
 from internal.configs import Config
-from internal.datasets import DatasetError, colmap, colmap_model as cm, depth_prior, load_dataset, sfm_depth
+from internal.datasets import DatasetError, colmap_model as cm, depth_prior, load_dataset, sfm_depth
+from internal.datasets import capture as capture_loader
 from tests.conftest import SHARED_DATA
-from tests.test_datasets_colmap import _capture_from
+from tests.test_datasets_capture import _capture_from
 from tests.test_datasets_dtu_layouts import config as dtu_config, synthetic_projections, write_idr
 from tools import synthetic_depth
 
@@ -109,7 +110,7 @@ def test_captures(tmp_path, scene_dir):
   data = load_dataset('train', Config(data_dir=str(scene_dir), n_input_views=0))
   data.source_paths = data.image_paths
   _capture_from(data, tmp_path / 'capture')
-  _check_loader(Config(dataset_loader='colmap', data_dir=str(tmp_path / 'capture'), n_input_views=3, llffhold=4,
+  _check_loader(Config(dataset_loader='capture', data_dir=str(tmp_path / 'capture'), n_input_views=3, llffhold=4,
                        white_background=False), tmp_path)
 
 
@@ -289,7 +290,7 @@ def fixture_sfm_capture(tmp_path_factory):
 
 
 def _sfm_config(folder, **kwargs):
-  return Config(**{'dataset_loader': 'colmap', 'data_dir': str(folder), 'n_input_views': 4, 'llffhold': 4,
+  return Config(**{'dataset_loader': 'capture', 'data_dir': str(folder), 'n_input_views': 4, 'llffhold': 4,
                    'white_background': False, 'sfm_depth_loss_mult': 1., **kwargs})
 
 
@@ -297,7 +298,7 @@ def test_the_sfm_prior_is_the_points_of_two_or_more_training_views_at_their_obse
   model, data, folder = sfm_capture
   config = _sfm_config(folder)
   train = load_dataset('train', config)
-  capture = colmap.read_capture(config)
+  capture = capture_loader.read_capture(config)
   scale = np.linalg.norm(np.diff(capture.camtoworlds[:2, :, 3], axis=0)) / np.linalg.norm(
       np.diff(data.camtoworlds[:2, :, 3].astype(np.float64), axis=0))
   names = [capture.names[i] for i in train.ids]
@@ -321,7 +322,7 @@ def test_the_strict_form_reads_a_model_of_the_training_photos_in_its_own_frame(s
   model, _, folder = sfm_capture
   config = _sfm_config(folder)
   train = load_dataset('train', config)
-  names = {colmap.read_capture(config).names[i] for i in train.ids}
+  names = {capture_loader.read_capture(config).names[i] for i in train.ids}
   # Structure-from-motion on the training photos: another frame (a similarity), only their images and points.
   rotation = cm.qvec_to_rotmat([.9, .1, -.3, .2])
   scale, shift = 3.7, np.array([1., -2., .5])
@@ -340,7 +341,7 @@ def test_the_strict_form_reads_a_model_of_the_training_photos_in_its_own_frame(s
   missing = dict(images)
   left_out = missing.pop(next(iter(missing))).name
   cm.write_binary(cm.Model(model.cameras, missing, points), str(tmp_path / 'missing'))
-  view = [colmap.read_capture(config).names[i] for i in train.ids].index(left_out)
+  view = [capture_loader.read_capture(config).names[i] for i in train.ids].index(left_out)
   lacking = dataclasses.replace(config, sfm_depth_model=str(tmp_path / 'missing'))
   with pytest.warns(UserWarning, match=rf"missing.* did not register training images \['{left_out}'\]"):
     _, weight = sfm_depth.training_prior(train, lacking)
@@ -370,7 +371,7 @@ def test_evaluation_depths_hold_every_point_a_test_view_observed(sfm_capture):
   model, _, folder = sfm_capture
   config = _sfm_config(folder)
   test = load_dataset('test', config)
-  capture = colmap.read_capture(config)
+  capture = capture_loader.read_capture(config)
   names = [capture.names[i] for i in test.ids]
   depth = sfm_depth.evaluation_depths(test, config)
   found = sfm_depth.align(model, capture, 'model')
@@ -392,7 +393,7 @@ def test_a_forward_captures_prior_is_the_ndc_t_where_each_pixels_ray_reaches_its
   model, _, folder = _capture_with_points(tmp_path, tmp_path / 'scene', 60, **forward)
   config = _sfm_config(folder, n_input_views=4, llffhold=8)
   train = load_dataset('train', config)
-  capture = colmap.read_capture(config)
+  capture = capture_loader.read_capture(config)
   assert capture.forward and (train.near, train.far) == (0., 1.)
   depth, weight = sfm_depth.training_prior(train, config)
   found = sfm_depth.align(model, capture, 'model')

@@ -121,7 +121,7 @@ def test_a_run_with_a_ranking_prior_trains_and_evaluates(forward_priors):
 
 def test_a_capture_trains_with_its_sfm_prior_and_reports_depth_at_its_points(tmp_path):
   _, _, capture = _capture_with_points(tmp_path, tmp_path / 'scene')
-  config = tiny_config(capture, tmp_path / 'run', "Config.dataset_loader = 'colmap'", 'Config.n_input_views = 4',
+  config = tiny_config(capture, tmp_path / 'run', "Config.dataset_loader = 'capture'", 'Config.n_input_views = 4',
                        'Config.llffhold = 4', 'Config.white_background = False', 'Config.sfm_depth_loss_mult = 1.',
                        'Config.depth_prior_rays = 64', 'Config.max_steps = 3', 'Config.curve_every = 0',
                        'Config.near = 0.1', 'Config.compute_lpips = False', 'Config.freq_reg_end = 2')

@@ -119,7 +119,7 @@ def test_every_module_is_checked():
 
 # The loader files and their registry: the modules every loader shares import none of them, so that a dataset is
 # added without touching those (docs/design.md, 'Adding a dataset') and the loaders may import them freely.
-LOADER_MODULES = {'dtu', 'llff', 'blender', 'colmap', 'generated', 'loader'}
+LOADER_MODULES = {'dtu', 'llff', 'blender', 'capture', 'generated', 'loader'}
 
 
 def dataset_imports(path: pathlib.Path) -> set:

@@ -78,7 +78,7 @@ def test_capture_mini_configs_scale_dtus_schedule_for_their_view_count(views, me
   assert (paper.max_steps, paper.freq_reg_end) == (steps, end if method == 'freenerf' else 0)
   gin.clear_config()
   config = config_loader.load_config([os.path.join(REPO, 'configs', 'mini', f'capture{views}_{method}.gin')])
-  assert config.max_steps == 2000 and config.n_input_views == views and config.dataset_loader == 'colmap'
+  assert config.max_steps == 2000 and config.n_input_views == views and config.dataset_loader == 'capture'
   assert config.lr_delay_steps == round(512 * 2000 / steps)                          # Warm-up scaled as the steps.
   assert config.freq_reg_end == (round(2000 * end / steps, -2) if method == 'freenerf' else 0)  # T: 0.9, 0.7, 0.5.
   assert config.factor == 4 and config.curve_every == 250

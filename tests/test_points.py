@@ -11,7 +11,8 @@ import pytest
 
 from internal import cli
 from internal.configs import Config
-from internal.datasets import cameras, colmap, load_dataset, raygen, scene_generator
+from internal.datasets import cameras, load_dataset, raygen, scene_generator
+from internal.datasets import capture as capture_loader
 from internal.geometry import mesh_scores, ply
 from internal.geometry import points as points_lib
 from internal.pipeline import loop
@@ -86,9 +87,9 @@ def test_the_colmap_model_loads_in_the_capture_loader_with_the_same_cameras(obje
   for view, path in zip(views, data.image_paths):
     os.link(path, tmp_path / 'capture' / 'images' / view.name)
   points_tool.write_colmap(str(tmp_path / 'capture'), model, [], text=False)
-  config = Config(dataset_loader='colmap', data_dir=str(tmp_path / 'capture'), n_input_views=0, llffhold=3,
+  config = Config(dataset_loader='capture', data_dir=str(tmp_path / 'capture'), n_input_views=0, llffhold=3,
                   white_background=False)
-  capture = colmap.read_capture(config)
+  capture = capture_loader.read_capture(config)
   assert capture.names == sorted(v.name for v in views) and len(capture.points) == len(found['points'])
   # The loader's frame is a similarity of the run's: relative camera distances and angles are kept.
   run = np.stack([v.camtoworld[:, 3] for v in sorted(views, key=lambda v: v.name)])
@@ -117,10 +118,10 @@ def test_the_tool_writes_a_ply_and_a_colmap_model_of_a_trained_run_and_refuses_t
   points, colours, normals = ply.read_points(str(out))
   assert len(points) > 50 and colours.dtype == np.uint8 and normals is not None
   np.testing.assert_allclose(np.linalg.norm(normals, axis=-1), 1., atol=1e-3)
-  capture = Config(dataset_loader='colmap', data_dir=str(folder), n_input_views=0, llffhold=3,
+  capture = Config(dataset_loader='capture', data_dir=str(folder), n_input_views=0, llffhold=3,
                    white_background=False)
   assert len(load_dataset('train', capture).ids) + len(load_dataset('test', capture).ids) == 4
-  assert len(colmap.read_capture(capture).points) == len(points)
+  assert len(capture_loader.read_capture(capture).points) == len(points)
   with pytest.raises(FileExistsError, match='--out .*cloud.ply.* exists'):
     _tool(*common, '--out', str(out))
   with pytest.raises(FileExistsError, match='--colmap .*colmap.* holds files'):

@@ -210,7 +210,7 @@ def _real(loader_name: str, **kw):
                                                             allow_missing_test_views=True)),
            'blender': (SHARED_DATA / 'blender' / 'lego', dict(dataset_loader='blender',
                                                               data_dir=str(SHARED_DATA / 'blender'), factor=8)),
-           'colmap': (SHARED_DATA / 'colmap' / 'cup', dict(dataset_loader='colmap',
+           'capture': (SHARED_DATA / 'colmap' / 'cup', dict(dataset_loader='capture',
                                                            data_dir=str(SHARED_DATA / 'colmap' / 'cup'), factor=4,
                                                            white_background=False))}[loader_name]
   if not found[0].is_dir():
@@ -218,7 +218,7 @@ def _real(loader_name: str, **kw):
   return configs.Config(n_input_views=3, **found[1], **kw)
 
 
-@pytest.mark.parametrize('name', ['llff', 'dtu', 'blender', 'colmap'])
+@pytest.mark.parametrize('name', ['llff', 'dtu', 'blender', 'capture'])
 def test_every_loaders_rays_follow_its_noisy_cameras(name):
   clean = load_dataset('train', _real(name))
   noisy = load_dataset('train', _real(name, camera_noise_rotation_deg=5., camera_noise_translation=.05))

@@ -62,7 +62,7 @@ def test_derived_metric_lists_equal_the_former_literal_lists():
   assert set(study_spec.LOWER_IS_BETTER) == {'lpips', 'avg_error', 'depth_mae', 'pseudo_depth_mae', 'sfm_depth_mae',
                                              'lpips_masked', 'avg_error_masked', *CAMERAS}
   assert tables.METRIC_GROUPS == {'dtu': (('object', MASKED), ('full', IMAGE)), 'llff': (('', IMAGE),),
-                                  'blender': (('', IMAGE),), 'colmap': (('', IMAGE),)}
+                                  'blender': (('', IMAGE),), 'capture': (('', IMAGE),)}
   former_display = {'psnr': 'PSNR', 'ssim': 'SSIM', 'lpips': 'LPIPS', 'avg_error': 'Avg'}
   assert {m: tables.DISPLAY[m] for m in IMAGE} == former_display
   assert {m: tables.DISPLAY[m + '_masked'] for m in IMAGE} == former_display
@@ -82,13 +82,13 @@ def test_unknown_metric_group_and_unregistered_metric_are_refused():
 
 
 def test_derived_dataset_lists_equal_the_former_literal_lists():
-  assert loader.LOADERS == ('dtu', 'llff', 'blender', 'generated', 'colmap', 'packed')
-  assert results.DATASETS == ('dtu', 'llff', 'blender', 'colmap')
+  assert loader.LOADERS == ('dtu', 'llff', 'blender', 'generated', 'capture', 'packed')
+  assert results.DATASETS == ('dtu', 'llff', 'blender', 'capture')
   assert results.EXPECTED_SCENES == {
       'dtu': ('scan8', 'scan21', 'scan30', 'scan31', 'scan34', 'scan38', 'scan40', 'scan41', 'scan45', 'scan55',
               'scan63', 'scan82', 'scan103', 'scan110', 'scan114'),
       'llff': ('fern', 'flower', 'fortress', 'horns', 'leaves', 'orchids', 'room', 'trex'),
-      'blender': ('chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship'), 'colmap': ()}
+      'blender': ('chair', 'drums', 'ficus', 'hotdog', 'lego', 'materials', 'mic', 'ship'), 'capture': ()}
 
 
 # (loader, rig) -> (NDC rays, near must be > 0, (dataset, scene) of its runs), as config_loader and evaluate
@@ -122,7 +122,7 @@ def test_every_record_is_consistent():
       assert metric_registry.names(group)
     if record.filed_as is None:  # A dataset of its own: named by a Config field (or a function of Config).
       assert callable(record.scene_setting) or record.scene_setting in {f.name for f in dataclasses.fields(Config)}
-      assert record.protocol_scenes or name == 'colmap', name  # Captures are users' scenes: no protocol.
+      assert record.protocol_scenes or name == 'capture', name  # Captures are users' scenes: no protocol.
     for setting, options in record.choices:
       assert setting in {f.name for f in dataclasses.fields(Config)} and options, name
 
@@ -137,11 +137,11 @@ def test_unknown_loader_and_unpackable_loader_name_the_setting():
 
 def test_random_poses_come_from_the_loaders_that_have_them():
   having = [name for name, record in loader.REGISTRY.items() if record.random_pose_cameras]
-  assert having == ['dtu', 'llff', 'generated', 'colmap']
+  assert having == ['dtu', 'llff', 'generated', 'capture']
   for name in ('blender', 'packed'):
     with pytest.raises(ValueError, match=r"^Config.depth_tvnorm_loss_mult / depth_tvnorm_decay: random poses exist "
                                          r"for scenes of Config.dataset_loader in \['dtu', 'llff', 'generated', "
-                                         r"'colmap'\] "
+                                         r"'capture'\] "
                                          rf"only; this Config.dataset_loader = '{name}' scene has none$"):
       loader.random_pose_cameras(None, Config(dataset_loader=name), np.random.default_rng(0))
 
@@ -161,10 +161,10 @@ def test_records_take_the_loader_files_functions_and_settings():
       'blender': ('blender_scene', 'blender_split', 'white_background', 'near', 'far', 'pixel_offset'),
       'generated': ('llffhold', 'white_background', 'near', 'far', 'pixel_offset', 'generated_rig', 'generated_size',
                     'generated_seed'),
-      'colmap': ('llffhold', 'capture_scene', 'capture_images', 'capture_model', 'capture_rig', 'capture_train_model'),
+      'capture': ('llffhold', 'capture_scene', 'capture_images', 'capture_model', 'capture_rig', 'capture_train_model'),
       'packed': ()}
   assert [name for name, record in loader.REGISTRY.items() if record.mesh_bounds] == [
-      'dtu', 'blender', 'generated', 'colmap']
+      'dtu', 'blender', 'generated', 'capture']
   assert loader.SETTING_CHOICES == (
       ('dataset_loader', loader.LOADERS), ('dtu_layout', ('auto', 'regnerf', 'idr')),
       ('blender_split', ('dietnerf', 'first_n')), ('generated_rig', ('object', 'forward')),

@@ -19,7 +19,8 @@ from internal.evaluation import lpips
 from internal.models import precision
 from internal.models import sampling
 from internal.training import train_step
-from internal.datasets import batching, colmap, image_io, loader, packed, scene_generator
+from internal.datasets import batching, image_io, loader, packed, scene_generator
+from internal.datasets import capture as capture_loader
 from internal.datasets import blender as blender_lib
 from internal.datasets import DatasetError, dtu, load_dataset
 from test_checkpoints import tiny_config
@@ -102,7 +103,7 @@ def test_sizes_of_the_nerf_model_are_checked_when_it_is_the_model():
     ('Config.batching', batching.BATCHING_MODES), ('Config.freq_mask_layout', freq_schedule.LAYOUTS),
     ('Config.nonfinite_grad_policy', train_step.NONFINITE_POLICIES), ('Config.lpips_input_range', lpips.INPUT_RANGES),
     ('Config.generated_rig', scene_generator.RIGS), ('Config.precision', precision.CHOICES),
-    ('Config.capture_rig', colmap.RIGS),
+    ('Config.capture_rig', capture_loader.RIGS),
     ('MipNerfModel.ray_shape', gaussians.RAY_SHAPES), ('MipNerfModel.pdf_padding', sampling.PDF_PADDINGS)])
 def test_option_settings_use_the_list_of_the_module_that_implements_them(name, options):
   with pytest.raises(ValueError, match=re.escape(f"{name} = 'nope'; expected one of {list(options)}")):

@@ -15,7 +15,7 @@ Writes --out (a binary PLY: x y z, nx ny nz where known, red green blue) and, wi
 DIR/sparse/0 (binary, or text with --colmap_text): a PINHOLE camera per training image at the size of its file
 (the loader's intrinsics without distortion), its pose, the points with their tracks (the agreeing training views,
 observed at their projections), and copies of the training image files in DIR/images. It loads with this
-project's capture loader (Config.dataset_loader = 'colmap', Config.data_dir = DIR) and is what splatting trainers
+project's capture loader (Config.dataset_loader = 'capture', Config.data_dir = DIR) and is what splatting trainers
 read as their initialization. The host memory the views and --max_points need is checked before any work; nothing
 is replaced unless Config.overwrite = True. On the generated object scene --scores FILE also writes the cloud's
 distances to the scene's exact surfaces per solid (as tools.mesh --scores); --picture a PNG of the cloud.

@@ -45,9 +45,9 @@ def check_settings(config) -> None:
   if config.depth_prior_dir and not dense_losses_on(config):
     warnings.warn(f'Config.depth_prior_dir = {config.depth_prior_dir!r} is not read: Config.depth_rank_loss_mult '
                   'and depth_pearson_loss_mult are both 0', stacklevel=3)
-  if config.sfm_depth_loss_mult > 0 and config.dataset_loader != 'colmap':
+  if config.sfm_depth_loss_mult > 0 and config.dataset_loader != 'capture':
     raise ValueError(f'Config.sfm_depth_loss_mult = {config.sfm_depth_loss_mult} needs a capture\'s structure-'
-                     "from-motion points (Config.dataset_loader = 'colmap'); this Config.dataset_loader = "
+                     "from-motion points (Config.dataset_loader = 'capture'); this Config.dataset_loader = "
                      f'{config.dataset_loader!r}. Other scenes can use depth maps (Config.depth_prior_dir)')
   if config.optimize_cameras and (dense_losses_on(config) or config.sfm_depth_loss_mult > 0):
     raise ValueError('Config.optimize_cameras = True with a depth prior (Config.depth_rank_loss_mult, '

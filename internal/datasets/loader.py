@@ -10,7 +10,7 @@ from typing import Callable, Dict, Optional, Tuple
 
 import numpy as np
 
-from internal.datasets import base, blender, camera_noise, colmap, dtu, generated, llff, packed, raygen
+from internal.datasets import base, blender, camera_noise, capture, dtu, generated, llff, packed, raygen
 from internal.datasets import pose_correction
 
 
@@ -63,10 +63,13 @@ REGISTRY: Dict[str, Loader] = {
     'blender': Loader.of(blender, 'blender_scene', False),
     'generated': Loader.of(generated, None, generated.is_ndc, filed_as=generated.filed_as,
                            ground_truth=generated.with_ground_truth),
-    'colmap': Loader.of(colmap, colmap.scene_name, colmap.is_ndc),
+    'capture': Loader.of(capture, capture.scene_name, capture.is_ndc),
     'packed': Loader.of(packed, None, None, filed_as=_filed_as_packed),
 }
 LOADERS = tuple(REGISTRY)
+# Earlier names of loaders, read as the current ones: gin files, run folders and metrics.json files written before a
+# rename keep working (captures were 'colmap', after the file format, while their settings and tools said capture).
+RENAMED = {'colmap': 'capture'}
 # The allowed values of Config.dataset_loader and of each loader's own settings, checked before any work.
 SETTING_CHOICES = (('dataset_loader', LOADERS),) + tuple(c for record in REGISTRY.values() for c in record.choices)
 # The dataset names of metrics.json and the tables: the loaders whose runs are filed under their own name.

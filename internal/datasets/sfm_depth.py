@@ -18,7 +18,8 @@ from typing import Callable, List
 
 import numpy as np
 
-from internal.datasets import base, colmap, colmap_model
+from internal.datasets import base, colmap_model
+from internal.datasets import capture as capture_loader
 
 MIN_TRAINING_VIEWS = 2  # A point triangulated from the training views alone needs two of them.
 MAX_ALIGNMENT_ERROR = .05  # Of the cameras' spread: a model whose cameras fit the capture's worse is refused.
@@ -43,7 +44,7 @@ def similarity(source: np.ndarray, target: np.ndarray) -> Alignment:
   return Alignment(scale, rotation, mu_t - scale * rotation @ mu_s)
 
 
-def align(model: colmap_model.Model, capture: colmap.Capture, where: str) -> Alignment:
+def align(model: colmap_model.Model, capture: capture_loader.Capture, where: str) -> Alignment:
   """The similarity from model's frame to the capture's loader frame, fitted on the cameras both hold (by image
   name); DatasetError naming where for fewer than 3 shared images or cameras that do not fit."""
   index = {name: i for i, name in enumerate(capture.names)}
@@ -108,7 +109,7 @@ def view_depths(model: colmap_model.Model, alignment: Alignment, names: List[str
   return depth.reshape(-1, height, width), weight.reshape(-1, height, width)
 
 
-def _model(config, capture: colmap.Capture) -> tuple:
+def _model(config, capture: capture_loader.Capture) -> tuple:
   """(model, where) of the points: Config.sfm_depth_model, else the capture's own."""
   folder = config.sfm_depth_model or os.path.join(capture.folder, config.capture_model)
   where = f'Config.sfm_depth_model = {folder!r}' if config.sfm_depth_model else f'the COLMAP model {folder!r}'
@@ -120,7 +121,7 @@ def _model(config, capture: colmap.Capture) -> tuple:
 
 def training_prior(dataset: base.Dataset, config) -> tuple:
   """(depth [N, H, W], weight [N, H, W]) of the training views: the points of >= MIN_TRAINING_VIEWS of them."""
-  capture = colmap.read_capture(config)
+  capture = capture_loader.read_capture(config)
   model, where = _model(config, capture)
   names = [capture.names[i] for i in dataset.ids]
   missing = [name for name in names if name not in {image.name for image in model.images.values()}]
@@ -137,7 +138,7 @@ def training_prior(dataset: base.Dataset, config) -> tuple:
 
 def evaluation_depths(test_set: base.Dataset, config) -> np.ndarray:
   """Camera z-depths [N, H, W] (0 = none) of the capture's own points at the test views' observations."""
-  capture = colmap.read_capture(config)
+  capture = capture_loader.read_capture(config)
   model, where = _model(dataclasses.replace(config, sfm_depth_model=''), capture)
   return view_depths(model, align(model, capture, where), [capture.names[i] for i in test_set.ids],
                      test_set.height, test_set.width, lambda track: True, False)[0]

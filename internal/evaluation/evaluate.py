@@ -121,7 +121,7 @@ def evaluate(config) -> dict:
   depth_scores = [depth_metrics.scorer(test_set, ndc)]  # Exact depths (generated scenes).
   if config.depth_reference_dir:
     depth_scores.append(depth_metrics.reference_scorer(test_set, ndc, config.depth_reference_dir, positions))
-  if config.dataset_loader == 'colmap':  # A capture's structure-from-motion points (#51).
+  if config.dataset_loader == 'capture':  # A capture's structure-from-motion points (#51).
     depth_scores.append(depth_metrics.sfm_scorer(test_set, ndc, config))
   test_rays, camera_record, scale = camera_evaluation.evaluation_rays(config, model, state, step, test_set, train_set)
   per_image = []

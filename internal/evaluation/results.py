@@ -71,5 +71,7 @@ def read_record(path) -> dict:
   except (OSError, ValueError) as err:  # ValueError: bad JSON or bytes that are not UTF-8.
     raise ValueError(f'{str(path)!r} cannot be read as JSON ({err}); expected the metrics.json written by '
                      'eval.py') from err
+  if isinstance(record, dict) and record.get('dataset') in loader.RENAMED:  # Evaluated before a loader's rename.
+    record['dataset'] = loader.RENAMED[record['dataset']]
   check_record(record, str(path))
   return record

@@ -13,7 +13,8 @@ import os
 import numpy as np
 
 from internal import atomic
-from internal.datasets import base, colmap, colmap_model
+from internal.datasets import base, colmap_model
+from internal.datasets import capture as capture_loader
 from internal.training import camera_refinement
 
 FOLDER = 'cameras'
@@ -28,8 +29,8 @@ def is_opengl(dataset: base.Dataset) -> bool:
 
 def image_names(config, dataset: base.Dataset) -> list:
   """The views' image names: a capture's file names, else view_<id>.png."""
-  if config.dataset_loader == 'colmap':
-    names = colmap.read_capture(config).names
+  if config.dataset_loader == 'capture':
+    names = capture_loader.read_capture(config).names
     return [names[i] for i in dataset.ids]
   return [f'view_{i:03d}.png' for i in dataset.ids]
 

@@ -21,6 +21,7 @@ import gin
 from internal import atomic
 from internal import configs
 from internal import lock_holders
+from internal.datasets import loader
 from internal.models import registry
 
 FINGERPRINT_FILE = 'config.json'
@@ -91,10 +92,13 @@ def fingerprint(config) -> dict:
 
 
 def _stored_view(stored: dict, config) -> dict:
-  """stored, completed with the defaults of fields added to the code after that run was started."""
+  """stored, completed with the defaults of fields added to the code after that run was started, its loader under
+  its current name."""
   defaults = {f'{prefix}.{f.name}': _jsonable(f.default) for prefix, _, fields in _settings(config)
               for f in fields if f.default is not dataclasses.MISSING}
-  return {**defaults, **stored}
+  view = {**defaults, **stored}
+  name = view.get('Config.dataset_loader')
+  return {**view, 'Config.dataset_loader': loader.RENAMED.get(name, name)}  # A run from before a loader's rename.
 
 
 def differences(stored: dict, config) -> str:

@@ -6,7 +6,7 @@ Usage: python -m tools.capture PHOTOS_DIR_OR_VIDEO --out CAPTURE_DIR [--photos N
 
 Writes CAPTURE_DIR/images/ (the photos upright, or the video's sharpest frames), sparse/0/ (the largest model, its
 cameras at the full image size), images_2/, images_4/, images_8/, sfm/ (the structure-from-motion copies, database
-and every model), report.json and cameras.png; loads the capture back through the colmap loader, prints a summary
+and every model), report.json and cameras.png; loads the capture back through the capture loader, prints a summary
 and the command to train on it. Needs pycolmap: pip install -r requirements-capture.txt.
 """
 

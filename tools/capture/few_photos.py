@@ -6,7 +6,7 @@ Usage: python -m tools.capture.few_photos CAPTURE_DIR --out RESULTS.json [--size
 
 CAPTURE_DIR is a capture of every photo (its images/ and the all-photo model sparse/0, e.g. the cup's). For each
 size n, seeded subsets of its photos of four kinds (KINDS): 'spread', n photos evenly spread along the whole arc
-(the colmap loader's order of the model's cameras), each moved at random by up to a quarter of their spacing;
+(the capture loader's order of the model's cameras), each moved at random by up to a quarter of their spacing;
 'half' and 'quarter', the same over that part of the arc from a random start; 'random', n photos drawn at random
 (anywhere). Each subset is run through `python -m tools.capture CAPTURE_DIR/images --photos NAMES --out
 <work>/<kind>_<n>_<k>` in this process: structure-from-motion on those photos alone. A subset registers whole when
@@ -33,7 +33,8 @@ import numpy as np
 from internal import atomic
 from internal import cli
 from internal import config_loader
-from internal.datasets import colmap, colmap_model
+from internal.datasets import colmap_model
+from internal.datasets import capture as capture_loader
 from tools import provenance
 from tools.capture import CaptureError, pipeline, poses, sfm
 
@@ -48,8 +49,8 @@ def arc_names(capture_dir: str) -> list:
   gin.clear_config()
   config = config_loader.load_config([os.path.join(pipeline.REPO, pipeline.CONFIG)],
                                      [f'Config.data_dir = {capture_dir!r}'])
-  found = colmap.read_capture(config)
-  return [found.names[i] for i in colmap.arc_order(found)]
+  found = capture_loader.read_capture(config)
+  return [found.names[i] for i in capture_loader.arc_order(found)]
 
 
 def subset(order: list, n: int, span, rng: np.random.Generator) -> list:

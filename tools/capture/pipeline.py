@@ -19,7 +19,8 @@ from internal import atomic
 from internal import cli
 from internal import config_loader
 from internal import configs
-from internal.datasets import colmap, colmap_model, load_dataset
+from internal.datasets import colmap_model, load_dataset
+from internal.datasets import capture as capture_loader
 from internal.evaluation import learning_curve
 from internal.run import disk_full
 from tools.capture import CaptureError, model, output as output_lib, photos, picture, poses, report as report_lib
@@ -163,8 +164,8 @@ def load_back(gin_bindings: list) -> tuple:
   test = load_dataset('test', config)
   if config.curve_every:
     learning_curve.curve_positions(config, len(test.ids))
-  capture = colmap.read_capture(config)
-  return config, capture, colmap.default_views(capture, config.llffhold, config.n_input_views)
+  capture = capture_loader.read_capture(config)
+  return config, capture, capture_loader.default_views(capture, config.llffhold, config.n_input_views)
 
 
 def next_command(out: str, gin_bindings: list) -> str:

@@ -5,7 +5,7 @@ axes). The alignment's rotation is the mean of the cameras' rotation differences
 least-squares fit of the centres under it: camera centres along an arc alone leave the rotation about the arc's
 chord poorly determined (on the cup, a fit of the centres alone tilts every camera by 2 degrees).
 
-Cameras are camera-to-world [N, 3, 4] in OpenCV axes (x right, y down, z forward), as the colmap loader keeps them.
+Cameras are camera-to-world [N, 3, 4] in OpenCV axes (x right, y down, z forward), as the capture loader keeps them.
 """
 
 from typing import Dict, Optional, Tuple

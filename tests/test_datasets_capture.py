@@ -1,8 +1,9 @@
-"""The capture loader (internal/datasets/colmap.py): a COLMAP model written from the generated scene's exact
+"""The capture loader (internal/datasets/capture.py): a COLMAP model written from the generated scene's exact
 cameras gives its rays back; the shared cup capture's rays pass through its own sparse points; the view rule;
 explicit view ids for every dataset; the errors of bad captures."""
 
 import dataclasses
+import json
 import os
 import re
 
@@ -10,8 +11,12 @@ import numpy as np
 from PIL import Image
 import pytest
 
+from internal import config_loader
 from internal.configs import Config
-from internal.datasets import DatasetError, colmap, colmap_model as cm, distortion, load_dataset, loader
+from internal.datasets import DatasetError, colmap_model as cm, distortion, load_dataset, loader
+from internal.datasets import capture as capture_loader
+from internal.evaluation import results
+from internal.run import run_dir
 from tests.conftest import SHARED_DATA
 from tools import mesh as mesh_tool
 
@@ -63,14 +68,14 @@ def fixture_generated_capture(tmp_path_factory):
 
 
 def _capture_config(folder, **kwargs):
-  return Config(**{'dataset_loader': 'colmap', 'data_dir': str(folder), 'n_input_views': 0, 'llffhold': 4,
+  return Config(**{'dataset_loader': 'capture', 'data_dir': str(folder), 'n_input_views': 0, 'llffhold': 4,
                    'white_background': False, **kwargs})
 
 
 def test_exact_cameras_read_back_as_the_same_rays(generated_capture):
   data, folder = generated_capture
   config = _capture_config(folder, capture_rig='inward')
-  capture = colmap.read_capture(config)
+  capture = capture_loader.read_capture(config)
   both = load_dataset('train', config), load_dataset('test', config)
   rays = {i: (d.rays, k) for d in both for k, i in enumerate(d.ids)}
   scale, rotation, shift = _umeyama(data.camtoworlds[:, :, 3].astype(np.float64), capture.camtoworlds[:, :, 3])
@@ -89,7 +94,7 @@ def test_distortion_is_inverted_at_every_pixel_of_a_downsampled_image(generated_
   extra = (-.08, .02, 1e-3, -2e-3)
   _capture_from(data, tmp_path / 'distorted', 'OPENCV', extra)
   config = _capture_config(tmp_path / 'distorted', capture_rig='inward', factor=2)
-  capture = colmap.read_capture(config)
+  capture = capture_loader.read_capture(config)
   test = load_dataset('test', config)
   k = test.ids[0]
   cam_dirs = test.rays.directions[0].astype(np.float64) @ capture.camtoworlds[k, :, :3]  # World to camera.
@@ -105,7 +110,7 @@ def test_an_inward_capture_meshes_the_box_of_its_points_inside_the_cameras_orbit
   (by the similarity of the camera centres) that lie within the median camera distance of the centre."""
   _, folder = generated_capture
   config = _capture_config(folder, capture_rig='inward')
-  capture = colmap.read_capture(config)
+  capture = capture_loader.read_capture(config)
   model = cm.read_model(str(folder / 'sparse' / '0'))
   centres = np.stack([cm.camera_center(i) for i in sorted(model.images.values(), key=lambda i: i.name)])
   scale, rotation, shift = _umeyama(centres, capture.camtoworlds[:, :, 3])
@@ -119,11 +124,11 @@ def test_an_inward_capture_meshes_the_box_of_its_points_inside_the_cameras_orbit
 def test_views_follow_the_documented_rule(generated_capture):
   _, folder = generated_capture
   config = _capture_config(folder, capture_rig='inward', n_input_views=3)
-  capture = colmap.read_capture(config)
-  order = colmap.arc_order(capture)
+  capture = capture_loader.read_capture(config)
+  order = capture_loader.arc_order(capture)
   azimuth = np.unwrap(np.arctan2(capture.camtoworlds[order, 1, 3], capture.camtoworlds[order, 0, 3]))
   assert (np.diff(azimuth) > 0).all()
-  views = colmap.default_views(capture, 4, 3)
+  views = capture_loader.default_views(capture, 4, 3)
   assert views['test'] == order[::4]
   pool = [i for k, i in enumerate(order) if k % 4]
   assert views['train'] == [pool[0], pool[round((len(pool) - 1) / 2)], pool[-1]]
@@ -226,7 +231,7 @@ def test_cup_cameras_reproject_the_points_with_colmaps_own_error():
   """The model's points, carried into the loader's frame, projected by the loader's cameras (pose, intrinsics,
   distortion) land on the pixels COLMAP observed them at, as far off as COLMAP says: the mean over every
   observation equals the model's (its points' errors weighted by their tracks, 0.63 px)."""
-  capture = colmap.read_capture(_capture_config(CUP, llffhold=8))
+  capture = capture_loader.read_capture(_capture_config(CUP, llffhold=8))
   model = cm.read_model(str(CUP / 'sparse' / '0'))
   images = sorted(model.images.values(), key=lambda i: i.name)
   scale, rotation, shift = _umeyama(np.stack([cm.camera_center(i) for i in images]), capture.camtoworlds[:, :, 3])
@@ -246,13 +251,13 @@ def test_cup_cameras_reproject_the_points_with_colmaps_own_error():
 @needs_cup
 def test_cup_is_an_inward_capture_with_bounds_from_its_points():
   config = _capture_config(CUP, llffhold=8, n_input_views=3, factor=4)
-  assert loader.ndc(config) is False and loader.filed_as(config) == ('colmap', 'cup')
+  assert loader.ndc(config) is False and loader.filed_as(config) == ('capture', 'cup')
   train, test = load_dataset('train', config), load_dataset('test', config)
   assert train.images.shape == (3, 150, 200, 3) and len(test.ids) == 10 and not set(train.ids) & set(test.ids)
-  capture = colmap.read_capture(config)
+  capture = capture_loader.read_capture(config)
   assert 0 < train.near == capture.bounds[:, 0].min() < capture.bounds[:, 1].max() == train.far
   distances = np.linalg.norm(capture.camtoworlds[:, :, 3], axis=-1)
-  assert np.median(distances) == pytest.approx(colmap.CAMERA_DISTANCE)
+  assert np.median(distances) == pytest.approx(capture_loader.CAMERA_DISTANCE)
 
 
 def test_forward_captures_follow_llffs_pipeline(tmp_path):
@@ -288,7 +293,7 @@ def test_forward_captures_follow_llffs_pipeline(tmp_path):
   capture = _capture_config(tmp_path / 'capture', llffhold=8, n_input_views=3)
   assert loader.ndc(capture) is True  # 'auto': every camera looks the same way.
   assert mesh_tool.scene_bounds(capture, None).tolist() == [[-1., -1., -1.], [1., 1., .99]]  # The NDC box.
-  read = colmap.read_capture(capture)  # Its points carried along: their depths scale as LLFF scales the scene.
+  read = capture_loader.read_capture(capture)  # Its points carried along: their depths scale as LLFF scales the scene.
   xyz = np.stack([p.xyz for p in points.values()])
   for k, image in enumerate(images.values()):
     depths = (xyz @ cm.qvec_to_rotmat(image.qvec).T + image.tvec)[:, 2]
@@ -316,13 +321,26 @@ def test_inward_captures_draw_regnerfs_random_poses_by_dtus_rule(generated_captu
   poses, pixtocam, ndc_focal = loader.random_pose_cameras(data, config, np.random.default_rng(0))
   assert poses.shape == (200, 3, 4) and ndc_focal == 0.
   np.testing.assert_allclose(pixtocam, data.pixtocams.mean(0), rtol=1e-6)
-  centres = colmap.read_capture(config).camtoworlds[:, :, 3]
+  centres = capture_loader.read_capture(config).camtoworlds[:, :, 3]
   # In a box of half-sides radius x max |centre| per axis about the mean camera (rotated: bounded by its norm).
   reach = config.random_pose_radius * np.linalg.norm(np.abs(centres).max(0)) + np.linalg.norm(centres.mean(0))
   assert np.linalg.norm(poses[:, :, 3], axis=-1).max() <= reach + 1e-6
   # Without the focus jitter every +z axis passes through the centre (the origin of the capture's frame).
-  np.testing.assert_allclose(colmap.cameras.focus_point(colmap.read_capture(config).camtoworlds), 0., atol=1e-9)
+  camtoworlds = capture_loader.read_capture(config).camtoworlds
+  np.testing.assert_allclose(capture_loader.cameras.focus_point(camtoworlds), 0., atol=1e-9)
   to_centre = -poses[:, :, 3]
   along = np.sum(to_centre * poses[:, :, 2], -1)
   np.testing.assert_allclose(to_centre, along[:, None] * poses[:, :, 2], atol=1e-9)
   assert np.all(along > 0)
+
+
+def test_the_loaders_earlier_name_is_read_as_capture_in_gin_files_run_folders_and_metrics(tmp_path):
+  with pytest.warns(UserWarning, match="'colmap' is an earlier name of 'capture'"):
+    config = config_loader.load_config([], ["Config.dataset_loader = 'colmap'", "Config.data_dir = '/x'"])
+  assert config.dataset_loader == 'capture'
+  stored = {**run_dir.fingerprint(config), 'Config.dataset_loader': 'colmap'}  # A run started before the rename.
+  assert run_dir.differences(stored, config) == ''
+  assert run_dir.differences({**stored, 'Config.dataset_loader': 'llff'}, config).startswith('Config.dataset_loader')
+  record = results.make_record('capture', 'cup', 3, 'freenerf', 5, [{'id': 0, 'psnr': 20.}], True)
+  (tmp_path / 'metrics.json').write_text(json.dumps({**record, 'dataset': 'colmap'}))
+  assert results.read_record(tmp_path / 'metrics.json') == record

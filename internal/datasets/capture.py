@@ -248,7 +248,7 @@ def load_scene(split: str, config) -> base.Dataset:
   return base.Dataset(images=images, camtoworlds=source.camtoworlds[rows].astype(np.float32),
                       pixtocams=np.stack(pixtocams).astype(np.float32), ids=list(ids), height=height,
                       width=width, near=near, far=far, masks=None, rays=rays, split=split,
-                      name=f'colmap/{scene_name(config)}', image_paths=[paths[i] for i in ids])
+                      name=f'capture/{scene_name(config)}', image_paths=[paths[i] for i in ids])
 
 
 def _camera_source(config, split: str, capture: Capture, ids) -> tuple:
