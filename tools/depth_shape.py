@@ -51,12 +51,14 @@ def view_shape(rendered: np.ndarray, exact: np.ndarray) -> dict:
 
 
 def cell_rows(folder: str, labels: dict) -> list:
-  """Rows (labels, view, METRICS) of one cell folder's newest evaluation; [] when it has no renders."""
+  """Rows (labels, view, METRICS) of one cell folder's newest evaluation; [] when it has no renders or no settings
+  (a cell reused from an export keeps neither)."""
   evaluations = glob.glob(os.path.join(folder, runner.RUN_SUBDIR, 'test_preds_step_*'))
-  if not evaluations:
+  spec_path = os.path.join(folder, runner.SPEC_FILE)
+  if not evaluations or not os.path.isfile(spec_path):
     return []
   newest = max(evaluations, key=lambda d: int(re.search(r'(\d+)$', d).group(1)))
-  with open(os.path.join(folder, runner.SPEC_FILE)) as f:
+  with open(spec_path) as f:
     spec = json.load(f)
   gin.clear_config()
   config = config_loader.load_config(spec['gin_configs'], spec['gin_bindings'])
