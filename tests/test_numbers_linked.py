@@ -387,3 +387,25 @@ def test_a_drift_put_back_is_found(document, right, wrong):
   text = _read(document)
   assert right in text, f'{document} no longer says {right!r}'
   assert unbacked(text.replace(right, wrong), document), f'{wrong!r} in {document} passes'
+
+
+def _linked_readmes(path: str, seen: set) -> None:
+  """Adds to seen every README.md under results/ reachable from path through Markdown links."""
+  if path in seen or not os.path.isfile(path):
+    return
+  seen.add(path)
+  with open(path) as f:
+    targets = re.findall(r'\]\(([^)#\s]+)', f.read())
+  for target in targets:
+    linked = os.path.normpath(os.path.join(os.path.dirname(path), target))
+    linked = os.path.join(linked, 'README.md') if os.path.isdir(linked) else linked
+    if linked.startswith(RESULTS) and linked.endswith('README.md'):
+      _linked_readmes(linked, seen)
+
+
+def test_results_readme_reaches_every_results_readme():
+  seen = set()
+  _linked_readmes(os.path.join(RESULTS, 'README.md'), seen)
+  every = {os.path.join(folder, 'README.md') for folder, _, names in os.walk(RESULTS) if 'README.md' in names}
+  unreached = sorted(os.path.relpath(p, ROOT) for p in every - seen)
+  assert not unreached, f'results/README.md links no path to {unreached}'
