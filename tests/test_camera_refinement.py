@@ -23,6 +23,7 @@ from internal.run import camera_export
 from internal.run import checkpoints
 from internal.training import camera_refinement
 from internal.training import train_step as ts
+from tools import camera_report
 from test_checkpoints import ROOT, _leaves, tiny_config
 
 NOISE = ('Config.camera_noise_rotation_deg = 3.', 'Config.camera_noise_translation = 0.03')
@@ -93,6 +94,9 @@ def test_resumed_refinement_equals_uninterrupted_refinement_and_writes_its_camer
                                refined[k - 1, :, :3] @ np.diag([1., -1., -1.]), atol=1e-7)
   pycolmap = pytest.importorskip('pycolmap')
   assert pycolmap.Reconstruction(os.path.join(folder, 'refined')).num_reg_images() == len(data.ids)
+  runs = [str(tmp_path / name) for name in ('straight', 'resumed')]  # Two runs in one call: each its own settings.
+  assert camera_report.main(['--out', str(tmp_path / 'report'), '--runs', *runs]) == 0
+  assert sorted(os.listdir(tmp_path / 'report')) == ['cameras_resumed.png', 'cameras_straight.png']
 
 
 SHARDED = textwrap.dedent('''

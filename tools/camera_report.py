@@ -22,6 +22,7 @@ import json
 import os
 import sys
 
+import gin
 import matplotlib.figure
 import numpy as np
 
@@ -54,6 +55,7 @@ def run_cameras(run_dir: str) -> dict:
                      '(Config.optimize_cameras) or has not finished training')
   with open(path) as f:
     record = json.load(f)
+  gin.clear_config()  # Each run's own settings, not the previous run's.
   config = config_loader.load_config([os.path.join(run_dir, 'config.gin')], [])
   train_set = datasets.load_dataset('train', config)
   reference, distance = camera_evaluation.reference_cameras(config, train_set)
