@@ -9,6 +9,7 @@ side, when imageio-ffmpeg is installed).
 """
 
 import os
+from typing import List
 
 import gin
 import numpy as np
@@ -98,28 +99,45 @@ def label_width(row_titles) -> int:
   return max([LABEL_WIDTH] + [int(np.ceil(font.getlength(text))) + 8 for text in row_titles])
 
 
+def wrap_label(text: str, width: float, font) -> List[str]:
+  """text broken at spaces into lines at most width pixels wide in font (a longer word keeps a line of its own)."""
+  lines = []
+  for word in text.split(' '):
+    if lines and font.getlength(f'{lines[-1]} {word}') <= width:
+      lines[-1] = f'{lines[-1]} {word}'
+    else:
+      lines.append(word)
+  return lines
+
+
 def grid(tiles, column_titles, row_titles, title: str = '', scale: int = SCALE) -> np.ndarray:
   """Tiles (rows of float [h, w, 3] images in [0, 1]) -> labelled uint8 picture [H, W, 3].
 
-  Tile (r, c) is upscaled by `scale` (nearest) and placed at top = HEADER + LINE * bool(title) + r * (h*scale +
-  GAP), left = label_width(row_titles) + c * (w*scale + GAP), on white.
+  Tile (r, c) is upscaled by `scale` (nearest) and placed at top = HEADER + LINE * (bool(title) + extra lines of the
+  longest column title, wrapped to its tile's width) + r * (h*scale + GAP), left = label_width(row_titles) +
+  c * (w*scale + GAP), on white.
   """
   h, w = np.shape(tiles[0][0])[:2]
   th, tw, left0 = h * scale, w * scale, label_width(row_titles)
-  top0 = HEADER + (LINE if title else 0)
+  draw_font = label_font()
+  wrapped = [wrap_label(text, tw - 2, draw_font) for text in column_titles]
+  extra = LINE * (max(map(len, wrapped), default=1) - 1)
+  top0 = HEADER + extra + (LINE if title else 0)
   canvas = np.full((top0 + len(tiles) * (th + GAP), left0 + len(tiles[0]) * (tw + GAP), 3), 255, np.uint8)
   for r, row in enumerate(tiles):
     for c, tile in enumerate(row):
       top, left = top0 + r * (th + GAP), left0 + c * (tw + GAP)
       canvas[top:top + th, left:left + tw] = np.repeat(np.repeat(vis.to_uint8(tile), scale, 0), scale, 1)
   image = Image.fromarray(canvas)
-  draw, font = ImageDraw.Draw(image), label_font()
+  draw = ImageDraw.Draw(image)
   if title:
-    draw.text((4, 2), title, fill=(0, 0, 0), font=font)
-  for c, text in enumerate(column_titles):
-    draw.text((left0 + c * (tw + GAP) + 2, top0 - HEADER + 4), text, fill=(0, 0, 0), font=font)
+    draw.text((4, 2), title, fill=(0, 0, 0), font=draw_font)
+  for c, lines in enumerate(wrapped):
+    for k, text in enumerate(lines):
+      draw.text((left0 + c * (tw + GAP) + 2, top0 - HEADER - extra + 4 + k * LINE), text, fill=(0, 0, 0),
+                font=draw_font)
   for r, text in enumerate(row_titles):
-    draw.text((4, top0 + r * (th + GAP) + th // 2 - 6), text, fill=(0, 0, 0), font=font)
+    draw.text((4, top0 + r * (th + GAP) + th // 2 - 6), text, fill=(0, 0, 0), font=draw_font)
   return np.asarray(image)
 
 

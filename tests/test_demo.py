@@ -116,6 +116,20 @@ def test_a_long_row_title_widens_its_column_instead_of_covering_the_tiles():
   assert (picture[demo.HEADER:demo.HEADER + 8, demo.LABEL_WIDTH:left0] < 255).any()  # The title's end, beside it.
 
 
+def test_long_column_titles_wrap_to_their_tiles_width_and_push_the_tiles_down():
+  tiles = [[np.zeros((8, 120, 3)), np.zeros((8, 120, 3))]]
+  long = 'freenerf_refine noise=exact seed=0 a_label_wider_than_its_tile'
+  font = demo.label_font()
+  lines = demo.wrap_label(long, 118, font)
+  assert lines == ['freenerf_refine', 'noise=exact seed=0', 'a_label_wider_than_its_tile']
+  assert all(font.getlength(t) <= 118 for t in lines[:2])
+  picture = demo.grid(tiles, [long, 'b'], ['x'], scale=1)
+  top0 = demo.HEADER + 2 * demo.LINE  # Two extra lines for the three of the longest title.
+  assert picture.shape[0] == top0 + 8 + demo.GAP
+  assert (picture[top0:top0 + 8, demo.LABEL_WIDTH:demo.LABEL_WIDTH + 120] == 0).all()  # The tile, under no text.
+  assert (picture[:top0 - demo.LINE, demo.LABEL_WIDTH + 120:demo.LABEL_WIDTH + 120 + demo.GAP] == 255).all()
+
+
 def test_side_by_side_rows_columns_and_shared_depth_range():
   h, w = 2, 3
   truth = [np.full((h, w, 3), .1 * v) for v in range(3)]
