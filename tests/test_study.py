@@ -131,6 +131,19 @@ def test_rerun_skips_finished_cells(ran):
   assert listing.count('done') == 4
 
 
+def test_finished_cells_that_trained_with_other_settings_than_the_study_gives_now_are_refused(ran, tmp_path):
+  study, out, _ = ran
+  edited = tmp_path / 'mini.toml'  # The same cells, FreeNeRF's T moved after they ran.
+  edited.write_text(TINY_STUDY.replace('"Config.freq_reg_end = 18"', '"Config.freq_reg_end = 17"'))
+  before = {p: p.read_text() for p in pathlib.Path(out, 'mini').glob('*/*.json')}
+  with pytest.raises(study_spec.StudyError, match=r'2 finished cell\(s\) trained with other settings') as error:
+    study_lib.run_study(study_spec.load(edited), out)
+  assert str(error.value).count('Config.freq_reg_end: 18 -> 17') == 2 and 'mipnerf' not in str(error.value)
+  assert {p: p.read_text() for p in pathlib.Path(out, 'mini').glob('*/*.json')} == before
+  assert study_lib.stale_cells(study, [(c, study_lib.cell_dir(study, c, out)) for c in study_spec.cells(study)],
+                               out, 'data') == {}
+
+
 def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   _, out, path = ran
   dest = tmp_path / 'export'

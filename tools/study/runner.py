@@ -94,6 +94,40 @@ def write_spec(study: study_spec.Study, cell: study_spec.Cell, out: str, data_ro
   return path
 
 
+def stale_cells(study: study_spec.Study, done: list, out: str, data_root: str, extra_bindings=()) -> Dict[str, str]:
+  """{cell folder: the settings that differ} of the finished (cell, folder) pairs in done whose run trained with other
+  settings than the study gives the cell now (a study or gin file edited after it ran), the precision aside (each
+  machine resolves 'default' to its own); a cell taken from an export (--reuse) has no run to compare."""
+  import gin  # pylint: disable=import-outside-toplevel  (jax: only when cells have finished)
+  from internal import config_loader  # pylint: disable=import-outside-toplevel
+  from internal.run import run_dir  # pylint: disable=import-outside-toplevel
+  stale = {}
+  for cell, path in done:
+    stored = run_dir.read_fingerprint(os.path.join(path, RUN_SUBDIR))
+    if stored is None:
+      continue
+    gin.clear_config()
+    try:  # The model's settings (MLP.*, MipNerfModel.*) are read from gin: compared before it is cleared.
+      config = config_loader.load_config(*study_spec.cell_gin(study, cell, out, data_root,
+                                                               os.path.join(path, RUN_SUBDIR), extra_bindings))
+      differences = run_dir.differences({**stored, 'Config.precision': config.precision}, config)
+    finally:
+      gin.clear_config()
+    if differences:
+      stale[path] = differences
+  return stale
+
+
+def check_not_stale(study: study_spec.Study, done: list, out: str, data_root: str, extra_bindings=()) -> None:
+  """StudyError naming each finished cell that trained with other settings than the study gives it now."""
+  stale = stale_cells(study, done, out, data_root, extra_bindings)
+  if stale:
+    listed = '; '.join(f'{path} ({differences})' for path, differences in stale.items())
+    raise study_spec.StudyError(f'{study.path}: {len(stale)} finished cell(s) trained with other settings than the '
+                                f'study gives them now: {listed}. Their results are not this study\'s: move those '
+                                'cell folders away to train them again, or restore the settings they ran with')
+
+
 def _publish(path: str, record: dict) -> None:
   """Writes <path>/cell.json, complete when it appears; FileExistsError instead of replacing a finished cell's."""
   tmp = os.path.join(path, f'{CELL_FILE}.{os.getpid()}.tmp')
@@ -344,8 +378,11 @@ def run_study(study: study_spec.Study, out: str, data_root: str = 'data', shard:
               executor=None, job: Optional[str] = None, extra_bindings=()) -> Dict[str, str]:
   """Runs the unfinished cells (of the shard) on executor (None: in this process), each claimed for job, then
   writes results and plots; returns {cell dir: error}."""
-  todo = [write_spec(study, c, out, data_root, extra_bindings) for c in _shard(study_spec.cells(study), shard)]
-  todo = [p for p in todo if read_cell(p) is None]
+  cells = _shard(study_spec.cells(study), shard)
+  paths = [write_spec(study, c, out, data_root, extra_bindings) for c in cells]
+  check_not_stale(study, [(c, p) for c, p in zip(cells, paths) if read_cell(p) is not None], out, data_root,
+                  extra_bindings)
+  todo = [p for p in paths if read_cell(p) is None]
   job = job or dispatch.new_job()
   if executor is None:
     failed = _run_in_process(todo, job)
