@@ -409,3 +409,10 @@ def test_results_readme_reaches_every_results_readme():
   every = {os.path.join(folder, 'README.md') for folder, _, names in os.walk(RESULTS) if 'README.md' in names}
   unreached = sorted(os.path.relpath(p, ROOT) for p in every - seen)
   assert not unreached, f'results/README.md links no path to {unreached}'
+
+
+def test_every_study_export_has_a_readme():
+  studies = os.path.join(RESULTS, 'studies')
+  lacking = sorted(name for name in os.listdir(studies) if os.path.isdir(os.path.join(studies, name))
+                   and not os.path.isfile(os.path.join(studies, name, 'README.md')))
+  assert not lacking, f'study exports without a README.md (what was run, what it shows and what not): {lacking}'
