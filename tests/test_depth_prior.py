@@ -23,6 +23,7 @@ from tools import synthetic_depth
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CUP = SHARED_DATA / 'colmap' / 'cup'
+SHARED_SIZE = (32, 40)  # The session's shared generated scene (conftest.scene_dir) at test_checkpoints.TINY's size.
 
 
 def _write_png16(path, values):
@@ -89,7 +90,8 @@ def _check_loader(config, tmp_path, png_first=False):
 
 
 def test_generated_object_and_forward_scenes(tmp_path, scene_dir):
-  _check_loader(Config(data_dir=str(scene_dir), n_input_views=3), tmp_path / 'object', png_first=True)
+  _check_loader(Config(data_dir=str(scene_dir), generated_size=SHARED_SIZE, n_input_views=3), tmp_path / 'object',
+                png_first=True)
   _check_loader(Config(data_dir=str(tmp_path / 'forward_scene'), generated_rig='forward', generated_size=(24, 32),
                        n_input_views=2, near=0., far=1., white_background=False), tmp_path / 'forward')
 
@@ -107,7 +109,7 @@ def test_dtu(tmp_path):
 
 
 def test_captures(tmp_path, scene_dir):
-  data = load_dataset('train', Config(data_dir=str(scene_dir), n_input_views=0))
+  data = load_dataset('train', Config(data_dir=str(scene_dir), generated_size=SHARED_SIZE, n_input_views=0))
   data.source_paths = data.image_paths
   _capture_from(data, tmp_path / 'capture')
   _check_loader(Config(dataset_loader='capture', data_dir=str(tmp_path / 'capture'), n_input_views=3, llffhold=4,
