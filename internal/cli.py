@@ -20,6 +20,7 @@ import re
 import shlex
 import signal
 import sys
+import threading
 import warnings
 
 from internal import config_loader
@@ -95,6 +96,8 @@ def run(main) -> int:
   except KeyboardInterrupt:
     if debug:
       raise
+    if threading.current_thread() is threading.main_thread():  # A Ctrl-C during the exit's cleanup (Ray's) would
+      signal.signal(signal.SIGINT, signal.SIG_IGN)              # escape here and kill the process by signal.
     print(interrupt.MESSAGE, file=sys.stderr)
     return signal_status(signal.SIGINT)
   finally:

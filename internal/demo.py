@@ -110,6 +110,12 @@ def wrap_label(text: str, width: float, font) -> List[str]:
   return lines
 
 
+def tiles_top(column_titles, tile_width: int, title: str = '') -> int:
+  """Pixels above grid's first row of tiles: the title's line, and the column titles wrapped to tile_width."""
+  lines = max((len(wrap_label(text, tile_width - 2, label_font())) for text in column_titles), default=1)
+  return HEADER + LINE * (lines - 1) + (LINE if title else 0)
+
+
 def grid(tiles, column_titles, row_titles, title: str = '', scale: int = SCALE) -> np.ndarray:
   """Tiles (rows of float [h, w, 3] images in [0, 1]) -> labelled uint8 picture [H, W, 3].
 
@@ -121,8 +127,8 @@ def grid(tiles, column_titles, row_titles, title: str = '', scale: int = SCALE) 
   th, tw, left0 = h * scale, w * scale, label_width(row_titles)
   draw_font = label_font()
   wrapped = [wrap_label(text, tw - 2, draw_font) for text in column_titles]
-  extra = LINE * (max(map(len, wrapped), default=1) - 1)
-  top0 = HEADER + extra + (LINE if title else 0)
+  top0 = tiles_top(column_titles, tw, title)
+  extra = top0 - HEADER - (LINE if title else 0)
   canvas = np.full((top0 + len(tiles) * (th + GAP), left0 + len(tiles[0]) * (tw + GAP), 3), 255, np.uint8)
   for r, row in enumerate(tiles):
     for c, tile in enumerate(row):

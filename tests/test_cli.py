@@ -1,6 +1,7 @@
 """The scripts' command line: every form of the multi-value flags, user errors as one line with status 2."""
 
 import io
+import signal
 import subprocess
 import sys
 
@@ -99,3 +100,15 @@ def test_a_non_utf8_path_is_a_one_line_error_not_a_crash(tmp_path):
   err = proc.stderr.decode('utf-8')
   assert proc.returncode == 2 and err.count('\n') == 1 and err.startswith('error: cannot parse the gin'), err
   assert '\\udcff' in err and 'lost sys.stderr' not in err
+
+
+def test_after_ctrl_c_further_ctrl_c_is_ignored_to_the_exit(capsys):
+  def interrupted():
+    raise KeyboardInterrupt
+  previous = signal.getsignal(signal.SIGINT)
+  try:
+    assert cli.run(interrupted) == 128 + signal.SIGINT
+    assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN  # A second Ctrl-C cannot kill the exit's cleanup.
+  finally:
+    signal.signal(signal.SIGINT, previous)
+  assert capsys.readouterr().err.startswith('interrupted:')

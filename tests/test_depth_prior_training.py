@@ -79,6 +79,7 @@ def test_prior_patches_are_real_training_pixels_with_their_maps_and_depend_only_
   assert 'prior_rays' not in batching.make_batcher(data, dataclasses.replace(config, depth_rank_loss_mult=0.))(5)
 
 
+@pytest.mark.slow
 def test_the_prior_terms_enter_the_loss_only_when_their_weight_is_positive(forward_priors):
   config, data = forward_priors
   batch = batching.make_batcher(data, config)(1)
@@ -111,6 +112,7 @@ def test_ndc_disparity_is_one_minus_t():
   np.testing.assert_allclose(prior_losses.pearson_values(depths, 'disparity', False), 1. / depths)
 
 
+@pytest.mark.slow
 def test_a_run_with_a_ranking_prior_trains_and_evaluates(forward_priors):
   config, _ = forward_priors
   result = loop.train(config)

@@ -41,9 +41,13 @@ def _byte(value: float) -> int:
   return int(vis.to_uint8(_flat(value))[0, 0, 0])
 
 
+COLUMNS = ['test view 9', 'test view 11']  # The pictured views' column titles, wrapped over the tiles' width.
+
+
 def _tile(picture, rows, r: int, c: int) -> np.ndarray:
   """The pixel at the centre of tile (r, c) of demo.grid's layout (scale 1, no title)."""
-  top, left = demo.HEADER + r * (H + demo.GAP), demo.label_width(rows) + c * (W + demo.GAP)
+  top = demo.tiles_top(COLUMNS, W) + r * (H + demo.GAP)
+  left = demo.label_width(rows) + c * (W + demo.GAP)
   return picture[top + H // 2, left + W // 2]
 
 
@@ -71,12 +75,12 @@ def test_the_picture_labels_rows_and_columns_and_shows_the_ground_truth_first(tm
   expected = [0.4, 0.8, 1., 0.1, 1.]                                     # View 9's column, top to bottom.
   assert [int(_tile(picture, rows, r, 0)[0]) for r in range(5)] == [_byte(v) for v in expected]
   assert int(_tile(picture, rows, 0, 1)[0]) == _byte(0.6)         # View 11's truth beside it.
-  assert picture.shape[:2] == (demo.HEADER + 5 * (H + demo.GAP), demo.label_width(rows) + 2 * (W + demo.GAP))
-  left = demo.label_width(rows)
+  top, left = demo.tiles_top(COLUMNS, W), demo.label_width(rows)
+  assert picture.shape[:2] == (top + 5 * (H + demo.GAP), left + 2 * (W + demo.GAP))
   for r in range(5):                                                     # Each row's title is drawn.
-    assert (picture[demo.HEADER + r * (H + demo.GAP):demo.HEADER + (r + 1) * (H + demo.GAP), :left] < 128).any()
+    assert (picture[top + r * (H + demo.GAP):top + (r + 1) * (H + demo.GAP), :left] < 128).any()
   for c in range(2):                                                     # Each column's too.
-    assert (picture[:demo.HEADER, left + c * (W + demo.GAP):left + (c + 1) * (W + demo.GAP)] < 128).any()
+    assert (picture[:top, left + c * (W + demo.GAP):left + (c + 1) * (W + demo.GAP)] < 128).any()
 
 
 def test_without_the_ground_truth_the_runs_rows_come_first(tmp_path):

@@ -197,6 +197,7 @@ def _flat_params(params) -> dict:
   return {'/'.join(k.key for k in path): np.asarray(x) for path, x in jax.tree_util.tree_leaves_with_path(params)}
 
 
+@pytest.mark.slow
 def test_the_lease_resumes_through_budget_cuts_to_the_uninterrupted_runs_parameters(tiny, tmp_path):
   ledger, data = tiny
   run = ledger.runs[0]

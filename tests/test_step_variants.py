@@ -71,6 +71,7 @@ gin.external_configurable(_relu_passing_zeros, name='relu_passing_zeros')
 ERROR = '\n'.join(f'line {i} of a long compiler error' for i in range(40))
 
 
+@pytest.mark.slow
 def test_a_wrong_gradient_is_refused_and_a_failing_variant_keeps_its_error_and_not_the_others(
     tmp_path, monkeypatch, capsys):
   fakes = {'wrong_gradient': (('MLP.net_activation = @relu_passing_zeros',), {}),

@@ -216,6 +216,7 @@ def _resumed_from(command, cell, step: int) -> None:
   assert record['resumed_from_step'] == step and record['step'] == record['steps_trained'] + step
 
 
+@pytest.mark.slow
 def test_a_cell_sent_signal_after_signal_stops_once_saving_the_step_it_stopped_at(tmp_path):
   """SIGINT and SIGTERM every 5 ms to a cell process of the local executor from its first checkpoint on, through
   its stop checkpoint, until it exits: the first stops it, the others find it stopping (as when Ray, its claim's
