@@ -38,6 +38,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from typing import Dict, List, Optional
 
 from internal import atomic
@@ -108,8 +109,10 @@ def stale_cells(study: study_spec.Study, done: list, out: str, data_root: str, e
       continue
     gin.clear_config()
     try:  # The model's settings (MLP.*, MipNerfModel.*) are read from gin: compared before it is cleared.
-      config = config_loader.load_config(*study_spec.cell_gin(study, cell, out, data_root,
-                                                               os.path.join(path, RUN_SUBDIR), extra_bindings))
+      with warnings.catch_warnings():  # A setting's warnings are the cell's to print when it runs, not once a cell.
+        warnings.simplefilter('ignore')
+        config = config_loader.load_config(*study_spec.cell_gin(study, cell, out, data_root,
+                                                                 os.path.join(path, RUN_SUBDIR), extra_bindings))
       differences = run_dir.differences({**stored, 'Config.precision': config.precision}, config)
     finally:
       gin.clear_config()
