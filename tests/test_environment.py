@@ -1,5 +1,6 @@
 """The backend line, the warning for an NVIDIA GPU that jax does not use, and `--env` for bug reports."""
 
+import platform
 import importlib.metadata
 import os
 import subprocess
@@ -65,3 +66,14 @@ def test_env_prints_the_environment_and_help_names_it():
   assert any(line.startswith('precision: x64 off') for line in lines)
   for script in ('train.py', 'eval.py', 'render.py'):
     assert '--env' in _run([script, '--help']).stdout
+
+
+def test_cpu_isa_is_the_widest_level_the_flags_have_capped_by_xla_flags(tmp_path):
+  cpuinfo = tmp_path / 'cpuinfo'
+  cpuinfo.write_text('model name\t: AMD EPYC\nflags\t\t: fpu sse4_2 avx avx2 fma avx512f avx512bw\n')
+  assert environment.cpu_isa(str(cpuinfo), xla_flags='') == 'AVX512'
+  assert environment.cpu_isa(str(cpuinfo), xla_flags='--xla_cpu_max_isa=AVX2') == 'AVX2'
+  assert environment.cpu_isa(str(cpuinfo), xla_flags='--xla_cpu_max_isa=avx') == 'AVX'
+  cpuinfo.write_text('flags\t\t: fpu sse4_2 avx avx2\n')  # AVX2 without FMA is not XLA's AVX2 target.
+  assert environment.cpu_isa(str(cpuinfo), xla_flags='') == 'AVX'
+  assert environment.cpu_isa(str(tmp_path / 'missing'), xla_flags='') == platform.machine()

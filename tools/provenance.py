@@ -66,8 +66,10 @@ def file_at(repo: str, path: str, sha256: str) -> Optional[str]:
 def machine() -> Dict[str, object]:
   """The machine and the versions a result was measured with."""
   import jax  # pylint: disable=import-outside-toplevel
+  from internal import environment  # pylint: disable=import-outside-toplevel
   devices = jax.devices()
   return {'platform': platform.platform(), 'processor': platform.processor() or platform.machine(),
+          'isa': environment.cpu_isa(),
           'cpu_count': os.cpu_count(), 'python': sys.version.split()[0], 'jax': jax.__version__,
           'devices': f'{len(devices)} x {devices[0].device_kind}'}
 
