@@ -1,8 +1,8 @@
 """The backend line, the warning for an NVIDIA GPU that jax does not use, and `--env` for bug reports."""
 
-import platform
 import importlib.metadata
 import os
+import platform
 import subprocess
 import sys
 import types
