@@ -8,7 +8,8 @@ newest evaluation's rendered depths (depth_<id>.npz, converted to world depths a
 depths, and reports over the pixels that hit the scene: `corr`, the Pearson correlation of the two; `median_ratio`,
 rendered over exact median depth; `mae_affine`, the mean absolute error left after the least-squares scale and
 shift of the rendered depths onto the exact ones; `mae`, before it. A cell's value is the mean over its views; the
-study's [[compare]] entries pair them over seeds with Student's t intervals, as its comparisons.md does. Writes
+study's [[compare]] entries pair them over seeds with Student's t intervals, corrected for the study's looks as its
+comparisons.md is (tools/study/looks.py). Writes
 DIR/depth_shape.csv (per cell and view), DIR/depth_shape.md (means per method and the comparisons) and
 DIR/depth_shape.json (provenance). --also: other studies' folders whose cells of the same name stand in for
 cells without renders here (cells a study reused from an export have none).
@@ -33,6 +34,7 @@ from internal import config_loader
 from internal.datasets import load_dataset, loader
 from internal.evaluation import depth_metrics
 from tools import provenance
+from tools.study import looks as study_looks
 from tools.study import runner
 from tools.study import spec as study_spec
 from tools.study import stats as study_stats
@@ -86,14 +88,14 @@ def _table(study, rows: list) -> str:
       lines.append(f'| {method.name} | {len(values)} | ' + ' | '.join(
           f'{statistics.fmean(c[m] for c in values):.3f} ({statistics.pstdev([c[m] for c in values]):.3f})'
           for m, _ in METRICS) + ' |')
-  comparisons = []
+  comparisons, level = [], study_stats.look_level(study)
   for metric, lower in METRICS:
     for entry in study.compare:
       differences = study_stats.pairs(study, cells, entry, metric)
       if differences and lower is not None:
         comparisons.append(study_stats.Comparison(entry.axis, entry.a, entry.b, metric, len(differences),
-                                                  *study_stats.t_interval(differences), lower))
-  return '\n'.join(lines) + '\n\n' + runner.comparisons_markdown(comparisons)
+                                                  *study_stats.t_interval(differences, level), lower, level))
+  return '\n'.join(lines) + '\n\n' + runner.comparisons_markdown(study, comparisons)
 
 
 def main(argv=None) -> int:
@@ -106,6 +108,7 @@ def main(argv=None) -> int:
   parser.add_argument('--also', nargs='*', default=[], help='other study folders to take renders of cells from')
   args = parser.parse_args(argv)
   study = study_spec.load(args.study)
+  study = study_looks.with_recorded(study, runner.study_dir(study, args.out))
   rows = []
   for cell in study_spec.cells(study):
     labels = {'cell': cell.cell_id, 'method': cell.method, 'scene': cell.scene, **cell.labels()}

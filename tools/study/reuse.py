@@ -10,7 +10,8 @@ completeness and every mean), else the command stops with one line naming both; 
 evaluation is not reused (it runs here). Its cell.json, the evaluation's metrics.json and metrics.csv and its
 learning curve go where a run here would have written them, with a note of the export it came from (an export of
 this study then refers to that export's line); its checkpoints and renders are not in an export, so a reused cell
-cannot resume training and appears in no side-by-side picture.
+cannot resume training and appears in no side-by-side picture. An export of the same study passes on its looks (the
+seed counts at which its comparisons were read, tools/study/looks.py), so that its intervals stay corrected for them.
 """
 
 import json
@@ -21,6 +22,7 @@ from internal import atomic
 from tools import provenance
 from tools.study import cells_file
 from tools.study import export as study_export
+from tools.study import looks as study_looks
 from tools.study import spec as study_spec
 
 
@@ -128,6 +130,9 @@ def reuse(study: study_spec.Study, export_dir: str, study_folder: str, data_root
             'be checked against it')
       continue
     chosen.append((cell, entry, target))
+  if exported.name == study.name and study_looks.recorded(export_dir):
+    os.makedirs(study_folder, exist_ok=True)
+    study_looks.record(study_folder, study_looks.recorded(export_dir))
   reused = []
   for cell, entry, target in chosen:  # Written once every cell is checked: a bad export writes nothing.
     _place(entry, target)
