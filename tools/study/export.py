@@ -123,6 +123,15 @@ def _ground_truth(cell_path: str, cell: dict, count: int) -> Dict[int, np.ndarra
   return {i: np.asarray(test_set.images[list(test_set.ids).index(i)]) for i in ids}
 
 
+def checkout_path(path: str) -> str:
+  """path relative to the git checkout that holds it (a worktree's own, not the one whose code runs), else to REPO."""
+  folder = os.path.dirname(os.path.abspath(path))
+  while not os.path.exists(os.path.join(folder, '.git')) and os.path.dirname(folder) != folder:
+    folder = os.path.dirname(folder)
+  root = folder if os.path.exists(os.path.join(folder, '.git')) else REPO
+  return os.path.relpath(os.path.abspath(path), root)
+
+
 def markdown_table(cells: List[dict]) -> str:
   """table.md: a row per cell with its labels, metrics (3 decimals), wall times in minutes and short commit."""
   metrics = [m for m in TABLE_METRICS if any(c['means'].get(m) is not None for c in cells)]
@@ -205,7 +214,7 @@ def _write(study: study_spec.Study, study_file: str, study_folder: str, dest: st
   with open(os.path.join(dest, TABLE_FILE), 'w') as f:
     f.write(markdown_table(finished))
   record = {'command': command, 'machine': provenance.machine(),
-            'study_file': {'path': os.path.relpath(os.path.abspath(study_file), REPO),
+            'study_file': {'path': checkout_path(study_file),
                            'sha256': provenance.file_sha256(study_file)}}
   with open(os.path.join(dest, PROVENANCE_FILE), 'w') as f:
     json.dump(record, f, indent=1)

@@ -37,11 +37,23 @@ def exported_study(export_dir: str) -> study_spec.Study:
   if not {'path', 'sha256'} <= source.keys():
     raise study_spec.StudyError(f'--reuse {export_dir}: its {study_export.PROVENANCE_FILE} names no study file '
                                 '(path and sha256); export it again with this version of tools.study')
-  text = provenance.file_at(study_export.REPO, source['path'], source['sha256'])
+  text = next(filter(None, (provenance.file_at(study_export.REPO, path, source['sha256'])
+                            for path in _paths_here(source['path']))), None)
   if text is None:
     raise study_spec.StudyError(f"--reuse {export_dir}: it ran {source['path']} of SHA-256 {source['sha256'][:12]}..., "
                                 'which neither that file here nor its git history holds')
   return study_spec.parse(text, source['path'])
+
+
+def _paths_here(path: str) -> List[str]:
+  """The path a provenance.json names, then, for one outside this checkout (another worktree's,
+  '../wt-x/studies/a.toml'), its tails inside it ('wt-x/studies/a.toml', 'studies/a.toml', 'a.toml'): the file's
+  SHA-256 decides which, if any, is the study file that ran."""
+  parts = os.path.normpath(path).split(os.sep)
+  if parts[0] != os.pardir and not os.path.isabs(path):
+    return [path]
+  parts = [p for p in parts if p not in (os.pardir, '')]
+  return [path] + [os.path.join(*parts[i:]) for i in range(len(parts))]
 
 
 def _same_settings(study, exported, cell, out: str, data_root: str) -> bool:
