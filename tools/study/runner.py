@@ -529,16 +529,41 @@ def main(argv=None) -> int:
       print(path)
     _export(study, args, argv)
     return 0
-  job = dispatch.new_job()
-  executor = _executor(study, args, job)
   try:
-    failed = run_study(study, args.out, args.data_root, args.shard, executor, job, tuple(args.gin_bindings))
-  finally:
-    executor.close()
+    failed = _run_on_executor(study, args)
+  except Terminated:
+    print(TERMINATED_MESSAGE, file=sys.stderr)
+    return cli.signal_status(signal.SIGTERM)
   for path, error in failed.items():
     print(f'FAILED {path}: {error}', file=sys.stderr)
   _export(study, args, argv)
   return 1 if failed else 0
+
+
+class Terminated(KeyboardInterrupt):
+  """SIGTERM to the study command: its cells stop as on Ctrl-C (dispatch.run cancels them on a KeyboardInterrupt)."""
+
+
+TERMINATED_MESSAGE = ('terminated: stopped by SIGTERM before the command finished; its cells saved their checkpoints, '
+                      'what it wrote is kept, and the same command run again finishes the work')
+
+
+def _raise_terminated(signum, frame):
+  del signum, frame
+  raise Terminated()
+
+
+def _run_on_executor(study: study_spec.Study, args) -> Dict[str, str]:
+  """Runs the study's cells on the executor of the flags; returns {cell dir: error}. SIGTERM meanwhile stops the
+  cells as Ctrl-C does (Terminated), its handler set once the executor is made: Ray's (sys.exit) would leave the
+  running cells behind."""
+  job = dispatch.new_job()
+  executor = _executor(study, args, job)
+  try:
+    signal.signal(signal.SIGTERM, _raise_terminated)
+    return run_study(study, args.out, args.data_root, args.shard, executor, job, tuple(args.gin_bindings))
+  finally:
+    executor.close()
 
 
 def _export(study: study_spec.Study, args, argv) -> None:
