@@ -216,6 +216,9 @@ def test_the_runner_records_a_look_at_each_finished_seed_count_and_corrects_for_
   more = study_spec.parse(SEEDED.replace('seeds = 3', 'seeds = 5'), 'seeded.toml')  # Seeds added after looking.
   assert study_stats.looks(study_looks.with_recorded(more, str(tmp_path))) == (3, 5)
   assert study_stats.looks(study_looks.with_recorded(study, str(tmp_path))) == (3,)
+  declared = study_spec.parse(SEEDED.replace('seeds = 3', 'seeds = 3\nlooks = [2, 3]'), 'seeded.toml')
+  study_looks.record_if_finished(declared, str(tmp_path), rows)  # Kept with the record, so that exports carry it.
+  assert study_looks.recorded(str(tmp_path)) == [2, 3]
   (tmp_path / study_looks.FILE).write_text('{"seed_counts": "3"}')
   with pytest.raises(ValueError, match=r'looks.json: .*expected \{"seed_counts": \[n, ...\]\}'):
     study_looks.recorded(str(tmp_path))

@@ -53,11 +53,11 @@ def with_recorded(study: study_spec.Study, folder: str) -> study_spec.Study:
 
 
 def record_if_finished(study: study_spec.Study, folder: str, rows: List[dict]) -> None:
-  """Records a look at the study's seed count when it has seeds, comparisons and every cell finished (rows:
-  results.csv's)."""
+  """Records a look at the study's seed count, with those its file declares (so that an export carries them), when
+  it has seeds, comparisons and every cell finished (rows: results.csv's)."""
   count = study_stats.seed_count(study)
   if count is not None and study.compare and rows and all(r.get('status') == 'done' for r in rows):
-    record(folder, [count])
+    record(folder, [*study.looks, count])
 
 
 def describe(study: study_spec.Study) -> str:
