@@ -137,6 +137,6 @@ def test_reuse_finds_a_study_file_recorded_by_its_path_in_another_worktree(capsy
 def test_an_export_names_its_study_file_by_its_path_in_its_own_checkout(tmp_path):
   (tmp_path / 'wt-x' / 'studies').mkdir(parents=True)
   (tmp_path / 'wt-x' / '.git').write_text('gitdir: elsewhere\n')  # A worktree's .git is a file.
-  (tmp_path / 'wt-x' / 'studies' / 'a.toml').write_text(TINY_STUDY)
-  assert study_export.checkout_path(str(tmp_path / 'wt-x' / 'studies' / 'a.toml')) == 'studies/a.toml'
+  (tmp_path / 'wt-x' / 'studies' / 'mini_dtu.toml').write_text(TINY_STUDY)
+  assert study_export.checkout_path(str(tmp_path / 'wt-x' / 'studies' / 'mini_dtu.toml')) == 'studies/mini_dtu.toml'
   assert study_export.checkout_path('studies/depth_prior_cup.toml') == 'studies/depth_prior_cup.toml'

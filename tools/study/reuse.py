@@ -47,7 +47,7 @@ def exported_study(export_dir: str) -> study_spec.Study:
 
 def _paths_here(path: str) -> List[str]:
   """The path a provenance.json names, then, for one outside this checkout (another worktree's,
-  '../wt-x/studies/a.toml'), its tails inside it ('wt-x/studies/a.toml', 'studies/a.toml', 'a.toml'): the file's
+  '../wt-x/studies/<file>'), its tails inside it ('wt-x/studies/<file>', 'studies/<file>', '<file>'): the file's
   SHA-256 decides which, if any, is the study file that ran."""
   parts = os.path.normpath(path).split(os.sep)
   if parts[0] != os.pardir and not os.path.isabs(path):
