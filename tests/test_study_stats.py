@@ -1,7 +1,9 @@
 """tools.study.stats and the seed axis of study files: statistics checked on constructed results with known values."""
 
+import csv
 import json
 import math
+import pathlib
 import re
 
 import matplotlib.pyplot as plt
@@ -10,6 +12,7 @@ from PIL import Image
 import pytest
 
 from tools.study import looks as study_looks
+from tools.study import reuse
 from tools.study import runner as study_lib
 from tools.study import plots as study_plots
 from tools.study import spec as study_spec
@@ -28,6 +31,7 @@ configs = ["configs/demo.gin"]
 [plot]
 metrics = ["psnr", "lpips"]
 '''
+ROOT = pathlib.Path(__file__).resolve().parents[1]
 T_975 = {3: 3.182446305284263, 4: 2.7764451051977987}  # Student's t quantiles from a table (df: value).
 
 
@@ -236,3 +240,31 @@ def test_bad_looks_name_the_key(extra, message):
     study_spec.parse(SEEDED.replace('seeds = 3', f'seeds = 3\n{extra}'), 'bad.toml')
   with pytest.raises(study_spec.StudyError, match='looks: the study has no seeds'):
     study_spec.parse(SEEDED.replace('seeds = 3', 'looks = [3]'), 'bad.toml')
+
+
+def _committed_comparisons():
+  """The committed exports with comparisons (results/**/comparisons.csv's folders)."""
+  return sorted(p.parent for p in ROOT.glob('results/**/comparisons.csv'))
+
+
+@pytest.mark.parametrize('export', _committed_comparisons(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_committed_comparison_is_its_study_files_interval_for_its_looks(export):
+  """Each interval of an export's comparisons.csv is the one the study file it ran (provenance.json) gives its
+  results.csv, corrected for its looks (the study file's and looks.json)."""
+  study = study_looks.with_recorded(reuse.exported_study(str(export)), str(export))
+  with open(export / 'results.csv', newline='') as f:
+    rows = list(csv.DictReader(f))
+  found = {(c.metric, c.a, c.b): c for m in study.plot.metrics for c in study_stats.compare(study, rows, m)}
+  with open(export / 'comparisons.csv', newline='') as f:
+    for row in csv.DictReader(f):
+      comparison = found[(row['metric'], row['a'], row['b'])]
+      assert row['verdict'] == comparison.verdict and row['ci_low'] == ('' if comparison.low is None else
+                                                                         str(comparison.low)), row
+
+
+def test_the_cup_depth_prior_study_added_seeds_after_looking_and_says_so():
+  export = ROOT / 'results' / 'studies' / 'depth_prior_cup'
+  assert study_stats.looks(study_looks.with_recorded(reuse.exported_study(str(export)), str(export))) == (3, 5)
+  with open(export / 'comparisons.csv', newline='') as f:
+    psnr = next(r for r in csv.DictReader(f) if r['metric'] == 'psnr')
+  assert psnr['verdict'] == 'UNDECIDED: the 97.5% interval contains 0'
