@@ -66,6 +66,8 @@ SUMMARY_FILE = 'summary.csv'          # Per cell pooled over seeds: mean, std, n
 COMPARISONS_FILE = 'comparisons.csv'  # The paired comparisons with their intervals and verdicts.
 COMPARISONS_MD = 'comparisons.md'
 REPO = dispatch.REPO
+TERMINATED_MESSAGE = ('terminated: stopped by SIGTERM before the command finished; its cells saved their checkpoints, '
+                      'what it wrote is kept, and the same command run again finishes the work')
 
 
 def study_dir(study: study_spec.Study, out: str) -> str:
@@ -150,6 +152,15 @@ class CellStopped(Exception):
     super().__init__(f'stopped by signal {signum} at step {step} with a checkpoint saved; the study run again '
                      'resumes it')
     self.signum = signum
+
+
+class Terminated(KeyboardInterrupt):
+  """SIGTERM to the study command: its cells stop as on Ctrl-C (dispatch.run cancels them on a KeyboardInterrupt)."""
+
+
+def _raise_terminated(signum, frame):
+  del signum, frame
+  raise Terminated()
 
 
 def _peak_memory() -> dict:
@@ -540,30 +551,18 @@ def main(argv=None) -> int:
   return 1 if failed else 0
 
 
-class Terminated(KeyboardInterrupt):
-  """SIGTERM to the study command: its cells stop as on Ctrl-C (dispatch.run cancels them on a KeyboardInterrupt)."""
-
-
-TERMINATED_MESSAGE = ('terminated: stopped by SIGTERM before the command finished; its cells saved their checkpoints, '
-                      'what it wrote is kept, and the same command run again finishes the work')
-
-
-def _raise_terminated(signum, frame):
-  del signum, frame
-  raise Terminated()
-
-
 def _run_on_executor(study: study_spec.Study, args) -> Dict[str, str]:
   """Runs the study's cells on the executor of the flags; returns {cell dir: error}. SIGTERM meanwhile stops the
   cells as Ctrl-C does (Terminated), its handler set once the executor is made: Ray's (sys.exit) would leave the
   running cells behind."""
-  job = dispatch.new_job()
+  job, before = dispatch.new_job(), signal.getsignal(signal.SIGTERM)
   executor = _executor(study, args, job)
   try:
     signal.signal(signal.SIGTERM, _raise_terminated)
     return run_study(study, args.out, args.data_root, args.shard, executor, job, tuple(args.gin_bindings))
   finally:
     executor.close()
+    signal.signal(signal.SIGTERM, before)
 
 
 def _export(study: study_spec.Study, args, argv) -> None:
