@@ -10,6 +10,7 @@ import warnings
 from typing import Sequence
 
 import gin
+import numpy as np
 
 from internal import configs
 from internal.configs import Config
@@ -180,39 +181,58 @@ def validate(config: Config) -> None:
 
 
 def _check_ranges(config: Config) -> None:
-  """Raises a ValueError naming the first setting outside a range it declares (configs.RANGES), with its hint."""
-  fields = {f.name: f for f in dataclasses.fields(Config)}
-  for kind in configs.RANGES:
-    for name in configs.declared(kind):
-      value, field = getattr(config, name), fields[name]
-      expected = _outside(kind, value, isinstance(field.default, float))
-      if expected:
-        hint = f' ({field.metadata["hint"]})' if field.metadata['hint'] else ''
-        raise ValueError(f'Config.{name} = {value}; expected {expected}{hint}')
+  """Raises a ValueError naming the first setting outside a range it declares (configs.RANGES, then its at_most),
+  with its hint."""
+  fields = dataclasses.fields(Config)
+  checks = [(kind, f) for kind in configs.RANGES for f in fields if kind in f.metadata['properties']]
+  for kind, field in checks + [(AT_MOST, f) for f in fields if f.metadata['at_most'] is not None]:
+    value = getattr(config, field.name)
+    expected = _outside(kind, value, field)
+    if expected:
+      hint = f' ({field.metadata["hint"]})' if field.metadata['hint'] else ''
+      raise ValueError(f'Config.{field.name} = {value}; expected {expected}{hint}')
+
+
+# Training computes in float32: a float setting must be a number it holds, a positive one a normal number (XLA
+# flushes smaller ones to 0 on CPUs).
+FLOAT32_MAX, FLOAT32_TINY = float(np.finfo(np.float32).max), float(np.finfo(np.float32).tiny)
+AT_MOST = 'at_most'  # The check of a field's at_most (configs.setting), after its RANGES.
+
+
+def _outside(kind: str, value, field: dataclasses.Field) -> str:
+  """What a value of field outside a declared range (or at_most) is expected to be ('' when it is inside)."""
+  if kind == AT_MOST:
+    return '' if value <= field.metadata['at_most'] else f'<= {field.metadata["at_most"]:g}'
+  if kind == configs.FINITE:
+    if isinstance(value, float) and not math.isfinite(value):
+      return 'a finite number'
+    return '' if abs(value) <= FLOAT32_MAX else f'a finite number float32 holds (|x| <= {FLOAT32_MAX:.4g})'
+  if kind == configs.NON_NEGATIVE:
+    return '' if value >= 0 else '>= 0'
+  if not isinstance(field.default, float):
+    return '' if value >= 1 else 'a positive integer'
+  if value <= 0:
+    return '> 0'
+  return '' if value >= FLOAT32_TINY else f'a positive number float32 holds (>= {FLOAT32_TINY:.4g})'
 
 
 # Seeds jax.random.PRNGKey (int64) and numpy's generators (non-negative) both take.
 SEED_LIMIT = 2**63
 
 
+def seed_expected(seed) -> str:
+  """What a seed that a random generator would refuse (numpy's message names no setting) is expected to be ('' when
+  both jax's and numpy's take it); each caller names its setting or flag."""
+  return '' if 0 <= seed < SEED_LIMIT else "a whole number in [0, 2^63) (a seed of jax's and numpy's random generators)"
+
+
 def _check_seeds(config: Config) -> None:
-  """Raises a ValueError naming the first seed (configs.SEED) that no random generator takes."""
-  for name in configs.declared(configs.SEED):
+  """Raises a ValueError naming the first seed setting (configs.RNG_SEED) that no random generator takes."""
+  for name in configs.declared(configs.RNG_SEED):
     value = getattr(config, name)
-    if not 0 <= value < SEED_LIMIT:
-      raise ValueError(f'Config.{name} = {value}; expected a whole number in [0, 2^63) (a seed of jax\'s and '
-                       'numpy\'s random generators)')
-
-
-def _outside(kind: str, value, floats: bool) -> str:
-  """What a value outside a declared range is expected to be ('' when it is inside)."""
-  if kind == configs.FINITE:
-    return '' if math.isfinite(value) else 'a finite number'
-  if kind == configs.NON_NEGATIVE:
-    return '' if value >= 0 else '>= 0'
-  if floats:
-    return '' if value > 0 else '> 0'
-  return '' if value >= 1 else 'a positive integer'
+    expected = seed_expected(value)
+    if expected:
+      raise ValueError(f'Config.{name} = {value}; expected {expected}')
 
 
 def _validate_blender_code_settings(config: Config) -> None:
