@@ -1,6 +1,7 @@
 """Reading a Config from .gin files and bindings, and checking every setting before any work."""
 
 import ast
+import contextlib
 import dataclasses
 import logging
 import math
@@ -36,16 +37,21 @@ gin.add_config_file_search_path(os.path.dirname(os.path.dirname(os.path.abspath(
 
 # Model fields set from Config (gin refuses bindings of them), e.g. the background the data and renderer share.
 SET_FROM_CONFIG = configs.declared(configs.TO_MODEL)
+# How gin names Config in the bindings it records.
+CONFIG_SELECTOR = gin.config.ParsedBindingKey.parse(('', 'Config', 'expname')).complete_selector
 
 
-def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> None:
-  """Parses .gin files and bindings; unknown bindings raise, naming the binding."""
+def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> tuple:
+  """Parses .gin files and bindings; unknown bindings raise, naming the binding. Returns the Config fields they
+  bind, in the order gin binds them (files and their includes in order, then the bindings; repeats kept)."""
   for path in gin_configs:
     if not os.path.isfile(path):
       raise FileNotFoundError(f'gin config {path!r} does not exist')
   logging.root.addFilter(_not_gin_path_noise)
   try:
-    gin.parse_config_files_and_bindings(list(gin_configs), list(gin_bindings), skip_unknown=False)
+    with _config_bindings_in_order() as bound:
+      gin.parse_config_files_and_bindings(list(gin_configs), list(gin_bindings), skip_unknown=False)
+    return tuple(bound)
   except SyntaxError as err:  # gin reports a malformed value as a SyntaxError; it is a bad setting.
     raise ValueError(f'cannot parse the gin configs {list(gin_configs)} / bindings {list(gin_bindings)}: '
                      f'{err}') from err
@@ -60,6 +66,25 @@ def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ())
     raise
   finally:
     logging.root.removeFilter(_not_gin_path_noise)
+
+
+@contextlib.contextmanager
+def _config_bindings_in_order():
+  """Yields a list that collects the name of each Config field gin binds (unscoped, as Config() reads them) while
+  the context is open, in order: gin keeps only each binding's last value, not which of two came last."""
+  bound, bind = [], gin.config.bind_parameter
+
+  def recording_bind(binding_key, value):
+    bind(binding_key, value)
+    key = gin.config.ParsedBindingKey.parse(binding_key)
+    if key.config_key == ('', CONFIG_SELECTOR):
+      bound.append(key.arg_name)
+
+  gin.config.bind_parameter = recording_bind
+  try:
+    yield bound
+  finally:
+    gin.config.bind_parameter = bind
 
 
 def _not_gin_path_noise(record: logging.LogRecord) -> bool:
@@ -79,8 +104,8 @@ def _raise_missing_include(err: OSError) -> None:
 
 def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = (), backend: str = '') -> Config:
   """Parses gin and returns a validated Config, its precision resolved for backend ('' = this process's)."""
-  parse_gin(gin_configs, gin_bindings)
-  config = _expand_home(_resolve_freq_reg_end(_apply_warmup_end(_current_loader_name(Config())), gin_bindings))
+  bound = parse_gin(gin_configs, gin_bindings)
+  config = _expand_home(_resolve_freq_reg_end(_apply_warmup_end(_current_loader_name(Config())), bound))
   validate(config)
   # Concrete from here on: a run records (and its fingerprint checks) the numerics it trained with.
   return dataclasses.replace(config, precision=precision.resolve(config.precision, backend))
@@ -120,23 +145,19 @@ def _apply_warmup_end(config: Config) -> Config:
   return config
 
 
-def _bound(bindings: Sequence[str], name: str) -> bool:
-  """Whether gin bindings (command-line strings, one or more lines each) bind Config.<name>."""
-  return any(re.search(rf'^\s*Config\.{name}\s*=', b, re.M) for b in bindings)
+def _last(bound: Sequence[str], name: str) -> int:
+  """Position of the last binding of Config.<name> in bound (parse_gin's order), -1 when none binds it."""
+  return max((i for i, b in enumerate(bound) if b == name), default=-1)
 
 
-def _resolve_freq_reg_end(config: Config, gin_bindings: Sequence[str]) -> Config:
-  """Config with freq_reg_end = round(freq_reg_end_fraction x max_steps) when a fraction is set. A step count bound
-  in gin_bindings wins over a fraction from the gin files (the later setting, as gin's own rule); binding both there
-  is a ValueError, as is a fraction that is negative or not finite."""
+def _resolve_freq_reg_end(config: Config, bound: Sequence[str]) -> Config:
+  """Config with freq_reg_end = round(freq_reg_end_fraction x max_steps) when a fraction is set and bound after
+  the last freq_reg_end (bound: the Config fields in the order gin bound them; the later setting wins, as gin's
+  own rule); a fraction that is negative or not finite is a ValueError."""
   fraction = config.freq_reg_end_fraction
   if fraction is None:
     return config
-  in_steps, as_fraction = _bound(gin_bindings, 'freq_reg_end'), _bound(gin_bindings, 'freq_reg_end_fraction')
-  if in_steps and as_fraction:
-    raise ValueError(f'Config.freq_reg_end = {config.freq_reg_end} and Config.freq_reg_end_fraction = {fraction} '
-                     'are both bound; expected one of them (T in steps, or as a fraction of Config.max_steps)')
-  if in_steps:
+  if _last(bound, 'freq_reg_end') > _last(bound, 'freq_reg_end_fraction'):
     return dataclasses.replace(config, freq_reg_end_fraction=None)
   if isinstance(fraction, bool) or not (isinstance(fraction, (int, float)) and math.isfinite(fraction) and fraction >= 0):
     raise ValueError(f'Config.freq_reg_end_fraction = {fraction!r}; expected a finite number >= 0 (T as a '

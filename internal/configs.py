@@ -170,8 +170,8 @@ class Config:
   # T: the step at which every frequency is visible; 0 = no ramp (the paper: 0.9 x steps, 3 views).
   freq_reg_end: int = setting(0, NON_NEGATIVE)
   # T as a fraction of max_steps (the paper: 0.9 / 0.7 / 0.5 for 3 / 6 / 9 views); None = freq_reg_end in steps.
-  # config_loader resolves it into freq_reg_end when the config loads; a freq_reg_end bound on the command line
-  # (or a study's bindings) wins over a fraction from the gin files.
+  # config_loader resolves it into freq_reg_end when the config loads; of freq_reg_end and this, the one gin binds
+  # last wins (a later file over an earlier one, the bindings over the files), as for any setting.
   freq_reg_end_fraction: Optional[float] = setting(None, BOOKKEEPING)
   # 'released' (3 features at a time over sin-then-cos) | 'paper' (sin and cos of a band together).
   freq_mask_layout: str = setting('released')
