@@ -175,6 +175,14 @@ def test_each_view_draws_its_own_noise(scene_dir):
     assert np.linalg.norm(directions.mean(0)) < .7  # Measured: 0.41 and 0.42.
 
 
+def test_noise_that_moves_the_cameras_beyond_float32_is_refused_naming_it(scene_dir):
+  config = _generated(scene_dir, 'object', 'Config.camera_noise_translation = 1e38')  # Itself within float32.
+  with pytest.raises(ValueError, match=r"^Config.camera_noise_translation = 1e\+38 moves the training cameras by "
+                     r"4e\+38 \(x the camera distance 4\), beyond float32's range"):
+    load_dataset('train', config)
+  load_dataset('train', _generated(scene_dir, 'object', 'Config.camera_noise_translation = 1e37'))
+
+
 @pytest.mark.skipif(not (SHARED_DATA / 'llff' / 'fern').is_dir(), reason='../shared/data/llff/fern is absent')
 def test_the_ndc_focal_read_back_from_llff_rays_is_the_loaders():
   gin.clear_config()

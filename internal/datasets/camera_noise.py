@@ -6,7 +6,8 @@ of view id v come from np.random.default_rng([Config.camera_noise_seed, v]), so 
 which other views train. The camera distance is the depth of the middle of the scene's rays: (near + far) / 2 for
 world rays (4 for the generated object rig and Blender, whose cameras sit 4 from the object's centre), 2 for NDC
 rays (the middle of NDC's disparity range, LLFF's frame putting the nearest scene depth at 1 / 0.75). Test cameras
-are never perturbed.
+are never perturbed. Noise that moves a camera or its rays beyond float32's range, the precision they train in, is
+one error naming Config.camera_noise_translation.
 """
 
 import dataclasses
@@ -46,6 +47,17 @@ def draw(ids, config, distance: float) -> tuple:
   return np.stack(rotations), np.stack(shifts)
 
 
+def _check_float32(config, distance: float, arrays) -> None:
+  """ValueError naming Config.camera_noise_translation when moved cameras or rays (float64 arrays) leave
+  float32's range: they would train as inf."""
+  if not all(np.all(np.abs(x) <= np.finfo(np.float32).max) for x in arrays):  # NaN fails the comparison too.
+    shift = config.camera_noise_translation * distance
+    raise ValueError(f'Config.camera_noise_translation = {config.camera_noise_translation} moves the training '
+                     f'cameras by {shift:.4g} (x the camera distance {distance:g}), beyond float32\'s range '
+                     f'({np.finfo(np.float32).max:.4g}) in which they train; expected a fraction of the camera '
+                     'distance that keeps them there')
+
+
 def perturbed(dataset: base.Dataset, config, space: pose_correction.RaySpace) -> base.Dataset:
   """The training dataset with its cameras and rays turned and moved by the noise (unchanged when off)."""
   if not is_on(config) or dataset.split != 'train':
@@ -54,5 +66,6 @@ def perturbed(dataset: base.Dataset, config, space: pose_correction.RaySpace) ->
   centres = np.asarray(dataset.camtoworlds, np.float64)[:, :, 3]
   rays = pose_correction.image_rays(dataset.rays, rotations, centres, shifts, space)
   c2w = pose_correction.corrected_cameras(dataset.camtoworlds, rotations, shifts)
+  _check_float32(config, camera_distance(dataset, space), [c2w, *rays])
   return dataclasses.replace(dataset, camtoworlds=c2w.astype(np.float32),
                              rays=type(rays)(*[np.asarray(x, np.float32) for x in rays]))
