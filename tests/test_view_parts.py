@@ -127,7 +127,7 @@ def test_frame_sizes_follow_the_aspect_and_the_moving_size_the_budget():
   assert resolution.moving_rows('auto', 400, 1e-5, 1.) == 141                 # 141^2 rays in 0.2 s.
   assert resolution.moving_rows('auto', 400, 1., 1.) == resolution.MIN_ROWS  # Slow: never below MIN_ROWS.
   assert resolution.moving_rows('auto', 8, 1., 1.) == 8                      # ... or the full size when smaller.
-  assert resolution.moving_rows('auto', 400, 0., 1.) == 400                   # No measurement yet: full size.
+  assert resolution.moving_rows('auto', 400, 0., 1.) == 100                   # No measurement yet: a quarter.
   assert resolution.moving_rows('1/4', 400, 1e-9, 1.) == 100
   assert resolution.updated_speed(0., 2., 1000) == .002
   assert resolution.updated_speed(.002, 4., 1000) == pytest.approx(.003)

@@ -1,7 +1,8 @@
 """The viewer's server (tools/view/) on trained tiny runs, driven as a browser drives it: viser's websocket
 protocol (msgpack messages: the camera in, frames and the panel out). A camera sent comes back as render.py's frame
 of that camera at that size; two runs compare in one frame; a newer checkpoint is loaded when asked; bad input and
-Ctrl-C end in one line. Skipped, saying so, without viser (pip install -r requirements-viewer.txt)."""
+Ctrl-C end in one line; and where Chromium is installed, headless Chromium opens the page and shows the frame.
+Skipped, saying so, without viser (pip install -r requirements-viewer.txt)."""
 
 import contextlib
 import io
@@ -31,7 +32,7 @@ viser = pytest.importorskip('viser', reason='the viewer needs viser (pip install
 msgspec = pytest.importorskip('msgspec')
 from websockets.sync.client import connect  # pylint: disable=wrong-import-position  (installed with viser)
 
-from tools.view import layout  # pylint: disable=wrong-import-position
+from tools.view import app, layout, screenshot  # pylint: disable=wrong-import-position
 from tools.view import __main__ as view_main  # pylint: disable=wrong-import-position
 
 FORWARD = DEMO.replace('demo.gin', 'demo_forward.gin')
@@ -134,14 +135,15 @@ class Browser:
               for t, m in self.messages if m['type'] == 'BackgroundImageMessage' and m['rgb_data'] and t > since]
 
   def last_frame(self, since: float, timeout: float = 300.) -> tuple:
-    """(media type, image) of the last frame after since, once none came for QUIET seconds."""
+    """(media type, image) of the last frame after since once it is a full-size one (PNG; moving frames are JPEG)
+    and none came for QUIET seconds."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
       shown = self.frames(since)
-      if shown and time.monotonic() - shown[-1][0] > QUIET:
+      if shown and shown[-1][1] == 'image/png' and time.monotonic() - shown[-1][0] > QUIET:
         return shown[-1][1:]
       time.sleep(.1)
-    raise AssertionError('no frame came')
+    raise AssertionError('no full-size frame came')
 
 
 @contextlib.contextmanager
@@ -268,3 +270,28 @@ def test_ctrl_c_stops_the_viewer_in_one_line(trained):
   assert lines[-1].startswith('viewing freenerf (step 4) at http://127.0.0.1:'), lines + [err]
   assert proc.returncode == 130 and err.strip().splitlines() == [interrupt.MESSAGE], err
   assert out == ''
+
+
+@pytest.mark.skipif(shutil.which(screenshot.CHROMIUM) is None,
+                    reason='chromium is not installed (apt-get install chromium): the page is opened in headless Chromium')
+def test_headless_chromium_opens_the_page_connects_and_shows_the_rendered_frame(trained, monkeypatch):
+  sent = []
+  send_to = app.Viewer._sender  # pylint: disable=protected-access
+
+  def recording(client):
+    send = send_to(client)
+    return lambda image, image_format: (sent.append((image, image_format)), send(image, image_format))
+  monkeypatch.setattr(app.Viewer, '_sender', staticmethod(recording))
+  run = trained['object']
+  with viewer(run['configs'], run['flags'], '--height', '60') as port:
+    png, text = screenshot.capture(f'http://127.0.0.1:{port}', (900, 600))
+  assert 'freenerf step 4' in text and '(full size)' in text  # The panel came over the websocket: connected.
+  shot = np.asarray(Image.open(io.BytesIO(png)).convert('RGB'), np.float64)
+  frame = next(image for image, image_format in reversed(sent) if image_format == 'png')
+  # The frame fills the window behind the panel (on the right): compare the left half, the frame stretched to it.
+  rows = np.arange(shot.shape[0]) * frame.shape[0] // shot.shape[0]
+  cols = np.arange(shot.shape[1]) * frame.shape[1] // shot.shape[1]
+  stretched = frame[rows][:, cols].astype(np.float64)
+  left = slice(0, shot.shape[1] // 2)
+  assert np.mean(np.abs(shot[:, left] - stretched[:, left])) < 12.
+  assert np.mean(np.all(shot[:, left] > 245, axis=-1)) < .05  # Not a blank (white) canvas.

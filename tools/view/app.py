@@ -73,12 +73,12 @@ class Viewer:
     actions = {'change': self.refresh, 'reload': lambda: self.watcher.check(), 'test_view': self.show_test_view,
                'interval': lambda seconds: self.watcher.set_interval(seconds)}
     self.panel = panel_lib.Panel(self.server, runs, full_rows, interval, self.groups, actions)
-    self.watcher = watch.CheckpointWatcher(runs, interval, self._reloaded, self.panel.show_frame)
+    self.watcher = watch.CheckpointWatcher(runs, interval, self._reloaded, self.panel.show_error)
     self.server.on_client_connect(self._connect)
     self.server.on_client_disconnect(self._disconnect)
 
   def _connect(self, client) -> None:
-    view = service.ClientView(self.runs, self.panel.options, self._sender(client), self.panel.show_frame)
+    view = service.ClientView(self.runs, self.panel.options, self._sender(client), self.panel.frame_line(client))
     self.clients[client.client_id] = view
     self._move_camera(client, 0)
     client.camera.on_update(lambda camera: view.request(view_of(camera)))

@@ -1,9 +1,10 @@
 """The viewer's panel (viser's GUI): the runs and their steps, the last frame's size and seconds, what the frames
 show and at which sizes, the comparison's layout, the checkpoints, a test view to jump to, and the scene's groups."""
 
-import threading
-
 from tools.view import frames, layout, resolution, scene
+
+
+RUNS_ORDER, FRAME_ORDER = -2., -1.  # The runs first, then each browser's own line about its last frame.
 
 
 class Panel:
@@ -13,9 +14,7 @@ class Panel:
   def __init__(self, server, runs: list, full_rows: int, interval: float, groups: dict, actions: dict):
     gui = server.gui
     self.runs, self.groups = runs, groups
-    self._lock = threading.Lock()
-    self._runs_text = gui.add_markdown(self.runs_text())
-    self._frame_text = gui.add_markdown('waiting for the browser\'s camera')
+    self._runs_text = gui.add_markdown(self.runs_text(), order=RUNS_ORDER)
     self._output = gui.add_dropdown('Output', frames.OUTPUTS, initial_value='colour')
     self._moving = gui.add_dropdown('Moving size', tuple(resolution.MOVING_CHOICES), initial_value='auto',
                                     hint='auto: the largest that renders within '
@@ -63,9 +62,18 @@ class Panel:
   def show_runs(self) -> None:
     self._runs_text.content = self.runs_text()
 
-  def show_frame(self, text: str) -> None:
-    with self._lock:
-      self._frame_text.content = text
+  def show_error(self, text: str) -> None:
+    """The runs with a line that went wrong under them (a checkpoint that could not be loaded)."""
+    self._runs_text.content = f'{self.runs_text()}  \n**{text}**'
+
+  @staticmethod
+  def frame_line(client):
+    """show(text): the line about the last frame, in client's panel only (each browser has its own frames)."""
+    line = client.gui.add_markdown('no frame yet: the first of each size compiles first (seconds)', order=FRAME_ORDER)
+
+    def show(text: str) -> None:
+      line.content = text
+    return show
 
   def options(self) -> frames.Options:
     """The frames.Options the panel holds now."""

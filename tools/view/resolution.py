@@ -11,6 +11,7 @@ MIN_ROWS = 12
 # The moving-size choices of the viewer's panel: 'auto' follows the budget, the others are fractions of the full size.
 MOVING_CHOICES = {'auto': None, '1/8': 1 / 8, '1/4': 1 / 4, '1/2': 1 / 2, 'full': 1.}
 SPEED_MEMORY = .5  # Weight of the newest frame in the running seconds-per-ray estimate.
+FIRST_FRACTION = 1 / 4  # 'auto' before any speed is known: this fraction of the full size.
 
 
 def frame_width(height: int, aspect: float) -> int:
@@ -19,16 +20,17 @@ def frame_width(height: int, aspect: float) -> int:
 
 
 def budget_rows(seconds_per_ray: float, aspect: float, budget: float = FRAME_BUDGET) -> int:
-  """The most rows of a frame at aspect that renders within budget seconds at seconds_per_ray (>= 1)."""
-  if seconds_per_ray <= 0:
-    return 1 << 30  # No measurement yet: no limit from speed.
+  """The most rows of a frame at aspect that renders within budget seconds at seconds_per_ray > 0 (>= 1)."""
   return max(1, int(math.sqrt(budget / seconds_per_ray / max(aspect, 1e-6))))
 
 
 def moving_rows(choice: str, full_rows: int, seconds_per_ray: float, aspect: float) -> int:
   """Rows of a frame while the camera moves: MOVING_CHOICES[choice] of full_rows, or ('auto') the most that
-  budget_rows allows; at least MIN_ROWS (or full_rows when that is smaller), at most full_rows."""
+  budget_rows allows (FIRST_FRACTION before any speed is known); at least MIN_ROWS (or full_rows when that is
+  smaller), at most full_rows."""
   fraction = MOVING_CHOICES[choice]
+  if fraction is None and seconds_per_ray <= 0:
+    fraction = FIRST_FRACTION
   rows = budget_rows(seconds_per_ray, aspect) if fraction is None else int(round(full_rows * fraction))
   return max(min(MIN_ROWS, full_rows), min(rows, full_rows))
 
