@@ -238,6 +238,21 @@ def test_requests_overtaken_while_a_frame_renders_are_dropped():
   np.testing.assert_array_equal(shown[-1][0], expected)
 
 
+def test_the_same_camera_sent_again_is_no_new_frame():
+  run, screen = FakeRun(), Screen()
+  client = service.ClientView([run], lambda: frames.Options(moving='1/2', full_rows=32), screen.send,
+                              screen.lines.append)
+  client.request(view_at(0.))
+  screen.wait_for(2)
+  client.request(view_at(0.))  # A browser repeats its camera now and then.
+  time.sleep(service.REST + .5)
+  client.request()             # A setting changed: the same view again, moving then full.
+  screen.wait_for(4)
+  time.sleep(service.REST + .5)
+  client.stop()
+  assert [fmt for _, fmt in screen.shown] == ['jpeg', 'png', 'jpeg', 'png']
+
+
 def test_a_full_frame_stops_between_bands_when_a_newer_request_arrives(monkeypatch):
   monkeypatch.setattr(frames, 'BAND_RAYS', 20)  # One row a band.
   run, screen = FakeRun(seconds=.05), Screen()

@@ -11,7 +11,9 @@ test cameras in blue, the render path, points (--points: a cloud tools.points wr
 structure-from-motion points without it) and, behind them, the run rendered from the browser's camera: colour,
 depth or accumulation, small while the camera moves (the largest size that renders within 0.2 s, or a chosen
 fraction) and at the full size (--height rows; default the test views') once it rests; the panel gives the step
-and the seconds the last frame took. With camera refinement the given cameras show in red beside the refined ones.
+and the seconds the last frame took. A browser starts a little behind the first test camera, looking where it looks
+('View from the test camera' goes to it). With camera refinement the given cameras show in red beside the refined
+ones.
 
 --compare_configs / --compare_bindings: a second run of the same scene (default configs: the first run's; the first
 run's bindings are not carried over) rendered from the same camera, split at a slider or side by side (each the

@@ -9,6 +9,9 @@ from tools.view import cameras, frames, panel as panel_lib, scene, service, watc
 
 INSTALL = 'pip install -r requirements-viewer.txt'
 LABEL = 'FreeNeRF viewer'
+# A browser starts behind the first test camera by this fraction of the scene's camera distance, looking where it
+# looks: the cameras in front, the render behind them ('View from the test camera' goes to the camera itself).
+START_BACK = .4
 
 
 class ViewerError(ValueError):
@@ -80,7 +83,7 @@ class Viewer:
   def _connect(self, client) -> None:
     view = service.ClientView(self.runs, self.panel.options, self._sender(client), self.panel.frame_line(client))
     self.clients[client.client_id] = view
-    self._move_camera(client, 0)
+    self._move_camera(client, 0, START_BACK)
     client.camera.on_update(lambda camera: view.request(view_of(camera)))
     view.request(view_of(client.camera))
 
@@ -96,14 +99,15 @@ class Viewer:
       client.scene.set_background_image(image, format=image_format, jpeg_quality=service.JPEG_QUALITY)
     return send
 
-  def _move_camera(self, client, k: int) -> None:
-    """Puts client's camera at test camera k of the first run, looking as far as the middle of the scene."""
+  def _move_camera(self, client, k: int, back: float = 0.) -> None:
+    """Puts client's camera at test camera k of the first run (moved back along its axis by back x the scene's
+    camera distance), looking at the middle of the scene."""
     test = self.runs[0].test_cameras()
-    c2w = test.camtoworlds[k]
+    c2w, distance = test.camtoworlds[k], scene.scene_distance(self.runs[0])
     client.camera.fov = cameras.field_of_view(test.pixtocams[k], test.size[0])
     client.camera.up_direction = -c2w[:, 1]
-    client.camera.position = c2w[:, 3]
-    client.camera.look_at = c2w[:, 3] + c2w[:, 2] * scene.scene_distance(self.runs[0])
+    client.camera.position = c2w[:, 3] - back * distance * c2w[:, 2]
+    client.camera.look_at = c2w[:, 3] + c2w[:, 2] * distance
 
   def show_test_view(self, k: int) -> None:
     """Moves every browser's camera to test camera k and renders from there."""

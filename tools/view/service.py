@@ -32,17 +32,24 @@ class ClientView:
     self._thread.start()
 
   def request(self, view: frames.View = None) -> None:
-    """A new frame: of view, or (None) of the last view again (a setting or the checkpoint changed)."""
+    """A new frame: of view, or (None) of the last view again (a setting or the checkpoint changed). The view
+    shown already is no new request (a browser sends its camera again now and then without moving it)."""
     with self._cond:
+      if view is not None and view == self._view:
+        return
       self._view = view or self._view
       self._generation += 1
       self._requested_at = time.monotonic()
       self._cond.notify()
 
-  def stop(self) -> None:
+  def stop(self, timeout: float = 60.) -> None:
+    """Ends the thread, the frame it renders stopped at its next band (an exit in the middle of a compiled call
+    would abort the process)."""
     with self._cond:
       self._stopped = True
+      self._generation += 1
       self._cond.notify()
+    self._thread.join(timeout)
 
   def _next(self):
     """(full size?, view, generation) of the next frame to render, waiting for one; None once stopped."""

@@ -26,10 +26,11 @@ class CheckpointWatcher:
       self._interval = max(float(seconds), 0.)
       self._cond.notify()
 
-  def stop(self) -> None:
+  def stop(self, timeout: float = 60.) -> None:
     with self._cond:
       self._stopped = True
       self._cond.notify()
+    self._thread.join(timeout)
 
   def check(self) -> list:
     """Loads each run's newest checkpoint where it is newer than the shown one; the runs that did."""
