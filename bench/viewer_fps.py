@@ -3,13 +3,16 @@
 Usage: python -m bench.viewer_fps [--repeats 3] [--paper_rows 300] [--out results/viewer/fps.json]
 
 What tools.view renders for a browser (tools/view/frames.render_frame: the camera's rays, the run's render in
-chunks, the colour picture), timed from test camera 0 at three sizes, each size's first frame left out (it
-compiles), the sizes interleaved so that they share the machine's noise, the median kept:
+chunks, the colour picture), timed from test camera 0, each size's first frame left out (it compiles), the sizes
+interleaved so that they share the machine's noise, the median kept:
   demo   the demo's FreeNeRF, its trained run (`python train.py` first): NeRF 4 x 64, 32 + 32 samples a ray, at
-         the demo's 64 x 80 test size;
+         1/4, 1/2 and the full demo test size (64 x 80 at its aspect);
   paper  a paper-size model: mip-NeRF 8 x 256 with 2 x 128 samples a ray (configs/freenerf/dtu3_freenerf.gin's),
-         random weights (a frame's time does not depend on them), on the generated object scene's rays at a paper
-         scene's size: --paper_rows (default DTU's 300 x 400 at factor 4).
+         random weights (a frame's time does not depend on them), on the generated object scene's rays, full size
+         a paper scene's (--paper_rows, default DTU's 300 x 400 at factor 4). Its frames take minutes to an hour on
+         a small CPU, so it is timed at 1/16 and 1/8 of that size, and its 1/4, 1/2 and full-size frames are
+         extrapolated from the 1/8 frame's seconds per ray (a frame's time grows with its rays: fixed-size chunks),
+         marked 'extrapolated'.
 Writes --out with provenance, the load average before and after (other programs share a CPU: compare the sizes and
 the models with each other rather than with another machine) and the rows that the viewer's 'auto' moving size
 picks at the measured speed.
@@ -35,6 +38,7 @@ from tools import provenance
 from tools.view import cameras, frames, resolution, runs
 
 SIZES = {'1/4': 1 / 4, '1/2': 1 / 2, 'full': 1.}
+PAPER_TIMED = {'1/16': 1 / 16, '1/8': 1 / 8}  # The paper-size model's timed sizes; SIZES are extrapolated.
 PAPER = ['MLP.net_depth = 8', 'MLP.net_width = 256', 'MLP.net_width_viewdirs = 128', 'MipNerfModel.num_samples = 128',
          'MipNerfModel.num_levels = 2', 'Config.render_chunk_size = 4096']
 DTU_ASPECT = 4 / 3  # A DTU image's width over height.
@@ -58,10 +62,11 @@ def test_view(run: runs.Run, aspect: float) -> frames.View:
                      cameras.field_of_view(test.pixtocams[0], test.size[0]), aspect)
 
 
-def time_sizes(run: runs.Run, view: frames.View, full_rows: int, repeats: int) -> dict:
-  """{size: {'rows', 'width', 'rays', 'seconds' (each timed frame), 'median_seconds', 'fps'}} of SIZES."""
-  rows = {name: max(1, int(round(full_rows * fraction))) for name, fraction in SIZES.items()}
-  seconds = {name: [] for name in SIZES}
+def time_sizes(run: runs.Run, view: frames.View, full_rows: int, sizes: dict, repeats: int) -> dict:
+  """{size: {'rows', 'width', 'rays', 'seconds' (each timed frame), 'median_seconds', 'fps'}} of sizes {name:
+  fraction of full_rows}."""
+  rows = {name: max(1, int(round(full_rows * fraction))) for name, fraction in sizes.items()}
+  seconds = {name: [] for name in sizes}
   for round_index in range(repeats + 1):  # Round 0 compiles each size's chunks: left out.
     for name, count in rows.items():
       start = time.perf_counter()
@@ -77,12 +82,27 @@ def time_sizes(run: runs.Run, view: frames.View, full_rows: int, repeats: int) -
   return out
 
 
-def measure(run: runs.Run, view: frames.View, full_rows: int, repeats: int, what: str) -> dict:
-  """The record of one model: what it is, its sizes' timings and the 'auto' moving rows at its full size's speed."""
-  sizes = time_sizes(run, view, full_rows, repeats)
-  seconds_per_ray = sizes['full']['median_seconds'] / sizes['full']['rays']
-  return {'what': what, 'run': run.run_dir, 'step': run.step, 'sizes': sizes,
-          'seconds_per_ray': seconds_per_ray,
+def extrapolated(seconds_per_ray: float, full_rows: int, aspect: float) -> dict:
+  """{size: {'rows', 'width', 'rays', 'median_seconds', 'fps', 'extrapolated': True}} of SIZES at seconds_per_ray."""
+  out = {}
+  for name, fraction in SIZES.items():
+    rows = max(1, int(round(full_rows * fraction)))
+    width = resolution.frame_width(rows, aspect)
+    seconds = seconds_per_ray * rows * width
+    out[name] = {'rows': rows, 'width': width, 'rays': rows * width, 'median_seconds': round(seconds, 4),
+                 'fps': round(1. / seconds, 5), 'extrapolated': True}
+  return out
+
+
+def measure(run: runs.Run, view: frames.View, full_rows: int, repeats: int, what: str, timed=None) -> dict:
+  """The record of one model: what it is, its sizes' timings (SIZES timed; or the sizes timed, their last one's
+  seconds per ray extrapolated to SIZES) and the 'auto' moving rows at that speed."""
+  sizes = time_sizes(run, view, full_rows, timed or SIZES, repeats)
+  last = sizes[list(timed or SIZES)[-1]]
+  seconds_per_ray = last['median_seconds'] / last['rays']
+  if timed:
+    sizes.update(extrapolated(seconds_per_ray, full_rows, view.aspect))
+  return {'what': what, 'run': run.run_dir, 'step': run.step, 'sizes': sizes, 'seconds_per_ray': seconds_per_ray,
           'auto_moving_rows': resolution.moving_rows('auto', full_rows, seconds_per_ray, view.aspect)}
 
 
@@ -93,8 +113,8 @@ def main(argv=None) -> int:
   parser.add_argument('--paper_rows', type=int, default=300, help="the paper-size model's full rows (default 300)")
   parser.add_argument('--out', default=os.path.join('results', 'viewer', 'fps.json'))
   args = parser.parse_args(argv)
-  if args.repeats < 1 or args.paper_rows < 4:
-    raise ValueError(f'--repeats {args.repeats}, --paper_rows {args.paper_rows}: expected >= 1 and >= 4')
+  if args.repeats < 1 or args.paper_rows < 16:
+    raise ValueError(f'--repeats {args.repeats}, --paper_rows {args.paper_rows}: expected >= 1 and >= 16')
   load_before = os.getloadavg()
   demo = runs.load(cli.DEMO_CONFIGS, [])
   records = {'demo': measure(demo, test_view(demo, demo.test_set.width / demo.test_set.height),
@@ -102,7 +122,8 @@ def main(argv=None) -> int:
                              "the demo's FreeNeRF (configs/demo.gin + demo_forward.gin), trained")}
   paper = random_weights_run(PAPER)
   records['paper'] = measure(paper, test_view(paper, DTU_ASPECT), args.paper_rows, args.repeats,
-                             'mip-NeRF 8 x 256, 2 x 128 samples, random weights, generated object scene rays')
+                             'mip-NeRF 8 x 256, 2 x 128 samples, random weights, generated object scene rays',
+                             timed=PAPER_TIMED)
   record = {'models': records, 'frame_budget_seconds': resolution.FRAME_BUDGET,
             'load_average': {'before': [round(x, 2) for x in load_before],
                              'after': [round(x, 2) for x in os.getloadavg()]},
@@ -111,6 +132,7 @@ def main(argv=None) -> int:
   atomic.write_text(args.out, json.dumps(record, indent=1) + '\n')
   for name, model in records.items():
     print(f'{name}: ' + ', '.join(f'{size} ({s["rows"]} x {s["width"]}) {s["fps"]:.3g} fps'
+                                  + (' (extrapolated)' if s.get('extrapolated') else '')
                                   for size, s in model['sizes'].items()) +
           f'; auto moving size {model["auto_moving_rows"]} rows')
   print(f'in {args.out}')

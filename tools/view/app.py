@@ -73,10 +73,10 @@ class Viewer:
     self.server.scene.set_up_direction(tuple(scene.up_direction(runs[0])))
     self.groups = scene.draw(self.server, runs, points)
     self.clients = {}
-    actions = {'change': self.refresh, 'reload': lambda: self.watcher.check(), 'test_view': self.show_test_view,
-               'interval': lambda seconds: self.watcher.set_interval(seconds)}
+    self.watcher = watch.CheckpointWatcher(runs, interval, self._reloaded, lambda text: self.panel.show_error(text))
+    actions = {'change': self.refresh, 'reload': self.watcher.check, 'test_view': self.show_test_view,
+               'interval': self.watcher.set_interval}
     self.panel = panel_lib.Panel(self.server, runs, full_rows, interval, self.groups, actions)
-    self.watcher = watch.CheckpointWatcher(runs, interval, self._reloaded, self.panel.show_error)
     self.server.on_client_connect(self._connect)
     self.server.on_client_disconnect(self._disconnect)
 

@@ -61,22 +61,19 @@ class Run:
     self._compiled = inference.compile_render(config, model)
     self._lock = threading.Lock()
     self._chunks = set()  # The chunk sizes rendered so far: each compiled once.
+    self._reference = None  # The reference training cameras of test_cameras, where it needs them.
     self._use(state)
 
   def _use(self, state) -> None:
     """Makes state (a TrainState) the one rendered."""
-    render_fn = inference.make_render_fn(self.config, self.model, state.params, int(state.step), compiled=self._compiled)
+    render_fn = inference.make_render_fn(self.config, self.model, state.params, int(state.step),
+                                         compiled=self._compiled)
     with self._lock:
       self.state, self.render_fn = state, render_fn
 
   @property
   def step(self) -> int:
     return int(self.state.step)
-
-  @property
-  def name(self) -> str:
-    """The run as the panel names it: its experiment name and folder."""
-    return f'{self.config.expname} ({self.run_dir})'
 
   def reload(self) -> bool:
     """Loads the newest intact checkpoint when it is newer than the one shown; whether it was."""
@@ -119,8 +116,10 @@ class Run:
     uses when the training cameras were refined or perturbed)."""
     c2w = np.asarray(self.test_set.camtoworlds, np.float64)
     if camera_evaluation.needs_alignment(self.config):
-      reference = camera_evaluation.reference_cameras(self.config, self.train_set)
-      trained = camera_evaluation.training_cameras(self.train_set, getattr(self.state, 'cameras', None), reference)
+      if self._reference is None:  # The loader's own training cameras: they load once.
+        self._reference = camera_evaluation.reference_cameras(self.config, self.train_set)
+      trained = camera_evaluation.training_cameras(self.train_set, getattr(self.state, 'cameras', None),
+                                                   self._reference)
       c2w = camera_evaluation.test_similarity(trained).cameras(c2w)
     return CameraSet(cameras.to_opencv(c2w, self.opengl), self.test_set.pixtocams,
                      (self.test_set.height, self.test_set.width))
