@@ -36,7 +36,8 @@ from tools.view import app, layout, screenshot  # pylint: disable=wrong-import-p
 from tools.view import __main__ as view_main  # pylint: disable=wrong-import-position
 
 FORWARD = DEMO.replace('demo.gin', 'demo_forward.gin')
-STEPS = ['Config.max_steps = 4', 'Config.checkpoint_every = 2', 'Config.curve_every = 0', 'Config.render_path_frames = 2']
+STEPS = ['Config.max_steps = 4', 'Config.checkpoint_every = 2', 'Config.curve_every = 0',
+         'Config.render_path_frames = 2']
 NERF = ['NerfMLP.net_depth = 2', 'NerfMLP.net_width = 32', 'NerfMLP.net_width_viewdirs = 16',
         'NerfModel.num_coarse_samples = 8', 'NerfModel.num_fine_samples = 8', 'Config.generated_size = (16, 20)']
 QUIET = 2.5  # Seconds without a frame after which the viewer has shown its last one.
@@ -273,7 +274,7 @@ def test_ctrl_c_stops_the_viewer_in_one_line(trained):
 
 
 @pytest.mark.skipif(shutil.which(screenshot.CHROMIUM) is None,
-                    reason='chromium is not installed (apt-get install chromium): the page is opened in headless Chromium')
+                    reason='chromium is not installed (apt-get install chromium): the page opens in headless Chromium')
 def test_headless_chromium_opens_the_page_connects_and_shows_the_rendered_frame(trained, monkeypatch):
   sent = []
   send_to = app.Viewer._sender  # pylint: disable=protected-access
@@ -293,5 +294,6 @@ def test_headless_chromium_opens_the_page_connects_and_shows_the_rendered_frame(
   cols = np.arange(shot.shape[1]) * frame.shape[1] // shot.shape[1]
   stretched = frame[rows][:, cols].astype(np.float64)
   left = slice(0, shot.shape[1] // 2)
-  assert np.mean(np.abs(shot[:, left] - stretched[:, left])) < 12.
-  assert np.mean(np.all(shot[:, left] > 245, axis=-1)) < .05  # Not a blank (white) canvas.
+  # The median: the frustums and their photos (white backgrounds) are drawn over parts of the frame.
+  assert np.median(np.abs(shot[:, left] - stretched[:, left]).max(-1)) < 12.
+  assert np.mean(np.all(shot[:, left] > 245, axis=-1)) < .5  # Not a blank (white) canvas.
