@@ -9,8 +9,8 @@ interleaved so that they share the machine's noise, the median kept:
          1/4, 1/2 and the full demo test size (64 x 80 at its aspect);
   paper  a paper-size model: mip-NeRF 8 x 256 with 2 x 128 samples a ray (configs/freenerf/dtu3_freenerf.gin's),
          random weights (a frame's time does not depend on them), on the generated object scene's rays, full size
-         a paper scene's (--paper_rows, default DTU's 300 x 400 at factor 4). Its frames take minutes to an hour on
-         a small CPU, so it is timed at 1/16 and 1/8 of that size, and its 1/4, 1/2 and full-size frames are
+         a paper scene's (--paper_rows, default DTU's 300 x 400 at factor 4). Its larger frames take many minutes
+         on a small CPU, so it is timed at 1/16 and 1/8 of that size, and its 1/4, 1/2 and full-size frames are
          extrapolated from the 1/8 frame's seconds per ray (a frame's time grows with its rays: fixed-size chunks),
          marked 'extrapolated'.
 Writes --out with provenance, the load average before and after (other programs share a CPU: compare the sizes and

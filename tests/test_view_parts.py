@@ -2,6 +2,8 @@
 loaders', frame sizes, the comparison's panels, chunk sizes; the render thread and the checkpoint watcher with
 stand-in runs. None of these needs viser."""
 
+import socket
+import sys
 import threading
 import time
 
@@ -12,7 +14,7 @@ from internal.datasets import cameras as dataset_cameras
 from internal.datasets import pose_correction, raygen
 from internal.evaluation import vis
 from internal.rays import Rays
-from tools.view import cameras, frames, layout, resolution, runs, service, watch
+from tools.view import app, cameras, frames, layout, resolution, runs, service, watch
 from tools.view import __main__ as view_main
 
 
@@ -319,3 +321,21 @@ def test_compare_flags_take_several_values_after_an_equals_sign():
 def test_the_address_line_says_who_can_reach_the_page():
   assert view_main.address('127.0.0.1', 8080) == 'http://127.0.0.1:8080 (this machine only)'
   assert 'every network interface' in view_main.address('0.0.0.0', 8080)
+
+
+def test_a_port_in_use_an_address_not_of_this_machine_and_a_missing_viser_are_named():
+  with socket.socket() as taken:
+    taken.bind(('127.0.0.1', 0))
+    taken.listen()
+    port = taken.getsockname()[1]
+    with pytest.raises(app.ViewerError, match=f'--port {port}: another program listens on it'):
+      app.check_address('127.0.0.1', port)
+  app.check_address('127.0.0.1', port)  # Closed: free again.
+  with pytest.raises(app.ViewerError, match="--host '203.0.113.7' --port 9: cannot listen there"):
+    app.check_address('203.0.113.7', 9)  # An address of the documentation range, no machine's here.
+
+
+def test_the_viewer_without_viser_says_how_to_install_it(monkeypatch):
+  monkeypatch.setitem(sys.modules, 'viser', None)  # As if it were not installed.
+  with pytest.raises(app.ViewerError, match='pip install -r requirements-viewer.txt'):
+    app.require_viser()

@@ -89,6 +89,7 @@ def serve(argv=None):
   """(app.Viewer, its runs) started from the flags argv."""
   args = parse_args(sys.argv[1:] if argv is None else argv)
   app.require_viser()
+  app.check_address(args.host, args.port)  # Before the runs load (seconds); the server checks it again.
   runs = load_runs(args)
   points = scene.read_points(args.points, runs[0])
   rows = args.height or runs[0].test_set.height
