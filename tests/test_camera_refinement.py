@@ -15,7 +15,8 @@ import pytest
 from jax import random
 
 from internal import datasets
-from internal.datasets import camera_alignment, colmap_model, loader, pose_correction, raygen
+from internal.cameras import alignment, caster, corrections
+from internal.datasets import colmap_model, loader
 from internal.evaluation import camera_evaluation
 from internal.evaluation import evaluate
 from internal.pipeline import loop
@@ -141,12 +142,12 @@ def test_a_known_perturbation_of_one_camera_is_mostly_undone(scene_dir, tmp_path
   config = tiny_config(scene_dir, tmp_path / 'run', *REFINE, 'Config.freq_reg = False', 'Config.max_steps = 900',
                        'Config.batch_size = 256', 'Config.camera_lr_init = 5e-2', 'Config.camera_lr_final = 5e-3')
   clean = datasets.load_dataset('train', config)
-  turn, shift = pose_correction.so3_exp(np.array([[0., .05, 0.]])), np.array([[0., .1, 0.]])
+  turn, shift = corrections.so3_exp(np.array([[0., .05, 0.]])), np.array([[0., .1, 0.]])
   one = lambda x: x[:1]
-  moved = pose_correction.image_rays(type(clean.rays)(*map(one, clean.rays)), turn, clean.camtoworlds[:1, :, 3],
-                                     shift, pose_correction.RaySpace())
+  moved = corrections.image_rays(type(clean.rays)(*map(one, clean.rays)), turn, clean.camtoworlds[:1, :, 3],
+                                     shift, corrections.RaySpace())
   rays = type(clean.rays)(*[np.concatenate([np.asarray(m, np.float32), x[1:]]) for m, x in zip(moved, clean.rays)])
-  c2w = np.concatenate([pose_correction.corrected_cameras(clean.camtoworlds[:1], turn, shift), clean.camtoworlds[1:]])
+  c2w = np.concatenate([corrections.corrected_cameras(clean.camtoworlds[:1], turn, shift), clean.camtoworlds[1:]])
   perturbed = dataclasses.replace(clean, rays=rays, camtoworlds=c2w.astype(np.float32))
   batcher = datasets.make_batcher(perturbed, config)
   fixed = dataclasses.replace(config, optimize_cameras=False)
@@ -159,8 +160,8 @@ def test_a_known_perturbation_of_one_camera_is_mostly_undone(scene_dir, tmp_path
   step = ts.make_train_step(config, model)
   for k in range(301, 901):
     state, _ = step(state, batcher(k), random.PRNGKey(1))
-  before = camera_alignment.errors(perturbed.camtoworlds, clean.camtoworlds, 4.)
-  after = camera_alignment.errors(camera_refinement.refined_cameras(state.cameras, perturbed.camtoworlds),
+  before = alignment.errors(perturbed.camtoworlds, clean.camtoworlds, 4.)
+  after = alignment.errors(camera_refinement.refined_cameras(state.cameras, perturbed.camtoworlds),
                                   clean.camtoworlds, 4.)
   assert before['rotation_deg'][0] > 2.3
   # Measured: 2.6 -> 1.19 degrees, the exact views within 0.6 (this model's floor; with the model frozen a turn
@@ -181,12 +182,12 @@ def test_evaluation_carries_the_test_cameras_by_the_similarity_and_records_it(sc
   assert 1. < given['rotation_deg_median'] < 3.  # 3 degrees of noise, less what a similarity explains.
   test_set = datasets.load_dataset('test', config)
   train_set = datasets.load_dataset('train', config)
-  similarity = camera_alignment.Similarity(cameras['similarity']['scale'], np.array(cameras['similarity']['rotation']),
+  similarity = alignment.Similarity(cameras['similarity']['scale'], np.array(cameras['similarity']['rotation']),
                                            np.array(cameras['similarity']['shift']))
   rays = camera_evaluation.test_rays(config, test_set, train_set, *camera_evaluation.aligned_corrections(
       test_set, similarity))
   moved = similarity.cameras(test_set.camtoworlds)
-  expected = raygen.pinhole_rays(moved[1], test_set.pixtocams[1], test_set.height, test_set.width, train_set.near,
+  expected = caster.pinhole_rays(moved[1], test_set.pixtocams[1], test_set.height, test_set.width, train_set.near,
                                  train_set.far, True)
   for name, got, want in zip(expected._fields, rays, expected):
     np.testing.assert_allclose(got[1], want, rtol=1e-5, atol=1e-5, err_msg=name)
@@ -197,14 +198,14 @@ def test_test_time_poses_undo_a_known_turn_with_the_model_frozen(scene_dir, tmp_
                        'Config.freq_reg = False', 'Config.test_pose_steps = 60', 'Config.test_pose_lr = 3e-3')
   result = loop.train(config)
   test_set = datasets.load_dataset('test', config)
-  turn = pose_correction.so3_exp(np.array([0., 0., np.deg2rad(2.)]))
+  turn = corrections.so3_exp(np.array([0., 0., np.deg2rad(2.)]))
   rotations, shifts = np.repeat(turn[None], 2, 0), np.zeros((2, 3))
   subset = test_set.__class__(**{**vars(test_set), 'ids': test_set.ids[:2], 'images': test_set.images[:2],
                                  'camtoworlds': test_set.camtoworlds[:2],
                                  'rays': type(test_set.rays)(*[x[:2] for x in test_set.rays])})
   rotations, _ = camera_evaluation.test_time_poses(config, result.model, result.state.params, 300, subset,
                                                    rotations, shifts)
-  left = np.rad2deg(pose_correction.rotation_angle(rotations))
+  left = np.rad2deg(corrections.rotation_angle(rotations))
   assert np.all(left < .7), left
 
 
@@ -212,9 +213,9 @@ def test_camera_settings_off_leave_the_loader_rays_and_space(scene_dir, tmp_path
   config = tiny_config(scene_dir, tmp_path / 'run')
   assert not camera_evaluation.needs_alignment(config)
   data = datasets.load_dataset('train', config)
-  assert loader.ray_space(config, data) == pose_correction.RaySpace()
-  rays = pose_correction.image_rays(data.rays, np.repeat(np.eye(3)[None], len(data.ids), 0),
-                                    data.camtoworlds[:, :, 3], np.zeros((len(data.ids), 3)), pose_correction.RaySpace(),
+  assert loader.ray_space(config, data) == corrections.RaySpace()
+  rays = corrections.image_rays(data.rays, np.repeat(np.eye(3)[None], len(data.ids), 0),
+                                    data.camtoworlds[:, :, 3], np.zeros((len(data.ids), 3)), corrections.RaySpace(),
                                     jnp)
   for a, b in zip(rays, data.rays):
     np.testing.assert_allclose(a, b, atol=1e-6)

@@ -16,7 +16,8 @@ from PIL import Image, ImageFilter
 from conftest import SHARED_DATA
 from internal import cli
 from internal import config_loader
-from internal.datasets import cameras, colmap_model
+from internal.cameras import algebra
+from internal.datasets import colmap_model
 from tools.capture import CaptureError, bench, model, output, photos, pipeline, poses, report, sfm
 from tools.capture import video
 
@@ -36,7 +37,7 @@ def _arc(n: int = 20, radius: float = 2., degrees: float = 120.) -> np.ndarray:
   """[n, 3, 4] OpenCV cameras on an arc about +z at height 0.5, looking at the origin, in arc order."""
   angles = np.radians(np.linspace(0., degrees, n))
   centres = np.stack([radius * np.cos(angles), radius * np.sin(angles), np.full(n, .5)], -1)
-  return np.stack([cameras.viewmatrix(-c, np.array([0., 0., -1.]), c) for c in centres])
+  return np.stack([algebra.viewmatrix(-c, np.array([0., 0., -1.]), c) for c in centres])
 
 
 def test_similarity_recovers_a_known_one_and_the_errors_of_moved_cameras_are_zero():

@@ -13,7 +13,8 @@ import pytest
 
 from internal import config_loader
 from internal.configs import Config
-from internal.datasets import DatasetError, colmap_model as cm, distortion, load_dataset, loader
+from internal.cameras import distortion
+from internal.datasets import DatasetError, colmap_model as cm, load_dataset, loader
 from internal.datasets import capture as capture_loader
 from internal.evaluation import results
 from internal.run import run_dir

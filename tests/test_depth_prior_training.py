@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from jax import random
 
-from internal.datasets import batching, load_dataset, raygen, sfm_depth
+from internal.cameras import caster
+from internal.datasets import batching, load_dataset, sfm_depth
 from internal.evaluation import evaluate
 from internal.pipeline import loop
 from internal.training import prior_losses
@@ -102,7 +103,7 @@ def test_the_prior_terms_enter_the_loss_only_when_their_weight_is_positive(forwa
 def test_ndc_disparity_is_one_minus_t():
   """On an NDC ray, 1 - t is the near plane's distance over the world depth: affine in disparity (Pearson)."""
   origins, directions = np.zeros((5, 3)), np.array([[.1 * i, -.05 * i, -1.] for i in range(5)])
-  ndc_o, ndc_d = raygen.convert_to_ndc(origins, directions, 30., 24, 32)
+  ndc_o, ndc_d = caster.convert_to_ndc(origins, directions, 30., 24, 32)
   depths = np.array([1.5, 2., 4., 9., 40.])
   points = origins + depths[:, None] * directions  # World z = -depth.
   z_ndc = 1. + 2. / points[:, 2]

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from internal.datasets import distortion
+from internal.cameras import distortion
 
 # An OPENCV camera with a phone's distortion: barrel k1, k2 and a little tangential.
 OPENCV = np.array([500., 510., 320.5, 240.25, -.12, .03, 1e-3, -5e-4])

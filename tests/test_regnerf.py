@@ -12,7 +12,8 @@ from conftest import random_rays
 from internal import configs
 from internal.losses import depth_smoothness
 from internal.training import anneal, schedule, train_step
-from internal.datasets import cameras, raygen, random_poses
+from internal.cameras import algebra, caster
+from internal.datasets import random_poses
 
 
 def test_tv_norm_of_a_known_depth_patch():
@@ -66,7 +67,7 @@ def _ring_poses(n=8, opengl=False):
   out = []
   for theta in np.linspace(0, 2 * np.pi, n, endpoint=False):
     position = np.array([np.cos(theta), np.sin(theta), 1.])
-    out.append(cameras.viewmatrix(position if opengl else -position, np.array([0., 0., 1.]), position))
+    out.append(algebra.viewmatrix(position if opengl else -position, np.array([0., 0., 1.]), position))
   return np.stack(out)
 
 
@@ -74,8 +75,8 @@ def test_dtu_random_poses_count_box_and_focus():
   poses = _ring_poses()
   out = random_poses.dtu_random_poses(poses, 50, np.random.default_rng(0), 1., jitter=False)
   assert out.shape == (50, 3, 4)
-  focus = cameras.focus_point(poses)
-  to_focus = cameras.normalize(focus - out[:, :, 3])
+  focus = algebra.focus_point(poses)
+  to_focus = algebra.normalize(focus - out[:, :, 3])
   np.testing.assert_allclose(out[:, :, 2], to_focus, atol=1e-6)  # +z looks at the focus point.
   np.testing.assert_allclose(np.einsum('nij,nik->njk', out[:, :, :3], out[:, :, :3]),
                              np.broadcast_to(np.eye(3), (50, 3, 3)), atol=1e-6)
@@ -92,7 +93,7 @@ def test_llff_random_poses_released_keeps_one_pose_and_the_fix_keeps_all():
 
 def test_dtu_patch_rays_are_the_full_image_rays_at_those_pixels():
   c2w, pixtocam = _ring_poses()[1], np.linalg.inv(np.array([[30., 0., 20.], [0., 30., 15.], [0., 0., 1.]]))
-  full = raygen.dtu_rays(c2w, pixtocam, 30, 40, 0.5, 3.5, 0.)
+  full = caster.dtu_rays(c2w, pixtocam, 30, 40, 0.5, 3.5, 0.)
   patch = random_poses.patch_rays(c2w, pixtocam, 30, 40, x0=7, y0=5, size=8, near=0.5, far=3.5)
   for name, a, b in zip(full._fields, patch, full):
     np.testing.assert_allclose(a, b[5:13, 7:15], rtol=1e-5, atol=1e-6, err_msg=name)
@@ -100,8 +101,8 @@ def test_dtu_patch_rays_are_the_full_image_rays_at_those_pixels():
 
 def test_llff_patch_rays_are_the_full_image_ndc_rays_with_unit_viewdirs():
   c2w, focal = _ring_poses(opengl=True)[0], 25.
-  pixtocam = cameras.focal_pixtocam(focal, 30, 40)
-  full = raygen.llff_rays(c2w, pixtocam, 30, 40, focal)
+  pixtocam = algebra.focal_pixtocam(focal, 30, 40)
+  full = caster.llff_rays(c2w, pixtocam, 30, 40, focal)
   patch = random_poses.patch_rays(c2w, pixtocam, 30, 40, x0=3, y0=9, size=8, near=0., far=1., ndc_focal=focal)
   for name in ('origins', 'directions', 'radii', 'near', 'far'):
     np.testing.assert_allclose(getattr(patch, name), getattr(full, name)[9:17, 3:11], rtol=1e-5, atol=1e-6)

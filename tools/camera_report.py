@@ -29,7 +29,8 @@ import numpy as np
 from internal import cli
 from internal import config_loader
 from internal import datasets
-from internal.datasets import camera_alignment, loader
+from internal.cameras import alignment
+from internal.datasets import loader
 from internal.evaluation import camera_evaluation
 from internal.run import camera_export
 from tools import provenance
@@ -63,7 +64,7 @@ def run_cameras(run_dir: str) -> dict:
              'forward': bool(loader.ray_space(config, train_set).ndc_focal)}
   for name in ('given', 'refined'):
     c2w = np.array(record[name])
-    cameras[name] = camera_alignment.fit(c2w, reference).cameras(c2w)
+    cameras[name] = alignment.fit(c2w, reference).cameras(c2w)
   return cameras
 
 
@@ -87,7 +88,7 @@ def draw(path: str, cameras: dict, title: str) -> None:
   axes[0].legend(loc='upper right', fontsize=8)
   views = np.arange(len(reference))
   for offset, (name, colour, _, legend) in zip((-.2, .2), SETS[1:]):
-    values = camera_alignment.errors(cameras[name], reference, cameras['distance'])['rotation_deg']
+    values = alignment.errors(cameras[name], reference, cameras['distance'])['rotation_deg']
     axes[2].bar(views + offset, values, width=.4, color=colour, label=legend)
   axes[2].set_xlabel('training view')
   axes[2].set_ylabel('rotation error (degrees)')
@@ -100,7 +101,7 @@ def errors_title(name: str, cameras: dict) -> str:
   """The picture's title: the run and the median rotation and translation errors before and after."""
   parts = []
   for label in ('given', 'refined'):
-    values = camera_alignment.errors(cameras[label], cameras['reference'], cameras['distance'])
+    values = alignment.errors(cameras[label], cameras['reference'], cameras['distance'])
     parts.append(f'{label} {np.median(values["rotation_deg"]):.2f} deg, {np.median(values["translation"]):.3f}')
   return f'{name}: median errors against the reference, ' + '; '.join(parts) + ' (of the camera distance)'
 

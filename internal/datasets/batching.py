@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from internal.datasets import base, depth_prior, loader, pose_correction, random_poses, sfm_depth
+from internal.cameras import corrections
+from internal.datasets import base, depth_prior, loader, random_poses, sfm_depth
 from internal.rays import Rays
 
 BATCHING_MODES = ('single_image', 'all_images')
@@ -62,7 +63,7 @@ def make_batcher(dataset: base.Dataset, config):
     if priors is not None:
       out.update(priors(step))
     if space is not None:  # Camera refinement: the views of the rays (and NDC radii's neighbours).
-      out.update(pose_correction.camera_fields(index, rays.viewdirs, space, dataset.height, dataset.width))
+      out.update(corrections.camera_fields(index, rays.viewdirs, space, dataset.height, dataset.width))
     return out
   return batch
 

@@ -13,7 +13,8 @@ import dataclasses
 
 import numpy as np
 
-from internal.datasets import base, pose_correction
+from internal.cameras import corrections
+from internal.datasets import base
 
 NDC_DISTANCE = 2.  # The world depth whose NDC z is 0: half-way through NDC's disparity range [1, 0].
 
@@ -23,7 +24,7 @@ def is_on(config) -> bool:
   return config.camera_noise_rotation_deg > 0 or config.camera_noise_translation > 0
 
 
-def camera_distance(dataset: base.Dataset, space: pose_correction.RaySpace) -> float:
+def camera_distance(dataset: base.Dataset, space: corrections.RaySpace) -> float:
   """The distance of a camera from the middle of its scene, the unit of Config.camera_noise_translation."""
   return NDC_DISTANCE if space.ndc_focal else .5 * (dataset.near + dataset.far)
 
@@ -41,18 +42,18 @@ def draw(ids, config, distance: float) -> tuple:
   for view in ids:
     rng = np.random.default_rng([config.camera_noise_seed, int(view)])
     axis, direction = _unit(rng), _unit(rng)
-    rotations.append(pose_correction.so3_exp(angle * axis))
+    rotations.append(corrections.so3_exp(angle * axis))
     shifts.append(config.camera_noise_translation * distance * direction)
   return np.stack(rotations), np.stack(shifts)
 
 
-def perturbed(dataset: base.Dataset, config, space: pose_correction.RaySpace) -> base.Dataset:
+def perturbed(dataset: base.Dataset, config, space: corrections.RaySpace) -> base.Dataset:
   """The training dataset with its cameras and rays turned and moved by the noise (unchanged when off)."""
   if not is_on(config) or dataset.split != 'train':
     return dataset
   rotations, shifts = draw(dataset.ids, config, camera_distance(dataset, space))
   centres = np.asarray(dataset.camtoworlds, np.float64)[:, :, 3]
-  rays = pose_correction.image_rays(dataset.rays, rotations, centres, shifts, space)
-  c2w = pose_correction.corrected_cameras(dataset.camtoworlds, rotations, shifts)
+  rays = corrections.image_rays(dataset.rays, rotations, centres, shifts, space)
+  c2w = corrections.corrected_cameras(dataset.camtoworlds, rotations, shifts)
   return dataclasses.replace(dataset, camtoworlds=c2w.astype(np.float32),
                              rays=type(rays)(*[np.asarray(x, np.float32) for x in rays]))

@@ -26,7 +26,8 @@ from typing import Dict, List
 
 import numpy as np
 
-from internal.datasets import base, cameras, colmap_model, distortion, image_io, llff, random_poses, raygen
+from internal.cameras import algebra, caster, distortion
+from internal.datasets import base, colmap_model, image_io, llff, random_poses
 
 RIGS = ('auto', 'inward', 'forward')
 # (Config field, its allowed values) of this loader's own settings, checked before any work.
@@ -79,7 +80,7 @@ def _is_forward(camtoworlds: np.ndarray, rig: str) -> bool:
   """Whether the capture is forward-facing: Config.capture_rig, or 'auto' by the spread of viewing directions."""
   if rig != 'auto':
     return rig == 'forward'
-  return bool(np.linalg.norm(cameras.normalize(camtoworlds[:, :, 2]).mean(0)) >= FORWARD_SPREAD)
+  return bool(np.linalg.norm(algebra.normalize(camtoworlds[:, :, 2]).mean(0)) >= FORWARD_SPREAD)
 
 
 def read_capture(config) -> Capture:
@@ -94,7 +95,7 @@ def read_capture(config) -> Capture:
   rotations = np.stack([colmap_model.qvec_to_rotmat(i.qvec) for i in images])
   centres = np.stack([colmap_model.camera_center(i) for i in images])
   c2w = np.concatenate([np.transpose(rotations, (0, 2, 1)), centres[..., None]], -1)
-  cameras.check_cameras(c2w, model_file('images'), [f'image {i.name!r}' for i in images], 'pose')
+  base.check_cameras(c2w, model_file('images'), [f'image {i.name!r}' for i in images], 'pose')
   params = [_camera_params(model, i, model_file('cameras')) for i in images]
   bounds = colmap_model.depth_bounds(model, model_file('points3D'))
   cams = [model.cameras[i.camera_id] for i in images]
@@ -116,9 +117,9 @@ def _up_rotation(up: np.ndarray) -> np.ndarray:
 
 def _to_object_frame(capture: Capture) -> Capture:
   """The inward capture centred on the focus point of its optical axes, scaled, its mean up along +z."""
-  centre = cameras.focus_point(capture.camtoworlds)
+  centre = algebra.focus_point(capture.camtoworlds)
   scale = CAMERA_DISTANCE / np.median(np.linalg.norm(capture.camtoworlds[:, :, 3] - centre, axis=-1))
-  rotation = _up_rotation(cameras.normalize(-capture.camtoworlds[:, :, 1].mean(0)))
+  rotation = _up_rotation(algebra.normalize(-capture.camtoworlds[:, :, 1].mean(0)))
   c2w = np.concatenate([rotation @ capture.camtoworlds[:, :, :3],
                         (scale * (capture.camtoworlds[:, :, 3] - centre) @ rotation.T)[..., None]], -1)
   return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale,
@@ -131,8 +132,8 @@ def _to_forward_frame(capture: Capture) -> Capture:
   scale = 1. / (capture.bounds.min() * .75)
   c2w_gl = capture.camtoworlds @ np.diag([1., -1., -1., 1.])
   c2w_gl[:, :, 3] *= scale
-  to_frame = np.linalg.inv(cameras.to_homogeneous(cameras.poses_avg(c2w_gl)))  # What recenter_poses applies.
-  c2w = (to_frame @ cameras.to_homogeneous(c2w_gl))[:, :3, :4] @ np.diag([1., -1., -1., 1.])
+  to_frame = np.linalg.inv(algebra.to_homogeneous(algebra.poses_avg(c2w_gl)))  # What recenter_poses applies.
+  c2w = (to_frame @ algebra.to_homogeneous(c2w_gl))[:, :3, :4] @ np.diag([1., -1., -1., 1.])
   points = scale * capture.points @ to_frame[:3, :3].T + to_frame[:3, 3]
   return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale, points=points)
 
@@ -184,8 +185,8 @@ def _rays(capture: Capture, index: int, height: int, width: int, near: float, fa
   directions = distortion.camera_directions(params, height, width)
   c2w = capture.camtoworlds[index]
   if not capture.forward:
-    return raygen.camera_rays(c2w, directions, near, far)
-  return raygen.ndc_camera_rays(c2w @ np.diag([1., -1., -1., 1.]), directions @ OPENCV_TO_OPENGL,
+    return caster.camera_rays(c2w, directions, near, far)
+  return caster.ndc_camera_rays(c2w @ np.diag([1., -1., -1., 1.]), directions @ OPENCV_TO_OPENGL,
                                 _ndc_focal(capture, width), height, width)
 
 
@@ -195,9 +196,9 @@ def _ndc_focal(capture: Capture, width: int) -> float:
 
 
 def near_far(capture: Capture) -> tuple:
-  """(near, far) of every ray: raygen's NDC range for forward captures, else the extremes of the image bounds."""
+  """(near, far) of every ray: the caster's NDC range for forward captures, else the extremes of the image bounds."""
   if capture.forward:
-    return raygen.NDC_NEAR_FAR
+    return caster.NDC_NEAR_FAR
   return float(capture.bounds[:, 0].min()), float(capture.bounds[:, 1].max())
 
 
@@ -243,7 +244,7 @@ def load_scene(split: str, config) -> base.Dataset:
   height, width = images.shape[1:3]
   source, rows = _camera_source(config, split, capture, ids)
   near, far = near_far(source)
-  rays = raygen.stack_rays((_rays(source, i, height, width, near, far) for i in rows), len(rows))
+  rays = caster.stack_rays((_rays(source, i, height, width, near, far) for i in rows), len(rows))
   pixtocams = [np.linalg.inv(_intrinsics(source.params[i], source.sizes[i, 1] / width)) for i in rows]
   return base.Dataset(images=images, camtoworlds=source.camtoworlds[rows].astype(np.float32),
                       pixtocams=np.stack(pixtocams).astype(np.float32), ids=list(ids), height=height,
@@ -301,7 +302,7 @@ def orbit_path(capture: Capture, n_frames: int) -> np.ndarray:
   sweep = np.concatenate([np.linspace(azimuth[0], azimuth[-1], (n_frames + 1) // 2),
                           np.linspace(azimuth[-1], azimuth[0], n_frames // 2)])
   positions = np.stack([radius * np.cos(sweep), radius * np.sin(sweep), np.full_like(sweep, height)], -1)
-  return np.stack([cameras.viewmatrix(-p, np.array([0., 0., -1.]), p) for p in positions])
+  return np.stack([algebra.viewmatrix(-p, np.array([0., 0., -1.]), p) for p in positions])
 
 
 def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> tuple:
@@ -316,7 +317,7 @@ def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator)
   focal = _ndc_focal(capture, dataset.width)
   poses = random_poses.llff_random_poses(capture.camtoworlds @ np.diag([1., -1., -1., 1.]), capture.bounds,
                                          config.n_random_poses, rng, keep_last_only=False)
-  return poses, cameras.focal_pixtocam(focal, dataset.height, dataset.width), focal
+  return poses, algebra.focal_pixtocam(focal, dataset.height, dataset.width), focal
 
 
 def mesh_bounds(config):
@@ -339,11 +340,11 @@ def scene_render_path(config):
   params = np.concatenate([capture.params[0, :4], np.zeros(4)])
   capture = dataclasses.replace(capture, params=params[None].repeat(len(capture.names), 0))
   if capture.forward:
-    poses = cameras.spiral_path_llff(capture.camtoworlds @ np.diag([1., -1., -1., 1.]), capture.bounds,
+    poses = algebra.spiral_path_llff(capture.camtoworlds @ np.diag([1., -1., -1., 1.]), capture.bounds,
                                      config.render_path_frames) @ np.diag([1., -1., -1., 1.])
   else:
     poses = orbit_path(capture, config.render_path_frames)
   near, far = near_far(capture)
   path = dataclasses.replace(capture, camtoworlds=poses, sizes=capture.sizes[:1].repeat(len(poses), 0),
                              params=capture.params[:1].repeat(len(poses), 0))
-  return raygen.stack_rays((_rays(path, i, height, width, near, far) for i in range(len(poses))), len(poses))
+  return caster.stack_rays((_rays(path, i, height, width, near, far) for i in range(len(poses))), len(poses))

@@ -10,8 +10,8 @@ from typing import Callable, Dict, Optional, Tuple
 
 import numpy as np
 
-from internal.datasets import base, blender, camera_noise, capture, dtu, generated, llff, packed, raygen
-from internal.datasets import pose_correction
+from internal.cameras import caster, corrections
+from internal.datasets import base, blender, camera_noise, capture, dtu, generated, llff, packed
 
 
 # Loader fields filled from the loader file's attribute of that name where it has one (see Loader.of).
@@ -129,18 +129,40 @@ def mesh_bounds(config) -> Optional[np.ndarray]:
   """[2, 3] the scene's own region to mesh: the NDC box for NDC rays, else its loader's (None: it has none)."""
   record = loader_of(config)
   if record.ndc(config):
-    return np.array(raygen.NDC_BOX)
+    return np.array(caster.NDC_BOX)
   return record.mesh_bounds(config) if record.mesh_bounds else None
 
 
-def ray_space(config, dataset: base.Dataset) -> pose_correction.RaySpace:
+NDC_FIT_TOLERANCE = 1e-4  # Relative residual above which the NDC rays do not follow caster.convert_to_ndc.
+
+
+def ndc_focal(dataset: base.Dataset) -> float:
+  """The focal length (pixels) of the NDC space of dataset's NDC rays, by least squares over its rays' origins.
+
+  An NDC origin is (-2 f / W x, -2 f / H y, .) of the world point x, y where the ray crosses z = -1.
+  """
+  dirs = np.asarray(dataset.rays.viewdirs, np.float64)
+  centres = np.asarray(dataset.camtoworlds, np.float64)[:, None, None, :, 3]
+  plane = np.asarray(caster.shift_origins(np.broadcast_to(centres, dirs.shape), dirs, -1.))
+  ndc = np.asarray(dataset.rays.origins, np.float64)
+  scale = np.array([-2. / dataset.width, -2. / dataset.height])
+  basis, target = scale * plane[..., :2] / plane[..., 2:], ndc[..., :2]
+  focal = float(np.sum(basis * target) / np.sum(basis * basis))
+  residual = np.sqrt(np.mean((focal * basis - target)**2) / np.mean(target**2))
+  if not residual < NDC_FIT_TOLERANCE:
+    raise base.DatasetError(f'the NDC rays of {dataset.name!r} do not follow LLFF\'s NDC map of their cameras '
+                            f'(relative residual {residual:.2g}); camera refinement and noise need it')
+  return focal
+
+
+def ray_space(config, dataset: base.Dataset) -> corrections.RaySpace:
   """How the rays of Config's scene (as loaded in dataset) follow from its cameras: those of the dataset it is filed
   under (world rays, DTU's origin plane, or NDC with the focal length its rays were made with)."""
   filed, _ = filed_as(config)
   if REGISTRY[filed].ndc(config):
-    return pose_correction.RaySpace(ndc_focal=pose_correction.ndc_focal(dataset), height=dataset.height,
+    return corrections.RaySpace(ndc_focal=ndc_focal(dataset), height=dataset.height,
                                     width=dataset.width)
-  return pose_correction.RaySpace(plane_z=float(config.near_origin) if filed == 'dtu' else None)
+  return corrections.RaySpace(plane_z=float(config.near_origin) if filed == 'dtu' else None)
 
 
 def random_pose_cameras(dataset: base.Dataset, config, rng) -> tuple:

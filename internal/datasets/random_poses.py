@@ -6,7 +6,8 @@ np.random.default_rng([Config.np_rng_seed, s, PATCHES_STREAM]), so a resumed run
 
 import numpy as np
 
-from internal.datasets import base, cameras, raygen
+from internal.cameras import algebra, caster
+from internal.datasets import base
 from internal.rays import Rays
 
 POSES_STREAM = 1
@@ -22,7 +23,7 @@ def needs_patches(config) -> bool:
 def _box_positions(poses: np.ndarray, u: np.ndarray) -> np.ndarray:
   """[n,3] positions c2w_avg @ [r * u, 1], r = max |camera position| per axis, u [n,3] in [-1, 1]."""
   radii = np.abs(poses[:, :3, 3]).max(0)
-  c2w = cameras.to_homogeneous(cameras.poses_avg(poses))
+  c2w = algebra.to_homogeneous(algebra.poses_avg(poses))
   local = np.concatenate([radii * u, np.ones((len(u), 1))], axis=-1)
   return (local @ c2w.T)[:, :3]
 
@@ -31,9 +32,9 @@ def dtu_random_poses(poses: np.ndarray, n: int, rng: np.random.Generator, radius
                      jitter: bool) -> np.ndarray:
   """[n,3,4] OpenCV poses in the box of poses [N,3,4] (render-path type), +z towards the (jittered) focus point."""
   positions = _box_positions(poses, 2. * radius * (rng.random((n, 3)) - .5))
-  focus = cameras.focus_point(poses) + (rng.normal(size=(n, 3)) * FOCUS_JITTER_STD if jitter else 0.)
+  focus = algebra.focus_point(poses) + (rng.normal(size=(n, 3)) * FOCUS_JITTER_STD if jitter else 0.)
   up = poses[:, :3, 1].mean(0)
-  return np.stack([cameras.viewmatrix(f - p, up, p) for f, p in zip(np.broadcast_to(focus, (n, 3)), positions)])
+  return np.stack([algebra.viewmatrix(f - p, up, p) for f, p in zip(np.broadcast_to(focus, (n, 3)), positions)])
 
 
 def llff_random_poses(poses: np.ndarray, bounds: np.ndarray, n: int, rng: np.random.Generator,
@@ -46,9 +47,9 @@ def llff_random_poses(poses: np.ndarray, bounds: np.ndarray, n: int, rng: np.ran
   positions = _box_positions(poses, 2. * rng.random((n, 3)) - 1.)
   if keep_last_only:
     positions = positions[-1:]
-  lookat = (cameras.to_homogeneous(cameras.poses_avg(poses)) @ np.array([0., 0., -focus, 1.]))[:3]
+  lookat = (algebra.to_homogeneous(algebra.poses_avg(poses)) @ np.array([0., 0., -focus, 1.]))[:3]
   up = poses[:, :3, 1].mean(0)
-  return np.stack([cameras.viewmatrix(p - lookat, up, p) for p in positions])
+  return np.stack([algebra.viewmatrix(p - lookat, up, p) for p in positions])
 
 
 def patch_rays(camtoworld, pixtocam, height: int, width: int, x0: int, y0: int, size: int, near: float,
@@ -59,18 +60,18 @@ def patch_rays(camtoworld, pixtocam, height: int, width: int, x0: int, y0: int, 
   else DTU (OpenCV camera, origins on z = near_origin). Radii use the next pixel, as for a full image's inner
   pixels (on the last image row or column the neighbour lies just outside instead of repeating a difference).
   """
-  cam_dirs = raygen.camera_directions(pixtocam, size + 1, size + 1, ndc_focal > 0, (x0 + .5, y0 + .5))
-  dirs = raygen.world_directions(camtoworld, cam_dirs)
+  cam_dirs = caster.camera_directions(pixtocam, size + 1, size + 1, ndc_focal > 0, (x0 + .5, y0 + .5))
+  dirs = caster.world_directions(camtoworld, cam_dirs)
   origins = np.broadcast_to(np.asarray(camtoworld, np.float64)[:3, 3], dirs.shape)
-  viewdirs = dirs / raygen.norm(dirs)[..., None]
+  viewdirs = dirs / caster.norm(dirs)[..., None]
   if ndc_focal > 0:
-    origins, dirs = raygen.convert_to_ndc(origins, dirs, ndc_focal, height, width)
-    radii = raygen.ndc_radii(origins)
+    origins, dirs = caster.convert_to_ndc(origins, dirs, ndc_focal, height, width)
+    radii = caster.ndc_radii(origins)
   else:
-    radii = raygen.row_radii(dirs)
-    origins = raygen.shift_origins(origins, dirs, near_origin)
+    radii = caster.row_radii(dirs)
+    origins = caster.shift_origins(origins, dirs, near_origin)
   crop = lambda x: x[:size, :size]
-  return raygen.pack_rays(crop(origins), crop(dirs), crop(viewdirs), crop(radii), near, far)
+  return caster.pack_rays(crop(origins), crop(dirs), crop(viewdirs), crop(radii), near, far)
 
 
 def check_random_rays(config) -> None:

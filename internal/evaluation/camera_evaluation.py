@@ -4,7 +4,7 @@ capture's separate training model): test cameras brought into the training frame
 The test cameras live in the frame of the reference training cameras: the loader's, before any study noise
 (Config.camera_noise_*) and from Config.capture_model rather than capture_train_model. The similarity that best maps
 those reference cameras onto the final training cameras (refined, or as given when not refined;
-datasets/camera_alignment.py, as BARF evaluates) carries the test cameras into the frame the model was trained in;
+cameras/alignment.py, as BARF evaluates) carries the test cameras into the frame the model was trained in;
 optionally each test camera is then refined on its own image with the model frozen (Config.test_pose_steps,
 BARF's test-time pose optimization). Camera errors are after a similarity too: the final cameras against the
 given ones (what refinement moved) and against the reference (the true cameras where the loader's are exact: the
@@ -19,7 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from internal import datasets
-from internal.datasets import camera_alignment, camera_noise, loader, pose_correction
+from internal.cameras import alignment, corrections
+from internal.datasets import camera_noise, loader
 from internal.evaluation import learning_curve
 from internal.models import freq_schedule
 from internal.training import camera_refinement, optim
@@ -64,14 +65,14 @@ def training_cameras(train_set: datasets.Dataset, camera_state, reference: tuple
 
 
 def errors(cameras: TrainingCameras) -> dict:
-  """Camera errors (camera_alignment.errors) of the final cameras against the given ones and the reference, and
+  """Camera errors (alignment.errors) of the final cameras against the given ones and the reference, and
   of the given ones against the reference; medians, means, maxima and per view."""
   pairs = {'final_vs_given': (cameras.final, cameras.given), 'final_vs_reference': (cameras.final, cameras.reference),
            'given_vs_reference': (cameras.given, cameras.reference)}
   out = {}
   for name, (a, b) in pairs.items():
-    values = camera_alignment.errors(a, b, cameras.distance)
-    out[name] = {**camera_alignment.summary(values), 'per_view': {k: v.tolist() for k, v in values.items()}}
+    values = alignment.errors(a, b, cameras.distance)
+    out[name] = {**alignment.summary(values), 'per_view': {k: v.tolist() for k, v in values.items()}}
   return out
 
 
@@ -81,12 +82,12 @@ def metrics(error_record: dict) -> dict:
   return {'camera_rotation_deg': against['rotation_deg_median'], 'camera_translation': against['translation_median']}
 
 
-def test_similarity(cameras: TrainingCameras) -> camera_alignment.Similarity:
+def test_similarity(cameras: TrainingCameras) -> alignment.Similarity:
   """The similarity carrying the test cameras' frame into the final training cameras' frame."""
-  return camera_alignment.fit(cameras.reference, cameras.final)
+  return alignment.fit(cameras.reference, cameras.final)
 
 
-def aligned_corrections(test_set: datasets.Dataset, similarity: camera_alignment.Similarity) -> tuple:
+def aligned_corrections(test_set: datasets.Dataset, similarity: alignment.Similarity) -> tuple:
   """(rotations [M,3,3], shifts [M,3]) that carry the test cameras of test_set by the similarity."""
   c2w = np.asarray(test_set.camtoworlds, np.float64)
   moved = similarity.cameras(c2w)
@@ -97,7 +98,7 @@ def test_rays(config, test_set: datasets.Dataset, train_set: datasets.Dataset, r
   """Rays [M,H,W,...] of the test cameras corrected by rotations [M,3,3] and shifts [M,3], with the training
   rays' near and far (the range the model was trained on)."""
   centres = np.asarray(test_set.camtoworlds, np.float64)[:, :, 3]
-  rays = pose_correction.image_rays(test_set.rays, rotations, centres, shifts, loader.ray_space(config, test_set))
+  rays = corrections.image_rays(test_set.rays, rotations, centres, shifts, loader.ray_space(config, test_set))
   rays = type(rays)(*[np.asarray(x, np.float32) for x in rays])
   return rays._replace(near=np.full_like(rays.near, train_set.near), far=np.full_like(rays.far, train_set.far))
 
@@ -107,7 +108,7 @@ def _view_batch(config, test_set: datasets.Dataset, flat, v: int, k: int, space)
   its k-th step, drawn from np.random.default_rng([Config.np_rng_seed, view id, k]); flat: its rays [M,H*W,...]."""
   size = test_set.height * test_set.width
   pixel = np.random.default_rng([config.np_rng_seed, int(test_set.ids[v]), k]).integers(size, size=config.batch_size)
-  fields = pose_correction.camera_fields((np.full(len(pixel), v), pixel), flat.viewdirs, space, test_set.height,
+  fields = corrections.camera_fields((np.full(len(pixel), v), pixel), flat.viewdirs, space, test_set.height,
                                          test_set.width)
   colours = test_set.images[v].reshape(-1, 3)[pixel]
   return type(flat)(*[x[v, pixel] for x in flat]), colours, fields.get('neighbour_dirs')
@@ -124,8 +125,8 @@ def test_time_poses(config, model, params, step: int, test_set: datasets.Dataset
   centres = np.asarray(test_set.camtoworlds, np.float32)[:, :, 3]
 
   def loss(delta, rays, rgb, neighbours, rotation, centre, shift):
-    turned = pose_correction.so3_exp(delta[:3], jnp) @ rotation
-    moved = pose_correction.corrected_rays(rays, turned, centre, shift + delta[3:], space, neighbours, jnp)
+    turned = corrections.so3_exp(delta[:3], jnp) @ rotation
+    moved = corrections.corrected_rays(rays, turned, centre, shift + delta[3:], space, neighbours, jnp)
     renderings, _ = model.apply({'params': params}, None, moved, *masks, config.resample_padding_final)
     return jnp.mean((renderings[-1]['rgb'] - rgb)**2)
 
@@ -142,7 +143,7 @@ def test_time_poses(config, model, params, step: int, test_set: datasets.Dataset
     for k in range(config.test_pose_steps):
       delta, opt_state = adam_step(delta, opt_state, *_view_batch(config, test_set, flat, v, k, space), *camera)
     delta = np.asarray(delta, np.float64)
-    out_rotations.append(pose_correction.so3_exp(delta[:3]) @ rotations[v])
+    out_rotations.append(corrections.so3_exp(delta[:3]) @ rotations[v])
     out_shifts.append(shifts[v] + delta[3:])
   return np.stack(out_rotations), np.stack(out_shifts)
 

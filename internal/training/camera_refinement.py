@@ -3,7 +3,7 @@ the model in the one jitted step, with its own learning rate, warm-up and decay 
 Config.camera_adam_eps: steps in proportion to small gradients).
 
 A view's correction is an axis-angle rotation omega [3] about the camera's centre and a translation tau [3], both
-in world axes, zero at the start (datasets/pose_correction.py: c2w = [R | C] -> [exp(omega) R | C + tau]). The
+in world axes, zero at the start (cameras/corrections.py: c2w = [R | C] -> [exp(omega) R | C + tau]). The
 step builds the batch's rays from the corrected cameras (origins, directions, mip-NeRF's radii, NDC for LLFF-like
 scenes), so the loss's gradient reaches the corrections.
 
@@ -22,7 +22,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from internal.datasets import base, loader, pose_correction
+from internal.cameras import corrections
+from internal.datasets import base, loader
 from internal.training import optim, schedule
 
 
@@ -33,7 +34,7 @@ class CameraState:
   free: jax.Array
   opt_state: Any
   centres: jax.Array
-  space: pose_correction.RaySpace = flax.struct.field(pytree_node=False)
+  space: corrections.RaySpace = flax.struct.field(pytree_node=False)
 
 
 def init(config, dataset: base.Dataset) -> CameraState:
@@ -57,16 +58,16 @@ def gauge_fixed(free, centres, xp=jnp):
 
 def view_corrections(free, centres) -> tuple:
   """(rotations [N, 3, 3], shifts [N, 3]) of the gauge-fixed corrections of free parameters [N, 6]."""
-  corrections = gauge_fixed(free, centres)
-  return pose_correction.so3_exp(corrections[:, :3], jnp), corrections[:, 3:]
+  fixed = gauge_fixed(free, centres)
+  return corrections.so3_exp(fixed[:, :3], jnp), fixed[:, 3:]
 
 
 def corrected_batch(cameras: CameraState, free, batch: dict) -> dict:
   """The batch with its rays made from the corrected cameras of its views (batch['view'] [B])."""
   rotations, shifts = view_corrections(free, cameras.centres)
   view = batch['view']
-  rays = pose_correction.corrected_rays(batch['rays'], rotations[view], cameras.centres[view], shifts[view],
-                                        cameras.space, batch.get('neighbour_dirs'), jnp)
+  rays = corrections.corrected_rays(batch['rays'], rotations[view], cameras.centres[view], shifts[view],
+                                    cameras.space, batch.get('neighbour_dirs'), jnp)
   return {**batch, 'rays': rays}
 
 
@@ -96,5 +97,5 @@ def update(config, cameras: CameraState, grads, step) -> tuple:
 def refined_cameras(cameras: CameraState, given: np.ndarray) -> np.ndarray:
   """[N, 3, 4] the given training cameras [N, 3, 4] corrected by the state's corrections (float64)."""
   free, centres = (np.asarray(jax.device_get(x), np.float64) for x in (cameras.free, cameras.centres))
-  corrections = gauge_fixed(free, centres, np)
-  return pose_correction.corrected_cameras(given, pose_correction.so3_exp(corrections[:, :3]), corrections[:, 3:])
+  fixed = gauge_fixed(free, centres, np)
+  return corrections.corrected_cameras(given, corrections.so3_exp(fixed[:, :3]), fixed[:, 3:])

@@ -25,7 +25,8 @@ import numpy as np
 
 from internal import atomic
 from internal import cli
-from internal.datasets import cameras, colmap_model, dtu
+from internal.cameras import algebra
+from internal.datasets import colmap_model, dtu
 from tools import provenance
 from tools.capture import CaptureError, photos, pipeline, poses, sfm
 
@@ -44,7 +45,7 @@ def reference_cameras(reference: str, names: list, photo_dir: str) -> np.ndarray
   sorted name order of photo_dir's photos) or an IDR cameras_sphere.npz (DTU: photo NNNNNN.png is camera NNNNNN)."""
   if reference.endswith('.npz'):
     projections = dtu.idr_projections(os.path.dirname(reference), 1 + max(int(os.path.splitext(n)[0]) for n in names))
-    return np.stack([cameras.projection_to_camtoworld(projections[int(os.path.splitext(n)[0])])[1] for n in names])
+    return np.stack([algebra.projection_to_camtoworld(projections[int(os.path.splitext(n)[0])])[1] for n in names])
   order, rows = sorted(photos.list_photos(photo_dir)[0]), np.load(reference)
   if len(rows) != len(order):
     raise CaptureError(f'{reference!r} has {len(rows)} cameras for the {len(order)} photos of {photo_dir!r}; expected '

@@ -12,7 +12,8 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-from internal.datasets import cameras, colmap_model
+from internal.cameras import algebra
+from internal.datasets import colmap_model
 
 # LLFF's poses_bounds.npy columns are (down, right, backward); OpenCV's (right, down, forward).
 LLFF_TO_OPENCV = np.array([[0., 1., 0.], [1., 0., 0.], [0., 0., -1.]])
@@ -43,7 +44,7 @@ def transform(c2w: np.ndarray, fit: Tuple[float, np.ndarray, np.ndarray]) -> np.
 
 def camera_distance(c2w: np.ndarray) -> float:
   """The median distance of the cameras [N, 3, 4] from the point nearest to their optical axes."""
-  return float(np.median(np.linalg.norm(c2w[:, :, 3] - cameras.focus_point(c2w), axis=-1)))
+  return float(np.median(np.linalg.norm(c2w[:, :, 3] - algebra.focus_point(c2w), axis=-1)))
 
 
 def rotation_degrees(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ about its own centre (Q in world axes) and moves by t. The rays of c2w' follow f
 knowing the camera model (pinhole, distorted, any loader): directions turn with the camera, origins move with it;
 world radii stay (distances between neighbouring directions are rotation-invariant); DTU's origins go back onto
 their world plane z = Config.near_origin; NDC rays are made again from the world rays (an NDC ray's viewdirs) and
-their radii from their row and column neighbours' NDC origins, as raygen.llff_rays makes them. The functions take
+their radii from their row and column neighbours' NDC origins, as caster.llff_rays makes them. The functions take
 an array module xp (numpy or jax.numpy): the same code turns the loaded cameras (camera_noise.py) and builds the
 rays inside the jitted training step, where gradients reach the corrections.
 """
@@ -15,11 +15,10 @@ from typing import Optional
 
 import numpy as np
 
-from internal.datasets import base, raygen
+from internal.cameras import caster
 from internal.rays import Rays
 
 SMALL_ANGLE2 = 1e-6  # Below this squared angle (radians) so3_exp uses its Taylor series (finite gradients at 0).
-NDC_FIT_TOLERANCE = 1e-4  # Relative residual above which the NDC rays do not follow raygen.convert_to_ndc.
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,8 +64,8 @@ def _mat_vec(matrix, x, xp):
 
 
 def _ndc_origins(origins, directions, space: RaySpace, xp):
-  """(NDC origins [...,3], NDC directions [...,3]) of world rays (raygen.convert_to_ndc, over xp)."""
-  return raygen.convert_to_ndc(origins, directions, space.ndc_focal, space.height, space.width, xp=xp)
+  """(NDC origins [...,3], NDC directions [...,3]) of world rays (caster.convert_to_ndc, over xp)."""
+  return caster.convert_to_ndc(origins, directions, space.ndc_focal, space.height, space.width, xp=xp)
 
 
 def corrected_rays(rays: Rays, rotation, centre, shift, space: RaySpace, neighbour_dirs=None, xp=np) -> Rays:
@@ -87,12 +86,12 @@ def corrected_rays(rays: Rays, rotation, centre, shift, space: RaySpace, neighbo
   directions = _mat_vec(rotation, rays.directions, xp)
   origins = moved + _mat_vec(rotation, rays.origins - centre, xp)
   if space.plane_z is not None:
-    origins = raygen.shift_origins(origins, directions, space.plane_z)
+    origins = caster.shift_origins(origins, directions, space.plane_z)
   return rays._replace(origins=origins, directions=directions, viewdirs=_mat_vec(rotation, rays.viewdirs, xp))
 
 
 def _pair(index: np.ndarray, length: int) -> np.ndarray:
-  """[...,2] positions along an axis of the given length whose distance is index's (raygen.neighbour_distances):
+  """[...,2] positions along an axis of the given length whose distance is index's (caster.neighbour_distances):
   (i, i + 1), and for the last the second-to-last pair."""
   first = np.where(index < length - 1, index, max(length - 3, 0))
   return np.stack([first, first + 1], -1)
@@ -100,7 +99,7 @@ def _pair(index: np.ndarray, length: int) -> np.ndarray:
 
 def neighbour_pixels(pixel: np.ndarray, height: int, width: int) -> np.ndarray:
   """[...,2,2] flat indices of the pixel pairs along the row axis and the column axis whose distances give the
-  radii of flat pixels [...] of a height x width image, as raygen.neighbour_distances pairs them."""
+  radii of flat pixels [...] of a height x width image, as caster.neighbour_distances pairs them."""
   row, col = np.divmod(np.asarray(pixel), width)
   rows = _pair(row, height) * width + col[..., None]
   cols = row[..., None] * width + _pair(col, width)
@@ -127,22 +126,3 @@ def image_rays(rays: Rays, rotations, centres, shifts, space: RaySpace, xp=np) -
     neighbours = rays.viewdirs.reshape(n, height * width, 3)[:, index].reshape(n, height, width, 2, 2, 3)
   at = lambda x: x[:, None, None]
   return corrected_rays(rays, at(rotations), at(centres), at(shifts), space, neighbours, xp)
-
-
-def ndc_focal(dataset: base.Dataset) -> float:
-  """The focal length (pixels) of the NDC space of dataset's NDC rays, by least squares over its rays' origins.
-
-  An NDC origin is (-2 f / W x, -2 f / H y, .) of the world point x, y where the ray crosses z = -1.
-  """
-  dirs = np.asarray(dataset.rays.viewdirs, np.float64)
-  centres = np.asarray(dataset.camtoworlds, np.float64)[:, None, None, :, 3]
-  plane = np.asarray(raygen.shift_origins(np.broadcast_to(centres, dirs.shape), dirs, -1.))
-  ndc = np.asarray(dataset.rays.origins, np.float64)
-  scale = np.array([-2. / dataset.width, -2. / dataset.height])
-  basis, target = scale * plane[..., :2] / plane[..., 2:], ndc[..., :2]
-  focal = float(np.sum(basis * target) / np.sum(basis * basis))
-  residual = np.sqrt(np.mean((focal * basis - target)**2) / np.mean(target**2))
-  if not residual < NDC_FIT_TOLERANCE:
-    raise base.DatasetError(f'the NDC rays of {dataset.name!r} do not follow LLFF\'s NDC map of their cameras '
-                            f'(relative residual {residual:.2g}); camera refinement and noise need it')
-  return focal

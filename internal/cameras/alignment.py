@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from internal.datasets import pose_correction
+from internal.cameras import corrections
 
 
 class Similarity(NamedTuple):
@@ -51,7 +51,7 @@ def errors(cameras: np.ndarray, reference: np.ndarray, distance: float) -> dict:
   reference's camera distance, camera_noise.camera_distance)."""
   aligned = fit(cameras, reference).cameras(cameras)
   reference = np.asarray(reference, np.float64)
-  angles = pose_correction.rotation_angle(np.swapaxes(aligned[:, :, :3], 1, 2) @ reference[:, :, :3])
+  angles = corrections.rotation_angle(np.swapaxes(aligned[:, :, :3], 1, 2) @ reference[:, :, :3])
   gaps = np.linalg.norm(aligned[:, :, 3] - reference[:, :, 3], axis=-1)
   return {'rotation_deg': np.rad2deg(angles), 'translation': gaps / distance}
 
