@@ -6,6 +6,7 @@ from PIL import Image
 
 from internal.configs import Config
 from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
 from internal.datasets import base, blender, dtu, image_io, llff
 from internal.datasets.batching import make_batcher
 from internal.rays import Rays
@@ -161,10 +162,15 @@ def test_llff_spiral_faces_focal_point():
 
 # ---------------------------------------------------------------- rays
 
+def camera_rays(c2w, pixtocam, space: RaySpace) -> Rays:
+  """Rays [H,W,...] of one camera in space (caster.image_rays)."""
+  return Rays(*[x[0] for x in caster.image_rays(Cameras(np.asarray(c2w)[None], np.asarray(pixtocam)[None]), space)])
+
+
 def test_pinhole_rays_opengl_closed_form():
   h, w, f = 4, 6, 5.
   c2w = np.concatenate([np.eye(3), [[1.], [2.], [3.]]], 1)
-  rays = caster.pinhole_rays(c2w, algebra.focal_pixtocam(f, h, w), h, w, 2., 6., opengl=True)
+  rays = camera_rays(c2w, algebra.focal_pixtocam(f, h, w), RaySpace(opengl=True, near=2., far=6., height=h, width=w))
   x, y = np.meshgrid(np.arange(w), np.arange(h))
   expected = np.stack([(x + .5 - w / 2) / f, -(y + .5 - h / 2) / f, -np.ones_like(x, float)], -1)
   np.testing.assert_allclose(rays.directions, expected, atol=1e-6)
@@ -180,30 +186,26 @@ def test_pinhole_rays_at_integer_pixel_coordinates_of_a_rotated_camera():
   """pixel_offset 0: the released Blender code's R ((i - W/2)/f, -(j - H/2)/f, -1), by hand for two pixels."""
   rotation = np.array([[0., 0., 1.], [0., 1., 0.], [-1., 0., 0.]])  # 90 degrees about y: camera -z is world -x.
   c2w = np.concatenate([rotation, [[0.], [0.], [4.]]], 1)
-  rays = caster.pinhole_rays(c2w, algebra.focal_pixtocam(2., 4, 4), 4, 4, 2., 6., opengl=True, pixel_offset=0.)
+  rays = camera_rays(c2w, algebra.focal_pixtocam(2., 4, 4),
+                     RaySpace(opengl=True, near=2., far=6., height=4, width=4, pixel_offset=0.))
   # Pixel (i, j) = (0, 0): camera (-1, 1, -1) -> world (-1, 1, 1); the principal point (2, 2): (0, 0, -1) -> -x.
   np.testing.assert_allclose(rays.directions[0, 0], [-1., 1., 1.], atol=1e-6)
   np.testing.assert_allclose(rays.directions[2, 2], [-1., 0., 0.], atol=1e-6)
 
 
-def test_row_radii_uses_row_neighbours():
-  dirs = np.zeros((3, 2, 3))
-  dirs[:, :, 0] = np.arange(2)[None, :] * 10.   # Column steps of 10 must not matter.
-  dirs[:, :, 1] = np.array([0., 1., 3.])[:, None]
-  radii = caster.row_radii(dirs)[..., 0]
-  # Row distances [1, 2]; the last row repeats the second-to-last distance (1) as released.
-  np.testing.assert_allclose(radii, np.array([[1, 1], [2, 2], [1, 1]]) * 2. / np.sqrt(12.))
-
-
-def test_ndc_radii_pad_with_second_to_last_distance():
-  origins = np.zeros((3, 4, 3))
-  origins[..., 0] = np.array([0., 1., 3., 7.])[None, :]  # column distances 1, 2, 4
-  origins[..., 1] = np.array([0., 2., 5.])[:, None]      # row distances 2, 3
-  dx = np.array([2., 3., 2.])[:, None]
-  dy = np.array([1., 2., 4., 2.])[None, :]
-  np.testing.assert_allclose(caster.ndc_radii(origins)[..., 0], .5 * (dx + dy) * 2. / np.sqrt(12.))
-  assert caster.row_radii(np.zeros((2, 1, 3)) + [[[0., 0., 0.]], [[0., 3., 0.]]]).ravel().tolist() == \
-      [3. * 2. / np.sqrt(12.)] * 2  # A single distance is repeated.
+@pytest.mark.parametrize('released', [True, False])
+@pytest.mark.parametrize('height,width', [(3, 4), (2, 5)])
+def test_radii_neighbours_as_released_on_images_and_the_next_pixel_on_patches(released, height, width):
+  """An image's last row (column) takes the second-to-last distance again, as the released code's (a single
+  distance is repeated); RegNeRF's patches take the next pixel's everywhere."""
+  space = RaySpace(opengl=True, near=2., far=6., height=height, width=width, released_edges=released)
+  cameras = Cameras(np.eye(3, 4)[None], np.eye(3)[None])  # Camera direction of pixel (x, y): (x + .5, -y - .5, -1).
+  pixels = caster.image_pixels(0, height, width)
+  for axis, position, length in ((caster.ROW, pixels.y, height), (caster.COLUMN, pixels.x, width)):
+    ends = caster.neighbour_directions(cameras, pixels, space, axis, np)
+    coordinate = np.abs(ends[..., 1 - axis]) - .5  # The pixel row (column) of each end.
+    first = np.where((position < length - 1) | (not released), position, max(length - 3, 0))
+    np.testing.assert_array_equal(coordinate, np.stack([first, first + 1], -1))
 
 
 def test_dtu_rays_shifted_onto_plane_on_the_same_line():
@@ -212,7 +214,7 @@ def test_dtu_rays_shifted_onto_plane_on_the_same_line():
   c2w[:, 2] = np.sign(c2w[2, 2]) * c2w[:, 2]  # Cameras look towards +z world ...
   c2w[:, 0] = np.cross(c2w[:, 1], c2w[:, 2])  # ... keeping a proper rotation.
   pixtocam = np.linalg.inv(np.array([[30., 0., 8.], [0., 30., 6.], [0., 0., 1.]]))
-  rays = caster.dtu_rays(c2w, pixtocam, 12, 16, .5, 3.5, near_origin=0.)
+  rays = camera_rays(c2w, pixtocam, RaySpace(opengl=False, near=.5, far=3.5, height=12, width=16, plane_z=0.))
   np.testing.assert_allclose(rays.origins[..., 2], 0., atol=1e-6)
   offset = rays.origins - c2w[:, 3]
   np.testing.assert_allclose(np.cross(offset, rays.directions), 0., atol=1e-5)
@@ -223,7 +225,8 @@ def test_dtu_rays_shifted_onto_plane_on_the_same_line():
 
 def test_ndc_closed_form_for_identity_camera():
   h, w, f = 4, 6, 3.
-  rays = caster.llff_rays(np.eye(3, 4), algebra.focal_pixtocam(f, h, w), h, w, f)
+  rays = camera_rays(np.eye(3, 4), algebra.focal_pixtocam(f, h, w),
+                     RaySpace(opengl=True, near=0., far=1., height=h, width=w, ndc_focal=f))
   np.testing.assert_allclose(rays.origins[..., 2], -1., atol=1e-6)
   x = np.arange(w) + .5 - w / 2
   np.testing.assert_allclose(rays.origins[0, :, 0], 2. * x / w, atol=1e-6)

@@ -13,7 +13,9 @@ from internal import configs
 from internal.losses import depth_smoothness
 from internal.training import anneal, schedule, train_step
 from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
 from internal.datasets import random_poses
+from internal.rays import Rays
 
 
 def test_tv_norm_of_a_known_depth_patch():
@@ -91,24 +93,39 @@ def test_llff_random_poses_released_keeps_one_pose_and_the_fix_keeps_all():
   np.testing.assert_allclose(every[-1], last[0])  # The released bug keeps the last draw.
 
 
+def _full_and_patch(c2w, pixtocam, space, x0: int, y0: int):
+  """(the image's rays [H,W,...], the rays of the 8 x 8 patch from column x0, row y0 [8,8,...]) of one camera."""
+  cameras = Cameras(c2w[None], pixtocam[None])
+  full = Rays(*[x[0] for x in caster.image_rays(cameras, space)])
+  patch = caster.cast(cameras, random_poses.patch_pixels([0], [x0], [y0], 8), random_poses.patch_space(space))
+  return full, Rays(*[x[0] for x in patch])
+
+
 def test_dtu_patch_rays_are_the_full_image_rays_at_those_pixels():
   c2w, pixtocam = _ring_poses()[1], np.linalg.inv(np.array([[30., 0., 20.], [0., 30., 15.], [0., 0., 1.]]))
-  full = caster.dtu_rays(c2w, pixtocam, 30, 40, 0.5, 3.5, 0.)
-  patch = random_poses.patch_rays(c2w, pixtocam, 30, 40, x0=7, y0=5, size=8, near=0.5, far=3.5)
+  space = RaySpace(opengl=False, near=.5, far=3.5, height=30, width=40, plane_z=0.)
+  full, patch = _full_and_patch(c2w, pixtocam, space, 7, 5)
   for name, a, b in zip(full._fields, patch, full):
     np.testing.assert_allclose(a, b[5:13, 7:15], rtol=1e-5, atol=1e-6, err_msg=name)
 
 
 def test_llff_patch_rays_are_the_full_image_ndc_rays_with_unit_viewdirs():
   c2w, focal = _ring_poses(opengl=True)[0], 25.
-  pixtocam = algebra.focal_pixtocam(focal, 30, 40)
-  full = caster.llff_rays(c2w, pixtocam, 30, 40, focal)
-  patch = random_poses.patch_rays(c2w, pixtocam, 30, 40, x0=3, y0=9, size=8, near=0., far=1., ndc_focal=focal)
+  space = RaySpace(opengl=True, near=0., far=1., height=30, width=40, ndc_focal=focal)
+  full, patch = _full_and_patch(c2w, algebra.focal_pixtocam(focal, 30, 40), space, 3, 9)
   for name in ('origins', 'directions', 'radii', 'near', 'far'):
     np.testing.assert_allclose(getattr(patch, name), getattr(full, name)[9:17, 3:11], rtol=1e-5, atol=1e-6)
   viewdirs = full.viewdirs[9:17, 3:11]
   np.testing.assert_allclose(patch.viewdirs, viewdirs / np.linalg.norm(viewdirs, axis=-1, keepdims=True),
                              rtol=1e-5)
+
+
+def test_a_patch_on_the_last_column_takes_the_next_pixels_radius_and_the_image_the_released_one():
+  c2w, focal = _ring_poses(opengl=True)[0], 25.
+  space = RaySpace(opengl=True, near=0., far=1., height=30, width=40, ndc_focal=focal)
+  full, patch = _full_and_patch(c2w, algebra.focal_pixtocam(focal, 30, 40), space, 32, 22)
+  np.testing.assert_allclose(patch.radii[:-1, :-1], full.radii[22:29, 32:39], rtol=1e-5)
+  assert not np.allclose(patch.radii[:, -1], full.radii[22:30, 39], rtol=1e-5, atol=0.)
 
 
 def test_train_step_adds_the_depth_tv_only_when_asked():

@@ -30,7 +30,6 @@ from internal import cli
 from internal import config_loader
 from internal import datasets
 from internal.cameras import alignment
-from internal.datasets import loader
 from internal.evaluation import camera_evaluation
 from internal.run import camera_export
 from tools import provenance
@@ -61,7 +60,7 @@ def run_cameras(run_dir: str) -> dict:
   train_set = datasets.load_dataset('train', config)
   reference, distance = camera_evaluation.reference_cameras(config, train_set)
   cameras = {'reference': reference, 'distance': distance, 'opengl': record['axes'] == 'OpenGL',
-             'forward': bool(loader.ray_space(config, train_set).ndc_focal)}
+             'forward': bool(train_set.space.ndc_focal)}
   for name in ('given', 'refined'):
     c2w = np.array(record[name])
     cameras[name] = alignment.fit(c2w, reference).cameras(c2w)

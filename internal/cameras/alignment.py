@@ -11,7 +11,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from internal.cameras import corrections
 
 
 class Similarity(NamedTuple):
@@ -45,13 +44,19 @@ def fit(source: np.ndarray, target: np.ndarray) -> Similarity:
   return Similarity(scale, rotation, tgt_mean - scale * rotation @ src_mean)
 
 
+def rotation_angle(rotation: np.ndarray) -> np.ndarray:
+  """Angles [...] (radians) of rotations [...,3,3], from their trace (float64)."""
+  trace = np.trace(np.asarray(rotation, np.float64), axis1=-2, axis2=-1)
+  return np.arccos(np.clip((trace - 1.) / 2., -1., 1.))
+
+
 def errors(cameras: np.ndarray, reference: np.ndarray, distance: float) -> dict:
   """{'rotation_deg' [N], 'translation' [N]} of cameras [N,3,4] against reference [N,3,4] after the similarity
   taking cameras onto reference: rotation angles in degrees, centre distances as a fraction of distance (the
   reference's camera distance, camera_noise.camera_distance)."""
   aligned = fit(cameras, reference).cameras(cameras)
   reference = np.asarray(reference, np.float64)
-  angles = corrections.rotation_angle(np.swapaxes(aligned[:, :, :3], 1, 2) @ reference[:, :, :3])
+  angles = rotation_angle(np.swapaxes(aligned[:, :, :3], 1, 2) @ reference[:, :, :3])
   gaps = np.linalg.norm(aligned[:, :, 3] - reference[:, :, 3], axis=-1)
   return {'rotation_deg': np.rad2deg(angles), 'translation': gaps / distance}
 

@@ -7,6 +7,7 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
+from internal.cameras.records import Cameras, RaySpace
 from internal.rays import Rays
 
 SPLITS = ('train', 'test')
@@ -23,7 +24,8 @@ class DatasetNotFoundError(DatasetError, FileNotFoundError):
 
 @dataclasses.dataclass
 class Dataset:
-  """One split of one scene: images f32 [N,H,W,3], cameras, rays [N,H,W,...] and optional masks/depths."""
+  """One split of one scene: images f32 [N,H,W,3], cameras, rays [N,H,W,...] cast from them in its RaySpace (set by
+  its loader) and optional masks/depths."""
   images: np.ndarray            # f32 [N,H,W,3] in [0,1].
   camtoworlds: np.ndarray       # f32 [N,3,4].
   pixtocams: np.ndarray         # f32 [N,3,3] (inverse intrinsics at the loaded resolution).
@@ -40,6 +42,25 @@ class Dataset:
   object_masks: Optional[np.ndarray] = None  # f32 [N,H,W] object coverage (generated scene).
   # The image file of each view, in load order (depth priors are named after them); None: a pack keeps none.
   image_paths: Optional[List[str]] = None
+  space: Optional[RaySpace] = None        # How its rays follow from its cameras (cameras/caster.py).
+  distortion: Optional[np.ndarray] = None  # f32 [N,8] COLMAP's camera parameters (captures), else None: pinholes.
+
+  @property
+  def cameras(self) -> Cameras:
+    """The cameras its rays were cast from (float32, as kept)."""
+    return Cameras(self.camtoworlds, self.pixtocams, self.distortion)
+
+
+def subset(data: Dataset, positions: Sequence[int]) -> Dataset:
+  """The views of data at positions (indices into its views), every per-view field with them."""
+  positions = list(positions)
+  take = lambda x: None if x is None else x[positions]
+  pick = lambda x: None if x is None else [x[p] for p in positions]
+  return dataclasses.replace(data, images=data.images[positions], camtoworlds=data.camtoworlds[positions],
+                             pixtocams=data.pixtocams[positions], ids=pick(data.ids), masks=take(data.masks),
+                             rays=Rays(*[x[positions] for x in data.rays]), depths=take(data.depths),
+                             object_masks=take(data.object_masks), image_paths=pick(data.image_paths),
+                             distortion=take(data.distortion))
 
 
 def check_split(split: str) -> None:

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from internal.cameras import corrections
+from internal.cameras.records import Pixels
 from internal.datasets import base, depth_prior, loader, random_poses, sfm_depth
 from internal.rays import Rays
 
@@ -36,6 +36,12 @@ def central_crop(height: int, width: int, frac: float) -> np.ndarray:
   return (rows[:, None] * width + cols[None, :]).reshape(-1)
 
 
+def pixels_of(index: tuple, width: int) -> Pixels:
+  """Pixels [...] (int32) of (image [...], flat pixel [...]) indices into images of the given width."""
+  row, column = np.divmod(np.asarray(index[1]), width)
+  return Pixels(*(np.asarray(x, np.int32) for x in (np.broadcast_to(index[0], row.shape), column, row)))
+
+
 def make_batcher(dataset: base.Dataset, config):
   """callable(step) -> {'rays': Rays [B,...] f32, 'rgb': [B,3] f32}, pixels drawn with replacement (step >= 1).
 
@@ -50,7 +56,6 @@ def make_batcher(dataset: base.Dataset, config):
   patches = random_poses.make_patch_sampler(dataset, config, loader.random_pose_cameras)
   crop = central_crop(dataset.height, dataset.width, config.precrop_frac) if config.precrop_steps > 0 else None
   priors = make_prior_sampler(dataset, config, rays)
-  space = loader.ray_space(config, dataset) if config.optimize_cameras else None
 
   def batch(step: int) -> dict:
     """The training batch of this step (steps 1..Config.precrop_steps: from the central crop only)."""
@@ -62,8 +67,8 @@ def make_batcher(dataset: base.Dataset, config):
       out['patch_rays'] = patches(step)
     if priors is not None:
       out.update(priors(step))
-    if space is not None:  # Camera refinement: the views of the rays (and NDC radii's neighbours).
-      out.update(corrections.camera_fields(index, rays.viewdirs, space, dataset.height, dataset.width))
+    if config.optimize_cameras:  # Camera refinement corrects the rays of these pixels.
+      out['pixels'] = pixels_of(index, dataset.width)
     return out
   return batch
 

@@ -6,6 +6,7 @@ import os
 import numpy as np
 
 from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
 from internal.datasets import base, image_io
 
 DIETNERF_IDS = (26, 86, 2, 55, 75, 93, 16, 73)
@@ -59,10 +60,17 @@ def composite(rgba: np.ndarray, white_background: bool) -> np.ndarray:
   return rgba[..., :3]
 
 
-def frame_rays(config, camtoworld, pixtocam, height: int, width: int):
-  """Rays [H,W,...] of one OpenGL camera through pixels + Config.pixel_offset, near/far from Config."""
-  return caster.pinhole_rays(camtoworld, pixtocam, height, width, config.near, config.far, True,
-                             config.pixel_offset)
+def ray_space(config, height: int, width: int) -> RaySpace:
+  """The rays of a Blender-layout scene: OpenGL cameras, through pixels + Config.pixel_offset, Config's near and
+  far."""
+  return RaySpace(opengl=True, near=config.near, far=config.far, height=height, width=width,
+                  pixel_offset=config.pixel_offset)
+
+
+def frame_rays(config, camtoworlds, pixtocam, height: int, width: int):
+  """Rays [N,H,W,...] of OpenGL cameras [N,3,4] with one pixtocam [3,3] (ray_space)."""
+  cameras = Cameras(camtoworlds, np.broadcast_to(pixtocam, (len(camtoworlds), 3, 3)))
+  return caster.image_rays(cameras, ray_space(config, height, width))
 
 
 def load_blender(split: str, config, scene_dir: str, name: str, mode: str, test_stride: int) -> base.Dataset:
@@ -83,11 +91,11 @@ def load_blender(split: str, config, scene_dir: str, name: str, mode: str, test_
   focal = .5 * width / np.tan(.5 * float(meta['camera_angle_x']))
   pixtocam = algebra.focal_pixtocam(focal, height, width)
   c2w = np.array([meta['frames'][i]['transform_matrix'] for i in ids], np.float64)[:, :3, :4]
-  rays = caster.stack_rays((frame_rays(config, p, pixtocam, height, width) for p in c2w), len(c2w))
   return base.Dataset(images=images.astype(np.float32), camtoworlds=c2w.astype(np.float32),
                       pixtocams=np.repeat(pixtocam[None], len(ids), 0).astype(np.float32), ids=list(ids),
-                      height=height, width=width, near=config.near, far=config.far, masks=None, rays=rays,
-                      split=split, name=name, image_paths=paths)
+                      height=height, width=width, near=config.near, far=config.far, masks=None,
+                      rays=frame_rays(config, c2w, pixtocam, height, width), split=split, name=name,
+                      image_paths=paths, space=ray_space(config, height, width))
 
 
 def render_cameras(scene_dir: str, factor: int):
@@ -131,8 +139,7 @@ def scene_render_path(config):
 def render_path_rays(config, scene_dir: str):
   """Rays [F,H,W,...] of an orbit at the test cameras' mean radius and height, facing the origin."""
   poses, pixtocam, height, width = render_cameras(scene_dir, base.render_factor(config))
-  path = algebra.orbit_path(poses, config.render_path_frames)
-  return caster.stack_rays((frame_rays(config, p, pixtocam, height, width) for p in path), len(path))
+  return frame_rays(config, algebra.orbit_path(poses, config.render_path_frames), pixtocam, height, width)
 
 
 def camera_record(config, datasets: dict, scene_dir: str) -> dict:

@@ -24,9 +24,9 @@ def is_on(config) -> bool:
   return config.camera_noise_rotation_deg > 0 or config.camera_noise_translation > 0
 
 
-def camera_distance(dataset: base.Dataset, space: corrections.RaySpace) -> float:
+def camera_distance(dataset: base.Dataset) -> float:
   """The distance of a camera from the middle of its scene, the unit of Config.camera_noise_translation."""
-  return NDC_DISTANCE if space.ndc_focal else .5 * (dataset.near + dataset.far)
+  return NDC_DISTANCE if dataset.space.ndc_focal else .5 * (dataset.near + dataset.far)
 
 
 def _unit(rng: np.random.Generator) -> np.ndarray:
@@ -47,13 +47,11 @@ def draw(ids, config, distance: float) -> tuple:
   return np.stack(rotations), np.stack(shifts)
 
 
-def perturbed(dataset: base.Dataset, config, space: corrections.RaySpace) -> base.Dataset:
+def perturbed(dataset: base.Dataset, config) -> base.Dataset:
   """The training dataset with its cameras and rays turned and moved by the noise (unchanged when off)."""
   if not is_on(config) or dataset.split != 'train':
     return dataset
-  rotations, shifts = draw(dataset.ids, config, camera_distance(dataset, space))
-  centres = np.asarray(dataset.camtoworlds, np.float64)[:, :, 3]
-  rays = corrections.image_rays(dataset.rays, rotations, centres, shifts, space)
+  rotations, shifts = draw(dataset.ids, config, camera_distance(dataset))
+  rays = corrections.corrected_image_rays(dataset.rays, dataset.cameras, rotations, shifts, dataset.space)
   c2w = corrections.corrected_cameras(dataset.camtoworlds, rotations, shifts)
-  return dataclasses.replace(dataset, camtoworlds=c2w.astype(np.float32),
-                             rays=type(rays)(*[np.asarray(x, np.float32) for x in rays]))
+  return dataclasses.replace(dataset, camtoworlds=c2w.astype(np.float32), rays=rays)

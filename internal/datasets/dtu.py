@@ -7,6 +7,7 @@ import zipfile
 import numpy as np
 
 from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
 from internal.datasets import base, image_io, random_poses
 
 TRAIN_IDS = (25, 22, 28, 40, 44, 48, 0, 8, 13)
@@ -210,13 +211,18 @@ def load_scene(split: str, config) -> base.Dataset:
   if split == 'test':
     masks = load_masks(mask_paths(config, scan_dir, layout, ids), factor, config.downsample_mode)
   images = image_io.load_stack(paths, lambda p: image_io.load_rgb(p, factor, config.downsample_mode))
-  height, width = images.shape[1:3]
-  rays = caster.stack_rays((caster.dtu_rays(poses[i], pixtocams[i], height, width, config.near, config.far,
-                                            config.near_origin) for i in ids), len(ids))
+  space = ray_space(config, *images.shape[1:3])
+  rays = caster.image_rays(Cameras(poses[ids], pixtocams[ids]), space)
   return base.Dataset(images=images, camtoworlds=poses[ids].astype(np.float32),
-                      pixtocams=pixtocams[ids].astype(np.float32), ids=list(ids), height=height, width=width,
-                      near=config.near, far=config.far, masks=masks, rays=rays, split=split,
-                      name=f'dtu/{config.dtu_scan}', image_paths=list(paths))
+                      pixtocams=pixtocams[ids].astype(np.float32), ids=list(ids), height=space.height,
+                      width=space.width, near=config.near, far=config.far, masks=masks, rays=rays, split=split,
+                      name=f'dtu/{config.dtu_scan}', image_paths=list(paths), space=space)
+
+
+def ray_space(config, height: int, width: int) -> RaySpace:
+  """DTU's rays: OpenCV cameras, Config's near and far, origins on the plane z = Config.near_origin."""
+  return RaySpace(opengl=False, near=config.near, far=config.far, height=height, width=width,
+                  plane_z=config.near_origin)
 
 
 def mask_region(test_set: base.Dataset):
@@ -258,8 +264,8 @@ def scene_render_path(config):
   """Rays [F,H,W,...] of the DTU spiral over all cameras, with the mean test intrinsics."""
   poses, pixtocam, height, width = render_cameras(config)
   path = algebra.spiral_path_dtu(poses, config.render_path_frames)
-  return caster.stack_rays((caster.dtu_rays(p, pixtocam, height, width, config.near, config.far,
-                                            config.near_origin) for p in path), len(path))
+  cameras = Cameras(path, np.broadcast_to(pixtocam, (len(path), 3, 3)))
+  return caster.image_rays(cameras, ray_space(config, height, width))
 
 
 def pack_cameras(config, datasets: dict) -> dict:
@@ -277,10 +283,11 @@ def pack_cameras(config, datasets: dict) -> dict:
   return record
 
 
-def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> tuple:
-  """(RegNeRF's random poses [n,3,4] in the box of all cameras, their mean pixtocam [3,3], 0: world rays)."""
+def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> Cameras:
+  """RegNeRF's random poses [n] in the box of all cameras (at the training factor), with their mean pixtocam."""
   del dataset  # Every camera of the scan, at the training factor.
   _, _, projections = scan_setup(config)
   pixtocams, poses = normalized_cameras(projections, base.load_factor(config, 'train'))
-  return (random_poses.dtu_random_poses(poses, config.n_random_poses, rng, config.random_pose_radius,
-                                        config.random_pose_focusptjitter), pixtocams.mean(0), 0.)
+  found = random_poses.dtu_random_poses(poses, config.n_random_poses, rng, config.random_pose_radius,
+                                        config.random_pose_focusptjitter)
+  return Cameras(found, np.broadcast_to(pixtocams.mean(0), (len(found), 3, 3)))

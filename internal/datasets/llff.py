@@ -6,6 +6,7 @@ import warnings
 import numpy as np
 
 from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
 from internal.datasets import base, image_io, random_poses
 
 IMAGE_EXTENSIONS = ('JPG', 'jpg', 'png')
@@ -107,13 +108,23 @@ def load_llff(split: str, config, scene_dir: str, name: str) -> base.Dataset:
                                lambda p: image_io.load_rgb(p, extra, config.downsample_mode))
   height, width = images.shape[1:3]
   pixtocam = algebra.focal_pixtocam(focal / factor, height, width)
-  rays = caster.stack_rays((caster.llff_rays(c2w[i], pixtocam, height, width, focal / factor) for i in ids),
-                           len(ids))
-  near, far = caster.NDC_NEAR_FAR
+  space = ray_space(focal / factor, height, width)
   return base.Dataset(images=images, camtoworlds=c2w[ids].astype(np.float32),
                       pixtocams=np.repeat(pixtocam[None], len(ids), 0).astype(np.float32), ids=list(ids),
-                      height=height, width=width, near=near, far=far, masks=None, rays=rays, split=split, name=name,
-                      image_paths=[paths[i] for i in ids])
+                      height=height, width=width, near=space.near, far=space.far, masks=None,
+                      rays=ndc_rays(c2w[ids], pixtocam, space), split=split, name=name,
+                      image_paths=[paths[i] for i in ids], space=space)
+
+
+def ray_space(focal: float, height: int, width: int) -> RaySpace:
+  """LLFF's rays: OpenGL cameras, NDC of the given focal length (pixels), near 0 and far 1."""
+  near, far = caster.NDC_NEAR_FAR
+  return RaySpace(opengl=True, near=near, far=far, height=height, width=width, ndc_focal=focal)
+
+
+def ndc_rays(camtoworlds: np.ndarray, pixtocam: np.ndarray, space: RaySpace):
+  """Rays [N,H,W,...] of cameras [N,3,4] with one pixtocam [3,3] in space."""
+  return caster.image_rays(Cameras(camtoworlds, np.broadcast_to(pixtocam, (len(camtoworlds), 3, 3))), space)
 
 
 def scene_path(config) -> str:
@@ -144,7 +155,7 @@ def render_path_rays(config, scene_dir: str):
   """Rays [F,H,W,...] (NDC) of the LLFF spiral path (Config.render_path_frames frames)."""
   c2w, bounds, focal, pixtocam, height, width = render_cameras(scene_dir, base.render_factor(config))
   path = algebra.spiral_path_llff(c2w, bounds, config.render_path_frames)
-  return caster.stack_rays((caster.llff_rays(p, pixtocam, height, width, focal) for p in path), len(path))
+  return ndc_rays(path, pixtocam, ray_space(focal, height, width))
 
 
 def camera_record(config, datasets: dict, scene_dir: str) -> dict:
@@ -173,15 +184,16 @@ def pack_cameras(config, datasets: dict) -> dict:
   return camera_record(config, datasets, scene_path(config))
 
 
-def random_cameras(dataset: base.Dataset, config, rng: np.random.Generator, scene_dir: str) -> tuple:
-  """(RegNeRF's random poses [n,3,4] of an LLFF-layout scene, pixtocam [3,3] of the dataset's size, NDC focal)."""
+def random_cameras(dataset: base.Dataset, config, rng: np.random.Generator, scene_dir: str) -> Cameras:
+  """RegNeRF's random poses of an LLFF-layout scene, with the pixtocam of the dataset's size."""
   c2w, bounds, focal = process_poses(read_poses_bounds(scene_dir))
   focal /= base.load_factor(config, 'train')
   poses = random_poses.llff_random_poses(c2w, bounds, config.n_random_poses, rng,
                                          not config.regnerf_fix_released_bugs)
-  return poses, algebra.focal_pixtocam(focal, dataset.height, dataset.width), focal
+  pixtocam = algebra.focal_pixtocam(focal, dataset.height, dataset.width)
+  return Cameras(poses, np.broadcast_to(pixtocam, (len(poses), 3, 3)))
 
 
-def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> tuple:
+def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> Cameras:
   """The random poses of the LLFF scene Config.llff_scan (see random_cameras)."""
   return random_cameras(dataset, config, rng, scene_path(config))

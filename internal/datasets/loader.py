@@ -10,7 +10,8 @@ from typing import Callable, Dict, Optional, Tuple
 
 import numpy as np
 
-from internal.cameras import caster, corrections
+from internal.cameras import caster
+from internal.cameras.records import Cameras
 from internal.datasets import base, blender, camera_noise, capture, dtu, generated, llff, packed
 
 
@@ -38,7 +39,7 @@ class Loader:
   ground_truth: Optional[Callable] = None  # (Dataset, config) -> Dataset with exact depths and object masks.
   pack_cameras: Optional[Callable] = None  # (config, {split: Dataset}) -> the pack's camera record; None: unpackable.
   choices: Tuple[Tuple[str, Tuple[str, ...]], ...] = ()  # (Config field, its allowed values) of its own settings.
-  # (Dataset, config, rng) -> (RegNeRF's random poses [n,3,4], pixtocam [3,3], NDC focal or 0: world rays), or
+  # (Dataset, config, rng) -> RegNeRF's random poses as Cameras (in the axes and RaySpace of the dataset's), or
   # None for a scene without them; None: no random poses (depth smoothness is refused).
   random_pose_cameras: Optional[Callable] = None
   mesh_bounds: Optional[Callable] = None  # config -> [2, 3] region of a world-ray scene to mesh, or None: none.
@@ -48,8 +49,8 @@ class Loader:
     """The record of a loader file: MODULE_ATTRIBUTES from the module, ndc a constant or config -> bool, fields
     the rest (or overrides)."""
     found = {field: getattr(module, name) for field, name in MODULE_ATTRIBUTES if hasattr(module, name)}
-    ray_space = ndc if callable(ndc) else lambda config: ndc
-    return cls(scene_setting=scene_setting, ndc=ray_space, **{**found, **fields})
+    rule = ndc if callable(ndc) else lambda config: ndc
+    return cls(scene_setting=scene_setting, ndc=rule, **{**found, **fields})
 
 
 def _filed_as_packed(config) -> Tuple[str, str]:
@@ -92,7 +93,7 @@ def load_dataset(split: str, config, ground_truth: bool = False) -> base.Dataset
   record = loader_of(config)
   data = record.load(split, config)
   if camera_noise.is_on(config):  # Studies of camera refinement: noise on the training cameras only.
-    data = camera_noise.perturbed(data, config, ray_space(config, data))
+    data = camera_noise.perturbed(data, config)
   return record.ground_truth(data, config) if ground_truth and record.ground_truth else data
 
 
@@ -133,40 +134,9 @@ def mesh_bounds(config) -> Optional[np.ndarray]:
   return record.mesh_bounds(config) if record.mesh_bounds else None
 
 
-NDC_FIT_TOLERANCE = 1e-4  # Relative residual above which the NDC rays do not follow caster.convert_to_ndc.
-
-
-def ndc_focal(dataset: base.Dataset) -> float:
-  """The focal length (pixels) of the NDC space of dataset's NDC rays, by least squares over its rays' origins.
-
-  An NDC origin is (-2 f / W x, -2 f / H y, .) of the world point x, y where the ray crosses z = -1.
-  """
-  dirs = np.asarray(dataset.rays.viewdirs, np.float64)
-  centres = np.asarray(dataset.camtoworlds, np.float64)[:, None, None, :, 3]
-  plane = np.asarray(caster.shift_origins(np.broadcast_to(centres, dirs.shape), dirs, -1.))
-  ndc = np.asarray(dataset.rays.origins, np.float64)
-  scale = np.array([-2. / dataset.width, -2. / dataset.height])
-  basis, target = scale * plane[..., :2] / plane[..., 2:], ndc[..., :2]
-  focal = float(np.sum(basis * target) / np.sum(basis * basis))
-  residual = np.sqrt(np.mean((focal * basis - target)**2) / np.mean(target**2))
-  if not residual < NDC_FIT_TOLERANCE:
-    raise base.DatasetError(f'the NDC rays of {dataset.name!r} do not follow LLFF\'s NDC map of their cameras '
-                            f'(relative residual {residual:.2g}); camera refinement and noise need it')
-  return focal
-
-
-def ray_space(config, dataset: base.Dataset) -> corrections.RaySpace:
-  """How the rays of Config's scene (as loaded in dataset) follow from its cameras: those of the dataset it is filed
-  under (world rays, DTU's origin plane, or NDC with the focal length its rays were made with)."""
-  filed, _ = filed_as(config)
-  if REGISTRY[filed].ndc(config):
-    return corrections.RaySpace(ndc_focal=ndc_focal(dataset), height=dataset.height,
-                                    width=dataset.width)
-  return corrections.RaySpace(plane_z=float(config.near_origin) if filed == 'dtu' else None)
-
-
-def random_pose_cameras(dataset: base.Dataset, config, rng) -> tuple:
-  """(random poses [n,3,4], pixtocam [3,3], NDC focal or 0) of the training scene, drawn with rng by its loader.
+def random_pose_cameras(dataset: base.Dataset, config, rng) -> Cameras:
+  """RegNeRF's random poses of the training scene as Cameras in its own axes and RaySpace, drawn with rng by its
+  loader.
 
   ValueError naming the settings when the scene has none (the loaders with random poses listed).
   """

@@ -16,6 +16,7 @@ import tempfile
 import numpy as np
 
 from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras
 from internal.datasets import base, image_io
 
 SCENE_VERSION = 3  # 3: two-tone solids and large ground checkers, which a small model fits in a CPU demo.
@@ -223,7 +224,8 @@ def render_view(scene: dict, c2w: np.ndarray, pixtocam: np.ndarray, height: int,
   """One view: rgb [H,W,3] (mean over hits), alpha, object coverage [H,W] (spp^2 samples), depth [H,W]."""
   spp = scene['spp']
   offsets = [((i + .5) / spp, (j + .5) / spp) for j in range(spp) for i in range(spp)] + [(.5, .5)]
-  dirs = np.stack([caster.world_directions(c2w, caster.camera_directions(pixtocam, height, width, True, offset))
+  camera, pixels = Cameras(c2w[None], pixtocam[None]), caster.image_pixels(0, height, width)
+  dirs = np.stack([caster.world_directions(camera, pixels, caster.camera_directions(camera, pixels, True, offset))
                    for offset in offsets]).reshape(-1, 3)
   colour, t, is_object = trace(scene, np.broadcast_to(c2w[:3, 3], dirs.shape), dirs)
   colour, t, is_object = [x.reshape((len(offsets), height, width) + x.shape[1:]) for x in (colour, t, is_object)]

@@ -20,7 +20,7 @@ import numpy as np
 
 from internal import datasets
 from internal.cameras import alignment, corrections
-from internal.datasets import camera_noise, loader
+from internal.datasets import base, batching, camera_noise, loader
 from internal.evaluation import learning_curve
 from internal.models import freq_schedule
 from internal.training import camera_refinement, optim
@@ -52,8 +52,7 @@ class TrainingCameras(NamedTuple):
 def reference_cameras(config, train_set: datasets.Dataset) -> tuple:
   """(reference training cameras [N,3,4], their camera distance) of the training views of train_set."""
   reference = datasets.load_dataset('train', reference_config(config))
-  space = loader.ray_space(config, reference)
-  return np.asarray(reference.camtoworlds, np.float64), camera_noise.camera_distance(reference, space)
+  return np.asarray(reference.camtoworlds, np.float64), camera_noise.camera_distance(reference)
 
 
 def training_cameras(train_set: datasets.Dataset, camera_state, reference: tuple) -> TrainingCameras:
@@ -94,39 +93,36 @@ def aligned_corrections(test_set: datasets.Dataset, similarity: alignment.Simila
   return np.repeat(similarity.rotation[None], len(c2w), 0), moved[:, :, 3] - c2w[:, :, 3]
 
 
-def test_rays(config, test_set: datasets.Dataset, train_set: datasets.Dataset, rotations, shifts):
+def test_rays(test_set: datasets.Dataset, train_set: datasets.Dataset, rotations, shifts):
   """Rays [M,H,W,...] of the test cameras corrected by rotations [M,3,3] and shifts [M,3], with the training
   rays' near and far (the range the model was trained on)."""
-  centres = np.asarray(test_set.camtoworlds, np.float64)[:, :, 3]
-  rays = corrections.image_rays(test_set.rays, rotations, centres, shifts, loader.ray_space(config, test_set))
-  rays = type(rays)(*[np.asarray(x, np.float32) for x in rays])
+  rays = corrections.corrected_image_rays(test_set.rays, test_set.cameras, rotations, shifts, test_set.space)
   return rays._replace(near=np.full_like(rays.near, train_set.near), far=np.full_like(rays.far, train_set.far))
 
 
-def _view_batch(config, test_set: datasets.Dataset, flat, v: int, k: int, space) -> tuple:
-  """(rays [B,...], colours [B,3], NDC neighbour directions or None) of Config.batch_size pixels of test view v for
-  its k-th step, drawn from np.random.default_rng([Config.np_rng_seed, view id, k]); flat: its rays [M,H*W,...]."""
+def _view_batch(config, test_set: datasets.Dataset, flat, v: int, k: int) -> tuple:
+  """(rays [B,...], colours [B,3], their Pixels) of Config.batch_size pixels of test view v for its k-th step, drawn
+  from np.random.default_rng([Config.np_rng_seed, view id, k]); flat: its rays [M,H*W,...]."""
   size = test_set.height * test_set.width
   pixel = np.random.default_rng([config.np_rng_seed, int(test_set.ids[v]), k]).integers(size, size=config.batch_size)
-  fields = corrections.camera_fields((np.full(len(pixel), v), pixel), flat.viewdirs, space, test_set.height,
-                                         test_set.width)
   colours = test_set.images[v].reshape(-1, 3)[pixel]
-  return type(flat)(*[x[v, pixel] for x in flat]), colours, fields.get('neighbour_dirs')
+  pixels = batching.pixels_of((np.full(len(pixel), v), pixel), test_set.width)
+  return type(flat)(*[x[v, pixel] for x in flat]), colours, pixels
 
 
 def test_time_poses(config, model, params, step: int, test_set: datasets.Dataset, rotations, shifts) -> tuple:
   """(rotations [M,3,3], shifts [M,3]) refined per test view on its own image, the model frozen (as at step):
   Config.test_pose_steps Adam steps (Config.test_pose_lr) of the fine level's squared colour error (_view_batch)."""
-  space = loader.ray_space(config, test_set)
+  space, cameras = test_set.space, test_set.cameras
   masks = freq_schedule.model_masks(config, model, jnp.asarray(step))
   adam = optim.adam(config.adam_eps)
   flat = type(test_set.rays)(*[x.reshape(len(test_set.ids), test_set.height * test_set.width, -1)
                                for x in test_set.rays])
   centres = np.asarray(test_set.camtoworlds, np.float32)[:, :, 3]
 
-  def loss(delta, rays, rgb, neighbours, rotation, centre, shift):
+  def loss(delta, rays, rgb, pixels, rotation, centre, shift):
     turned = corrections.so3_exp(delta[:3], jnp) @ rotation
-    moved = corrections.corrected_rays(rays, turned, centre, shift + delta[3:], space, neighbours, jnp)
+    moved = corrections.corrected_rays(rays, turned, centre, shift + delta[3:], space, jnp, cameras, pixels)
     renderings, _ = model.apply({'params': params}, None, moved, *masks, config.resample_padding_final)
     return jnp.mean((renderings[-1]['rgb'] - rgb)**2)
 
@@ -141,7 +137,7 @@ def test_time_poses(config, model, params, step: int, test_set: datasets.Dataset
     opt_state = adam.init(delta)
     camera = (jnp.asarray(rotations[v], jnp.float32), centres[v], jnp.asarray(shifts[v], jnp.float32))
     for k in range(config.test_pose_steps):
-      delta, opt_state = adam_step(delta, opt_state, *_view_batch(config, test_set, flat, v, k, space), *camera)
+      delta, opt_state = adam_step(delta, opt_state, *_view_batch(config, test_set, flat, v, k), *camera)
     delta = np.asarray(delta, np.float64)
     out_rotations.append(corrections.so3_exp(delta[:3]) @ rotations[v])
     out_shifts.append(shifts[v] + delta[3:])
@@ -175,7 +171,7 @@ def evaluation_rays(config, model, state, step: int, test_set: datasets.Dataset,
             'similarity': {'scale': similarity.scale, 'rotation': similarity.rotation.tolist(),
                            'shift': similarity.shift.tolist()},
             'errors': errors(cameras)}
-  return test_rays(config, test_set, train_set, rotations, shifts), record, similarity.scale
+  return test_rays(test_set, train_set, rotations, shifts), record, similarity.scale
 
 
 class CurveCameras:
@@ -183,17 +179,14 @@ class CurveCameras:
   that step (learning_curve.Recorder's cameras)."""
 
   def __init__(self, config, train_set: datasets.Dataset):
-    self.config, self.train_set = config, train_set
+    self.train_set = train_set
     self.reference = reference_cameras(config, train_set)
     test_set = datasets.load_dataset('test', dataclasses.replace(config, eval_factor=config.curve_factor))
-    positions = learning_curve.curve_positions(config, len(test_set.ids))
-    self.views = dataclasses.replace(
-        test_set, images=test_set.images[positions], camtoworlds=test_set.camtoworlds[positions],
-        rays=type(test_set.rays)(*[x[positions] for x in test_set.rays]), ids=[test_set.ids[p] for p in positions])
+    self.views = base.subset(test_set, learning_curve.curve_positions(config, len(test_set.ids)))
 
   def at(self, camera_state) -> tuple:
     """(the views' rays [V,h,w,...] in the frame of the training cameras of camera_state (None: as given),
     {'camera_rotation_deg', 'camera_translation'} medians against the reference)."""
     cameras = training_cameras(self.train_set, camera_state, self.reference)
     rotations, shifts = aligned_corrections(self.views, test_similarity(cameras))
-    return test_rays(self.config, self.views, self.train_set, rotations, shifts), metrics(errors(cameras))
+    return test_rays(self.views, self.train_set, rotations, shifts), metrics(errors(cameras))

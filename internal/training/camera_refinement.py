@@ -5,7 +5,8 @@ Config.camera_adam_eps: steps in proportion to small gradients).
 A view's correction is an axis-angle rotation omega [3] about the camera's centre and a translation tau [3], both
 in world axes, zero at the start (cameras/corrections.py: c2w = [R | C] -> [exp(omega) R | C + tau]). The
 step builds the batch's rays from the corrected cameras (origins, directions, mip-NeRF's radii, NDC for LLFF-like
-scenes), so the loss's gradient reaches the corrections.
+scenes: their radii from the neighbouring pixels' directions, cast from the given cameras, which the state holds as
+constants of the step), so the loss's gradient reaches the corrections.
 
 The gauge: turning, moving or scaling every camera and the scene together changes no image, so the corrections
 are kept where no such motion hides in them: the free parameters [N, 6] are projected to corrections whose rotation
@@ -23,26 +24,44 @@ import jax.numpy as jnp
 import numpy as np
 
 from internal.cameras import corrections
-from internal.datasets import base, loader
+from internal.cameras.records import Cameras, RaySpace
+from internal.datasets import base
 from internal.training import optim, schedule
+
+
+class StaticCameras:
+  """Cameras of numpy arrays as a static (hashable) part of a pytree: constants of the jitted step, equal when their
+  values are."""
+
+  def __init__(self, cameras: Cameras):
+    self.cameras = cameras
+    self._key = tuple(None if x is None else (x.dtype.str, x.shape, x.tobytes()) for x in cameras)
+
+  def __eq__(self, other) -> bool:
+    return isinstance(other, StaticCameras) and self._key == other._key
+
+  def __hash__(self) -> int:
+    return hash(self._key)
 
 
 @flax.struct.dataclass
 class CameraState:
-  """The corrections' free parameters [N, 6] (omega, tau) and Adam moments; the given centres [N, 3] (constants)
-  and how the scene's rays follow from its cameras (static)."""
+  """The corrections' free parameters [N, 6] (omega, tau) and Adam moments; the given centres [N, 3] (constants);
+  static: how the scene's rays follow from its cameras and the given cameras themselves."""
   free: jax.Array
   opt_state: Any
   centres: jax.Array
-  space: corrections.RaySpace = flax.struct.field(pytree_node=False)
+  space: RaySpace = flax.struct.field(pytree_node=False)
+  given: StaticCameras = flax.struct.field(pytree_node=False)
 
 
 def init(config, dataset: base.Dataset) -> CameraState:
   """Zero corrections of the training views of dataset (as loaded: noise included)."""
   free = jnp.zeros((len(dataset.ids), 6), jnp.float32)
+  given = Cameras(*(None if x is None else np.asarray(x, np.float32) for x in dataset.cameras))
   return CameraState(free=free, opt_state=optim.adam(config.camera_adam_eps).init(free),
-                     centres=jnp.asarray(dataset.camtoworlds[:, :, 3], jnp.float32),
-                     space=loader.ray_space(config, dataset))
+                     centres=jnp.asarray(dataset.camtoworlds[:, :, 3], jnp.float32), space=dataset.space,
+                     given=StaticCameras(given))
 
 
 def gauge_fixed(free, centres, xp=jnp):
@@ -63,11 +82,12 @@ def view_corrections(free, centres) -> tuple:
 
 
 def corrected_batch(cameras: CameraState, free, batch: dict) -> dict:
-  """The batch with its rays made from the corrected cameras of its views (batch['view'] [B])."""
+  """The batch with its rays made from the corrected cameras of their pixels (batch['pixels'] [B])."""
   rotations, shifts = view_corrections(free, cameras.centres)
-  view = batch['view']
+  pixels = batch['pixels']
+  view = pixels.view
   rays = corrections.corrected_rays(batch['rays'], rotations[view], cameras.centres[view], shifts[view],
-                                    cameras.space, batch.get('neighbour_dirs'), jnp)
+                                    cameras.space, jnp, cameras.given.cameras, pixels)
   return {**batch, 'rays': rays}
 
 
