@@ -49,24 +49,24 @@ def _camera_batch(scene_dir, tmp_path, *bindings):
   config = tiny_config(scene_dir, tmp_path / 'run', *NOISE, *REFINE, *bindings)
   data = datasets.load_dataset('train', config)
   batch = datasets.make_batcher(data, config)(1)
-  model, state = ts.create_train_state(config, random.PRNGKey(0), batch['rays'],
+  model, state = ts.create_train_state(config, random.PRNGKey(0), batch.rays,
                                        camera_refinement.init(config, data))
   return config, data, model, state, batch
 
 
 def test_the_step_moves_the_cameras_only_when_asked(scene_dir, tmp_path):
   config, _, model, state, batch = _camera_batch(scene_dir, tmp_path)
-  assert isinstance(state, ts.CameraTrainState) and batch['pixels'].view.shape == (config.batch_size,)
+  assert isinstance(state, ts.CameraTrainState) and batch.pixels.view.shape == (config.batch_size,)
   new, stats = ts.make_train_step(config, model)(state, batch, random.PRNGKey(1))
   moved = np.asarray(camera_refinement.gauge_fixed(new.cameras.free, new.cameras.centres))
   assert not bool(stats['skipped']) and np.abs(moved).max() > 0 and float(stats['camera_lr']) > 0
-  views = np.unique(batch['pixels'].view)  # Views without rays in the batch move only through the gauge.
+  views = np.unique(batch.pixels.view)  # Views without rays in the batch move only through the gauge.
   assert np.abs(np.asarray(new.cameras.free)[views]).max() > 0
   off = tiny_config(scene_dir, tmp_path / 'off', *NOISE)
   data = datasets.load_dataset('train', off)
   plain = datasets.make_batcher(data, off)(1)
-  assert set(plain) == {'rays', 'rgb'}
-  _, state = ts.create_train_state(off, random.PRNGKey(0), plain['rays'])
+  assert plain.pixels is None
+  _, state = ts.create_train_state(off, random.PRNGKey(0), plain.rays)
   assert type(state) is ts.TrainState  # pylint: disable=unidiomatic-typecheck
 
 
@@ -150,10 +150,10 @@ def test_a_known_perturbation_of_one_camera_is_mostly_undone(scene_dir, tmp_path
   perturbed = dataclasses.replace(clean, rays=rays, camtoworlds=c2w.astype(np.float32))
   batcher = datasets.make_batcher(perturbed, config)
   fixed = dataclasses.replace(config, optimize_cameras=False)
-  model, state = ts.create_train_state(fixed, random.PRNGKey(0), batcher(0)['rays'])
+  model, state = ts.create_train_state(fixed, random.PRNGKey(0), batcher(0).rays)
   step = ts.make_train_step(fixed, model)
   for k in range(1, 301):
-    state, _ = step(state, {'rays': batcher(k)['rays'], 'rgb': batcher(k)['rgb']}, random.PRNGKey(1))
+    state, _ = step(state, batcher(k)._replace(pixels=None), random.PRNGKey(1))
   state = ts.CameraTrainState(step=state.step, params=state.params, opt_state=state.opt_state,
                               cameras=camera_refinement.init(config, perturbed))
   step = ts.make_train_step(config, model)

@@ -341,7 +341,7 @@ def test_inward_captures_draw_regnerfs_random_poses_by_dtus_rule(generated_captu
   assert np.all(along > 0)
   # Their patches are the capture's world rays from the poses' centres (not moved onto DTU's origin plane).
   regnerf = dataclasses.replace(config, depth_tvnorm_loss_mult=.1, batch_size=64, batch_size_random=128)
-  patches = make_batcher(data, regnerf)(1)['patch_rays']
+  patches = make_batcher(data, regnerf)(1).patch_rays
   drawn = loader.random_pose_cameras(data, regnerf, np.random.default_rng([regnerf.np_rng_seed,
                                                                           random_poses.POSES_STREAM]))
   centres = [np.linalg.norm(drawn.camtoworlds[:, :, 3] - o, axis=-1).min() for o in patches.origins.reshape(-1, 3)]

@@ -292,19 +292,19 @@ def test_batcher_shapes_correspondence_and_reproducibility(mode):
   data = encoded_dataset()
   config = Config(batching=mode, batch_size=512, np_rng_seed=11)
   batch = make_batcher(data, config)(7)
-  assert set(batch) == {'rays', 'rgb'} and isinstance(batch['rays'], Rays)
-  assert batch['rgb'].shape == (512, 3) and batch['rgb'].dtype == np.float32
-  for field in batch['rays']:
+  assert isinstance(batch.rays, Rays) and all(x is None for x in batch[2:])  # No other family asked for.
+  assert batch.rgb.shape == (512, 3) and batch.rgb.dtype == np.float32
+  for field in batch.rays:
     assert field.shape[0] == 512 and field.dtype == np.float32
-  np.testing.assert_allclose(batch['rays'].origins, batch['rgb'] * 10., atol=1e-5)
-  np.testing.assert_allclose(batch['rays'].viewdirs, batch['rgb'] * 10. + 2, atol=1e-5)
+  np.testing.assert_allclose(batch.rays.origins, batch.rgb * 10., atol=1e-5)
+  np.testing.assert_allclose(batch.rays.viewdirs, batch.rgb * 10. + 2, atol=1e-5)
   again = make_batcher(data, config)(7)
-  np.testing.assert_array_equal(again['rgb'], batch['rgb'])
-  assert not np.array_equal(make_batcher(data, config)(8)['rgb'], batch['rgb'])
+  np.testing.assert_array_equal(again.rgb, batch.rgb)
+  assert not np.array_equal(make_batcher(data, config)(8).rgb, batch.rgb)
   other_seed = Config(batching=mode, batch_size=512, np_rng_seed=12)
-  assert not np.array_equal(make_batcher(data, other_seed)(7)['rgb'], batch['rgb'])
-  images = np.unique(batch['rays'].origins[:, 0])
-  pixels = np.unique(batch['rays'].origins.reshape(-1, 3), axis=0)
+  assert not np.array_equal(make_batcher(data, other_seed)(7).rgb, batch.rgb)
+  images = np.unique(batch.rays.origins[:, 0])
+  pixels = np.unique(batch.rays.origins.reshape(-1, 3), axis=0)
   if mode == 'single_image':
     assert images.size == 1 and images[0] == np.random.default_rng([11, 7]).integers(3)
     assert len(pixels) == 20   # 512 draws with replacement cover all 20 pixels of the image.

@@ -184,7 +184,7 @@ def test_generated_render_path_and_batches(scenes):
   cos = (centre_dirs * to_origin).sum(-1) / np.linalg.norm(centre_dirs, axis=-1) / np.linalg.norm(to_origin, axis=-1)
   assert (cos > .999).all()   # The orbit faces the origin.
   batch = make_batcher(train, Config(batch_size=64))(0)
-  assert batch['rgb'].shape == (64, 3) and batch['rays'].near.shape == (64, 1)
+  assert batch.rgb.shape == (64, 3) and batch.rays.near.shape == (64, 1)
 
 
 @pytest.mark.parametrize('rig', ['object', 'forward'])
@@ -214,7 +214,7 @@ def test_forward_rig_random_poses_are_llffs_of_its_poses_file(scenes):
   np.testing.assert_array_equal(cameras.camtoworlds, random_poses.llff_random_poses(c2w, bounds, 20,
                                                                                     np.random.default_rng(3), False))
   tv = dataclasses.replace(config, depth_tvnorm_loss_mult=.1, batch_size=64, batch_size_random=128)
-  patches = make_batcher(train, tv)(2)['patch_rays']
+  patches = make_batcher(train, tv)(2).patch_rays
   assert patches.origins.shape == (2, 8, 8, 3) and (patches.near == 0.).all() and (patches.far == 1.).all()
 
 

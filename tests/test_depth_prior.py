@@ -169,8 +169,6 @@ def test_a_missing_folder_and_a_pack_without_names(prior_setup):
     (["Config.depth_prior_dir = '/tmp'", "Config.depth_prior_kind = 'depth'", 'Config.depth_rank_loss_mult = 1.',
       'Config.depth_patch_size = 1'], 'Config.depth_patch_size = 1 and Config.depth_prior_rays = 512'),
     (['Config.sfm_depth_loss_mult = 1.'], "needs a capture.*Config.dataset_loader = 'generated'"),
-    (["Config.depth_prior_dir = '/tmp'", "Config.depth_prior_kind = 'depth'", 'Config.depth_rank_loss_mult = 1.',
-      'Config.optimize_cameras = True'], 'optimize_cameras = True with a depth prior .* not supported'),
 ])
 def test_settings_that_cannot_work_are_refused_naming_them(bindings, message):
   with pytest.raises(ValueError, match=message):

@@ -11,10 +11,11 @@ from jax import random
 from conftest import random_rays
 from internal import configs
 from internal.losses import depth_smoothness
-from internal.training import anneal, schedule, train_step
+from internal.training import anneal, train_step
 from internal.cameras import algebra, caster
 from internal.cameras.records import Cameras, RaySpace
 from internal.datasets import random_poses
+from internal.datasets.batching import Batch
 from internal.rays import Rays
 
 
@@ -36,7 +37,7 @@ def test_tv_weighting_released_zero_mask_weight_zeroes_the_loss_and_the_fix_unwe
 
 @pytest.mark.parametrize('step,expected', [(0, 400.), (256, 200.05), (512, 0.1), (1000, 0.1)])
 def test_tv_weight_schedule_of_the_released_configs(step, expected):
-  assert float(schedule.linear(step, 512, 400., 0.1)) == pytest.approx(expected)
+  assert float(depth_smoothness.linear(step, 512, 400., 0.1)) == pytest.approx(expected)
 
 
 def test_expected_depth_clamps_the_opacity_and_clips_to_the_ray():
@@ -49,8 +50,8 @@ def test_expected_depth_clamps_the_opacity_and_clips_to_the_ray():
 def test_tv_weight_decays_only_when_asked():
   config = configs.Config(depth_tvnorm_decay=True, depth_tvnorm_maxstep=512, depth_tvnorm_loss_mult_start=400.,
                           depth_tvnorm_loss_mult_end=0.1, depth_tvnorm_loss_mult=0.1)
-  assert float(schedule.depth_tv_weight(config, 256)) == pytest.approx(200.05)
-  assert schedule.depth_tv_weight(configs.Config(depth_tvnorm_loss_mult=0.3), 256) == 0.3
+  assert float(depth_smoothness.tv_weight(config, 256)) == pytest.approx(200.05)
+  assert depth_smoothness.tv_weight(configs.Config(depth_tvnorm_loss_mult=0.3), 256) == 0.3
 
 
 @pytest.mark.parametrize('step,expected', [(0, (1.25, 2.75)), (128, (0.875, 3.125)), (256, (0.5, 3.5)),
@@ -132,20 +133,20 @@ def test_train_step_adds_the_depth_tv_only_when_asked():
   gin.parse_config(['MLP.net_depth = 2', 'MLP.net_width = 32', 'MipNerfModel.num_samples = 16'])
   rays = random_rays(0, 64)
   patch = jax.tree.map(lambda x: x.reshape((4, 4, 4, -1)), random_rays(1, 64))
-  batch = {'rays': rays, 'rgb': np.full((64, 3), 0.5, np.float32)}
+  batch = Batch(rays=rays, rgb=np.full((64, 3), 0.5, np.float32))
   base = configs.Config(max_steps=10, depth_tvnorm_loss_mult=0.)
   tv = configs.Config(max_steps=10, patch_size=4, batch_size_random=64, depth_tvnorm_loss_mult=0.5,
                       anneal_nearfar=True, anneal_nearfar_steps=4, anneal_nearfar_perc=0.5)
   model, state = train_step.create_train_state(base, random.PRNGKey(0), rays)
   key = random.PRNGKey(1)
   loss0, stats0 = train_step.compute_loss(base, model, state.params, batch, key, 1)
-  loss1, stats1 = train_step.compute_loss(tv, model, state.params, dict(batch, patch_rays=patch), key, 1)
+  loss1, stats1 = train_step.compute_loss(tv, model, state.params, batch._replace(patch_rays=patch), key, 1)
   assert 'loss_depth_tv' not in stats0
   # The TV term is 0.1 x coarse TV + 0.5 x fine TV, with released mask weight 0: zero, so the losses differ
   # only through the annealed near/far of the data rays.
   assert float(stats1['loss_depth_tv']) == 0.
   fixed = dataclasses.replace(tv, regnerf_fix_released_bugs=True)
-  _, stats2 = train_step.compute_loss(fixed, model, state.params, dict(batch, patch_rays=patch), key, 1)
+  _, stats2 = train_step.compute_loss(fixed, model, state.params, batch._replace(patch_rays=patch), key, 1)
   expected = 0.1 * stats2['depth_tv_level0'] + 0.5 * stats2['depth_tv_level1']
   assert float(stats2['loss_depth_tv']) == pytest.approx(float(expected)) and float(expected) > 0
   assert float(loss0) != float(loss1)

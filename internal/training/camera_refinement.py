@@ -4,9 +4,11 @@ Config.camera_adam_eps: steps in proportion to small gradients).
 
 A view's correction is an axis-angle rotation omega [3] about the camera's centre and a translation tau [3], both
 in world axes, zero at the start (cameras/corrections.py: c2w = [R | C] -> [exp(omega) R | C + tau]). The
-step builds the batch's rays from the corrected cameras (origins, directions, mip-NeRF's radii, NDC for LLFF-like
-scenes: their radii from the neighbouring pixels' directions, cast from the given cameras, which the state holds as
-constants of the step), so the loss's gradient reaches the corrections.
+step makes every ray family of the batch that comes from training views (the training pixels, the depth priors'
+patches and points) again from the corrected cameras, once, before the loss terms (origins, directions, mip-NeRF's
+radii, NDC for LLFF-like scenes: their radii from the neighbouring pixels' directions, cast from the given cameras,
+which the state holds as constants of the step), so every term's gradient reaches the corrections. RegNeRF's
+random-pose patches come from no training camera: they keep the frame the gauge holds.
 
 The gauge: turning, moving or scaling every camera and the scene together changes no image, so the corrections
 are kept where no such motion hides in them: the free parameters [N, 6] are projected to corrections whose rotation
@@ -25,7 +27,7 @@ import numpy as np
 
 from internal.cameras import corrections
 from internal.cameras.records import Cameras, RaySpace
-from internal.datasets import base
+from internal.datasets import base, batching
 from internal.training import optim, schedule
 
 
@@ -81,17 +83,21 @@ def view_corrections(free, centres) -> tuple:
   return corrections.so3_exp(fixed[:, :3], jnp), fixed[:, 3:]
 
 
-def corrected_batch(cameras: CameraState, free, batch: dict) -> dict:
-  """The batch with its rays made from the corrected cameras of their pixels (batch['pixels'] [B])."""
+def corrected_batch(cameras: CameraState, free, batch: batching.Batch) -> batching.Batch:
+  """The batch with the rays of every family of training views (their Pixels) made from the corrected cameras."""
   rotations, shifts = view_corrections(free, cameras.centres)
-  pixels = batch['pixels']
-  view = pixels.view
-  rays = corrections.corrected_rays(batch['rays'], rotations[view], cameras.centres[view], shifts[view],
-                                    cameras.space, jnp, cameras.given.cameras, pixels)
-  return {**batch, 'rays': rays}
+  fields = {}
+  for rays_field, pixels_field in batching.FAMILIES:
+    pixels = getattr(batch, pixels_field) if pixels_field else None
+    if pixels is not None:
+      view = pixels.view
+      fields[rays_field] = corrections.corrected_rays(getattr(batch, rays_field), rotations[view],
+                                                      cameras.centres[view], shifts[view], cameras.space, jnp,
+                                                      cameras.given.cameras, pixels)
+  return batch._replace(**fields)
 
 
-def value_and_grads(loss_fn, params, cameras: CameraState, batch: dict, key, step):
+def value_and_grads(loss_fn, params, cameras: CameraState, batch: batching.Batch, key, step):
   """((loss, stats), (model gradients, free-parameter gradients [N, 6])) of loss_fn(params, batch, key, step) on
   the batch's rays made from the corrected cameras."""
   def loss(params, free):
