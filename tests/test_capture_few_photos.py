@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from internal.cameras import alignment
 from internal.datasets import colmap_model
 from test_capture import CUP, needs_cup, needs_pycolmap
 from tools.capture import few_photos, poses
@@ -39,7 +40,7 @@ def test_spread_subsets_cover_their_span_evenly_and_random_ones_are_distinct(n):
 @needs_cup
 def test_a_model_against_itself_moved_has_no_camera_error_and_positions_are_in_the_given_distance():
   model = colmap_model.read_model(str(CUP / 'sparse' / '0'))
-  distance = poses.camera_distance(poses.model_cameras(model)[1])
+  distance = alignment.camera_distance(poses.model_cameras(model)[1])
   found = few_photos.camera_errors(model, model, distance)
   assert max(found.values()) < 1e-4  # arccos near 1: degrees to about 1e-6.
   names, c2w = poses.model_cameras(model)
@@ -73,7 +74,7 @@ def test_a_small_run_on_the_cup_writes_every_run_and_its_summary(tmp_path):
 @needs_pycolmap
 def test_neighbouring_photos_register_near_the_all_photo_models_cameras(tmp_path):
   reference = colmap_model.read_model(str(CUP / 'sparse' / '0'))
-  distance = poses.camera_distance(poses.model_cameras(reference)[1])
+  distance = alignment.camera_distance(poses.model_cameras(reference)[1])
   names = [f'{i}.jpg' for i in range(1, 7)]
   row = few_photos.run(str(CUP / 'images'), names, str(tmp_path / 'six'), 200, reference, distance)
   assert row['capture_made'] and row['registered'] >= 3, row

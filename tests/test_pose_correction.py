@@ -142,7 +142,7 @@ def test_noise_turns_and_moves_each_training_camera_exactly_and_its_rays_follow(
   angles = np.rad2deg(alignment.rotation_angle(
       np.swapaxes(clean.camtoworlds[:, :, :3], 1, 2) @ noisy.camtoworlds[:, :, :3]))
   np.testing.assert_allclose(angles, 5., atol=2e-3)
-  distance = 2. if rig == 'forward' else 4.  # (near + far) / 2 = (2 + 6) / 2; NDC: camera_noise.NDC_DISTANCE.
+  distance = 2. if rig == 'forward' else 4.  # (near + far) / 2 = (2 + 6) / 2; NDC: alignment.NDC_DISTANCE.
   np.testing.assert_allclose(np.linalg.norm(noisy.camtoworlds[:, :, 3] - clean.camtoworlds[:, :, 3], axis=-1),
                              .05 * distance, rtol=1e-5)
   assert noisy.space == clean.space and bool(clean.space.ndc_focal) == (rig == 'forward')

@@ -1,15 +1,25 @@
-"""The similarity that best maps one set of cameras onto another, and the camera errors left after it.
+"""The one similarity that best maps a set of cameras onto another, the camera errors with and without it, the
+camera distance (the unit of translations) and the rotation angle.
 
 Cameras known only up to a similarity (structure-from-motion, refinement: any rotation, translation and scale of
 every camera and the scene together changes no image) are compared after aligning them, as BARF evaluates: the
 similarity x -> s Q x + t minimizes, over the cameras, the squared distances of the centres (scaled by their spread)
 plus the squared differences of the rotation matrices, one Procrustes problem (Umeyama's, with the orientations
-added), so that it is defined for any number of cameras (one: its rotation and centre; scale 1).
+added), so that it is defined for any number of cameras (one: its rotation and centre; scale 1). A similarity also
+explains part of any error (cameras each turned by exactly 5 degrees about random axes read less than 5 after it,
+the fewer the cameras the less: tests/test_pose_correction.py measures it), so an error is compared only with one
+measured under the same alignment; where both sets share their frame (the reference's: noise and refinement
+without a capture's separate model) errors without the similarity are reported too.
 """
 
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import numpy as np
+
+from internal.cameras import algebra
+from internal.cameras.records import RaySpace
+
+NDC_DISTANCE = 2.  # The world depth whose NDC z is 0: half-way through NDC's disparity range [1, 0].
 
 
 
@@ -50,11 +60,23 @@ def rotation_angle(rotation: np.ndarray) -> np.ndarray:
   return np.arccos(np.clip((trace - 1.) / 2., -1., 1.))
 
 
-def errors(cameras: np.ndarray, reference: np.ndarray, distance: float) -> dict:
-  """{'rotation_deg' [N], 'translation' [N]} of cameras [N,3,4] against reference [N,3,4] after the similarity
-  taking cameras onto reference: rotation angles in degrees, centre distances as a fraction of distance (the
-  reference's camera distance, camera_noise.camera_distance)."""
-  aligned = fit(cameras, reference).cameras(cameras)
+def camera_distance(camtoworlds: np.ndarray, space: Optional[RaySpace] = None) -> float:
+  """The distance of cameras [N,3,4] from the middle of the scene they see, the unit of translations (camera noise,
+  camera errors): for NDC rays NDC_DISTANCE (LLFF's frame puts the nearest scene depth at 1 / 0.75); for world rays
+  the middle of their depth range, (near + far) / 2 (4 for the generated object rig and Blender, whose cameras sit
+  4 from the object's centre); for cameras without rays (space None: structure-from-motion against a reference)
+  the median distance from the point nearest to every optical axis."""
+  if space is None:
+    c2w = np.asarray(camtoworlds, np.float64)
+    return float(np.median(np.linalg.norm(c2w[:, :, 3] - algebra.focus_point(c2w), axis=-1)))
+  return NDC_DISTANCE if space.ndc_focal else .5 * (space.near + space.far)
+
+
+def errors(cameras: np.ndarray, reference: np.ndarray, distance: float, align: bool = True) -> dict:
+  """{'rotation_deg' [N], 'translation' [N]} of cameras [N,3,4] against reference [N,3,4]: rotation angles in
+  degrees, centre distances as a fraction of distance (the reference's camera_distance); after the similarity
+  taking cameras onto reference, or (align False) as they are, for sets in the same frame."""
+  aligned = fit(cameras, reference).cameras(cameras) if align else np.asarray(cameras, np.float64)
   reference = np.asarray(reference, np.float64)
   angles = rotation_angle(np.swapaxes(aligned[:, :, :3], 1, 2) @ reference[:, :, :3])
   gaps = np.linalg.norm(aligned[:, :, 3] - reference[:, :, 3], axis=-1)

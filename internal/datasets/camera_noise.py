@@ -1,32 +1,22 @@
 """Seeded noise on the training cameras, for studies of camera refinement (Config.camera_noise_*).
 
 Each training camera turns by exactly Config.camera_noise_rotation_deg about a random axis through its centre and
-moves by exactly Config.camera_noise_translation times the camera distance in a random direction; the directions
-of view id v come from np.random.default_rng([Config.camera_noise_seed, v]), so a view's noise does not depend on
-which other views train. The camera distance is the depth of the middle of the scene's rays: (near + far) / 2 for
-world rays (4 for the generated object rig and Blender, whose cameras sit 4 from the object's centre), 2 for NDC
-rays (the middle of NDC's disparity range, LLFF's frame putting the nearest scene depth at 1 / 0.75). Test cameras
-are never perturbed.
+moves by exactly Config.camera_noise_translation times the camera distance (cameras/alignment.camera_distance) in
+a random direction; the directions of view id v come from np.random.default_rng([Config.camera_noise_seed, v]), so a
+view's noise does not depend on which other views train. Test cameras are never perturbed.
 """
 
 import dataclasses
 
 import numpy as np
 
-from internal.cameras import corrections
+from internal.cameras import alignment, corrections
 from internal.datasets import base
-
-NDC_DISTANCE = 2.  # The world depth whose NDC z is 0: half-way through NDC's disparity range [1, 0].
 
 
 def is_on(config) -> bool:
   """Whether Config asks for noise on the training cameras."""
   return config.camera_noise_rotation_deg > 0 or config.camera_noise_translation > 0
-
-
-def camera_distance(dataset: base.Dataset) -> float:
-  """The distance of a camera from the middle of its scene, the unit of Config.camera_noise_translation."""
-  return NDC_DISTANCE if dataset.space.ndc_focal else .5 * (dataset.near + dataset.far)
 
 
 def _unit(rng: np.random.Generator) -> np.ndarray:
@@ -51,7 +41,7 @@ def perturbed(dataset: base.Dataset, config) -> base.Dataset:
   """The training dataset with its cameras and rays turned and moved by the noise (unchanged when off)."""
   if not is_on(config) or dataset.split != 'train':
     return dataset
-  rotations, shifts = draw(dataset.ids, config, camera_distance(dataset))
+  rotations, shifts = draw(dataset.ids, config, alignment.camera_distance(dataset.camtoworlds, dataset.space))
   rays = corrections.corrected_image_rays(dataset.rays, dataset.cameras, rotations, shifts, dataset.space)
   c2w = corrections.corrected_cameras(dataset.camtoworlds, rotations, shifts)
   return dataclasses.replace(dataset, camtoworlds=c2w.astype(np.float32), rays=rays)

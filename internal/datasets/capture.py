@@ -92,9 +92,7 @@ def read_capture(config) -> Capture:
   if not images:
     raise base.DatasetError(f'the COLMAP model in {model_dir!r} has no registered images')
   model_file = lambda name: os.path.join(model_dir, name + colmap_model.model_format(model_dir))
-  rotations = np.stack([colmap_model.qvec_to_rotmat(i.qvec) for i in images])
-  centres = np.stack([colmap_model.camera_center(i) for i in images])
-  c2w = np.concatenate([np.transpose(rotations, (0, 2, 1)), centres[..., None]], -1)
+  c2w = np.stack([colmap_model.camtoworld(i) for i in images])
   base.check_cameras(c2w, model_file('images'), [f'image {i.name!r}' for i in images], 'pose')
   params = [_camera_params(model, i, model_file('cameras')) for i in images]
   bounds = colmap_model.depth_bounds(model, model_file('points3D'))

@@ -90,6 +90,11 @@ def camera_center(image: Image) -> np.ndarray:
   return -qvec_to_rotmat(image.qvec).T @ image.tvec
 
 
+def camtoworld(image: Image) -> np.ndarray:
+  """The camera-to-world [3, 4] of an image in COLMAP's (OpenCV) axes: [R^T | centre]."""
+  return np.concatenate([qvec_to_rotmat(image.qvec).T, camera_center(image)[:, None]], -1)
+
+
 def depth_bounds(model: Model, points_file: str = 'points3D', percentiles=(0.1, 99.9)) -> Dict[int, np.ndarray]:
   """{image_id: [near, far]}: percentiles of the camera-space depths of the 3D points whose track holds the
   image (LLFF's rule for poses_bounds.npy); ColmapError naming points_file for a point or a range that no ray

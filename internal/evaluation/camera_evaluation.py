@@ -52,7 +52,8 @@ class TrainingCameras(NamedTuple):
 def reference_cameras(config, train_set: datasets.Dataset) -> tuple:
   """(reference training cameras [N,3,4], their camera distance) of the training views of train_set."""
   reference = datasets.load_dataset('train', reference_config(config))
-  return np.asarray(reference.camtoworlds, np.float64), camera_noise.camera_distance(reference)
+  return np.asarray(reference.camtoworlds, np.float64), alignment.camera_distance(reference.camtoworlds,
+                                                                                 reference.space)
 
 
 def training_cameras(train_set: datasets.Dataset, camera_state, reference: tuple) -> TrainingCameras:

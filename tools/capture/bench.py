@@ -109,9 +109,9 @@ def markdown(record: dict) -> str:
           f'`{record["command"]}` at commit {record["commit"][:12]}, pycolmap {record["pycolmap"]}, '
           f'{machine["cpu_count"]} CPUs ({machine["platform"]}), shared with other jobs: the 1-minute load average '
           'before and after each run is in the table (above 2, other jobs had the cores too).\n\n'
-          'Errors: the recovered cameras against the reference after a similarity alignment (its rotation the mean of '
-          'the rotation differences, scale and translation fitted to the centres); positions as a fraction of the '
-          "reference's camera distance. Seconds are wall seconds from the tool's report; CPU seconds are the whole "
+          'Errors: the recovered cameras against the reference after the similarity alignment of '
+          'internal/cameras/alignment.py (one fit of the centres and orientations together); positions as a fraction '
+          "of the reference's camera distance. Seconds are wall seconds from the tool's report; CPU seconds are the whole "
           f'run\'s.\n\n{table(record["runs"])}\nTargets ({record["targets"]}): {met}.\n')
 
 

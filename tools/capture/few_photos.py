@@ -33,6 +33,7 @@ import numpy as np
 from internal import atomic
 from internal import cli
 from internal import config_loader
+from internal.cameras import alignment
 from internal.datasets import colmap_model
 from internal.datasets import capture as capture_loader
 from tools import provenance
@@ -201,7 +202,7 @@ def main(argv=None) -> int:
                              + list(sys.argv[1:] if argv is None else argv))
   order = arc_names(args.capture_dir)
   reference = colmap_model.read_model(os.path.join(args.capture_dir, 'sparse', '0'))
-  distance = poses.camera_distance(poses.model_cameras(reference)[1])
+  distance = alignment.camera_distance(poses.model_cameras(reference)[1])
   runs = []
   for n in args.sizes:
     for kind_index, (kind, span) in enumerate(KINDS.items()):
