@@ -192,6 +192,30 @@ def test_evaluation_carries_the_test_cameras_by_the_similarity_and_records_it(sc
     np.testing.assert_allclose(got[1], want[0], rtol=1e-5, atol=1e-5, err_msg=name)
 
 
+def test_a_test_camera_lands_where_a_known_similarity_places_it(scene_dir, tmp_path):
+  """The final training cameras are the reference moved by a known similarity: each test camera, in the reference's
+  frame, must land where that similarity takes it, and its rays be that camera's (the similarity fitted the other
+  way, final onto reference, lands it elsewhere; a test that rebuilt the rays from the similarity a run recorded
+  would pass either way)."""
+  test_set = datasets.load_dataset('test', tiny_config(scene_dir, tmp_path / 'run'))
+  known = alignment.Similarity(1.7, corrections.so3_exp(np.array([.3, -.5, .8])), np.array([.4, -1., 2.]))
+  reference = np.asarray(datasets.load_dataset('train', tiny_config(scene_dir, tmp_path / 'run')).camtoworlds,
+                         np.float64)
+  final = known.cameras(reference)
+  cameras = camera_evaluation.TrainingCameras(final, final, reference, 4., True)
+  rotations, shifts = camera_evaluation.aligned_corrections(test_set, camera_evaluation.test_similarity(cameras))
+  placed = known.cameras(test_set.camtoworlds)
+  np.testing.assert_allclose(corrections.corrected_cameras(test_set.camtoworlds, rotations, shifts), placed,
+                             atol=1e-9)
+  reverse = alignment.fit(final, reference).cameras(test_set.camtoworlds)
+  assert np.abs(reverse[:, :, 3] - placed[:, :, 3]).max() > 1.
+  rays = camera_evaluation.test_rays(test_set, test_set, rotations, shifts)
+  expected = caster.image_rays(Cameras(placed, test_set.pixtocams), test_set.space)
+  for name, got, want in zip(expected._fields, rays, expected):
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5, err_msg=name)
+  assert camera_evaluation.metrics(camera_evaluation.errors(cameras))['camera_rotation_deg_unaligned'] > 30.
+
+
 def test_test_time_poses_undo_a_known_turn_with_the_model_frozen(scene_dir, tmp_path):
   config = tiny_config(scene_dir, tmp_path / 'run', 'Config.n_input_views = 0', 'Config.max_steps = 300',
                        'Config.freq_reg = False', 'Config.test_pose_steps = 60', 'Config.test_pose_lr = 3e-3')

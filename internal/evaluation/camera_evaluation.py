@@ -8,7 +8,10 @@ cameras/alignment.py, as BARF evaluates) carries the test cameras into the frame
 optionally each test camera is then refined on its own image with the model frozen (Config.test_pose_steps,
 BARF's test-time pose optimization). Camera errors are after a similarity too: the final cameras against the
 given ones (what refinement moved) and against the reference (the true cameras where the loader's are exact: the
-generated scene, Blender, DTU's calibration).
+generated scene, Blender, DTU's calibration). A similarity explains part of any error (cameras/alignment.py), so
+where the training cameras start in the reference's frame (noise and refinement move them from it; a capture's
+separate training model has a frame of its own) the errors against the reference are reported without it too
+(*_unaligned): on the generated scene, whose frame is known, those read the noise whole.
 """
 
 import dataclasses
@@ -42,18 +45,31 @@ def reference_config(config):
 
 class TrainingCameras(NamedTuple):
   """The training cameras [N,3,4] as given, as finally trained on, and in the test cameras' frame; the camera
-  distance of the reference (the unit of translation errors)."""
+  distance of the reference (the unit of translation errors); whether the given cameras are in the reference's
+  frame."""
   given: np.ndarray
   final: np.ndarray
   reference: np.ndarray
   distance: float
+  shared_frame: bool
+
+
+# What the camera metrics of metrics.json measure (its 'cameras' record says it beside them).
+METRIC_WORDS = {
+    'camera_rotation_deg': 'median rotation error (degrees) of the final training cameras against the reference, '
+                           'after the similarity taking them onto it',
+    'camera_translation': 'median centre distance (of the camera distance) of the final training cameras from the '
+                          'reference, after the similarity taking them onto it',
+    'camera_rotation_deg_unaligned': 'camera_rotation_deg without the similarity (the cameras share its frame)',
+    'camera_translation_unaligned': 'camera_translation without the similarity (the cameras share its frame)'}
 
 
 def reference_cameras(config, train_set: datasets.Dataset) -> tuple:
-  """(reference training cameras [N,3,4], their camera distance) of the training views of train_set."""
+  """(reference training cameras [N,3,4], their camera distance, whether the given cameras share their frame) of
+  the training views of train_set."""
   reference = datasets.load_dataset('train', reference_config(config))
-  return np.asarray(reference.camtoworlds, np.float64), alignment.camera_distance(reference.camtoworlds,
-                                                                                 reference.space)
+  distance = alignment.camera_distance(reference.camtoworlds, reference.space)
+  return np.asarray(reference.camtoworlds, np.float64), distance, not config.capture_train_model
 
 
 def training_cameras(train_set: datasets.Dataset, camera_state, reference: tuple) -> TrainingCameras:
@@ -65,21 +81,32 @@ def training_cameras(train_set: datasets.Dataset, camera_state, reference: tuple
 
 
 def errors(cameras: TrainingCameras) -> dict:
-  """Camera errors (alignment.errors) of the final cameras against the given ones and the reference, and
-  of the given ones against the reference; medians, means, maxima and per view."""
-  pairs = {'final_vs_given': (cameras.final, cameras.given), 'final_vs_reference': (cameras.final, cameras.reference),
-           'given_vs_reference': (cameras.given, cameras.reference)}
+  """Camera errors (alignment.errors) of the final cameras against the given ones and the reference, and of the
+  given ones against the reference, after the similarity; against the reference also without it ('_unaligned')
+  where the frames are shared; medians, means, maxima and per view."""
+  pairs = {'final_vs_given': (cameras.final, cameras.given, True),
+           'final_vs_reference': (cameras.final, cameras.reference, True),
+           'given_vs_reference': (cameras.given, cameras.reference, True)}
+  if cameras.shared_frame:
+    pairs.update(final_vs_reference_unaligned=(cameras.final, cameras.reference, False),
+                 given_vs_reference_unaligned=(cameras.given, cameras.reference, False))
   out = {}
-  for name, (a, b) in pairs.items():
-    values = alignment.errors(a, b, cameras.distance)
+  for name, (a, b, align) in pairs.items():
+    values = alignment.errors(a, b, cameras.distance, align)
     out[name] = {**alignment.summary(values), 'per_view': {k: v.tolist() for k, v in values.items()}}
   return out
 
 
 def metrics(error_record: dict) -> dict:
-  """The camera metrics of metrics.json's means: median errors of the final cameras against the reference."""
-  against = error_record['final_vs_reference']
-  return {'camera_rotation_deg': against['rotation_deg_median'], 'camera_translation': against['translation_median']}
+  """The camera metrics of metrics.json's means (METRIC_WORDS): median errors of the final cameras against the
+  reference, after the similarity and, where the frames are shared, without it."""
+  out = {}
+  for suffix in ('', '_unaligned'):
+    against = error_record.get('final_vs_reference' + suffix)
+    if against is not None:
+      out.update({f'camera_rotation_deg{suffix}': against['rotation_deg_median'],
+                  f'camera_translation{suffix}': against['translation_median']})
+  return out
 
 
 def test_similarity(cameras: TrainingCameras) -> alignment.Similarity:
@@ -172,6 +199,7 @@ def evaluation_rays(config, model, state, step: int, test_set: datasets.Dataset,
             'similarity': {'scale': similarity.scale, 'rotation': similarity.rotation.tolist(),
                            'shift': similarity.shift.tolist()},
             'errors': errors(cameras)}
+  record['metrics'] = {name: METRIC_WORDS[name] for name in metrics(record['errors'])}
   return test_rays(test_set, train_set, rotations, shifts), record, similarity.scale
 
 
@@ -186,8 +214,8 @@ class CurveCameras:
     self.views = base.subset(test_set, learning_curve.curve_positions(config, len(test_set.ids)))
 
   def at(self, camera_state) -> tuple:
-    """(the views' rays [V,h,w,...] in the frame of the training cameras of camera_state (None: as given),
-    {'camera_rotation_deg', 'camera_translation'} medians against the reference)."""
+    """(the views' rays [V,h,w,...] in the frame of the training cameras of camera_state (None: as given), the
+    camera metrics of metrics.json at this step)."""
     cameras = training_cameras(self.train_set, camera_state, self.reference)
     rotations, shifts = aligned_corrections(self.views, test_similarity(cameras))
     return test_rays(self.views, self.train_set, rotations, shifts), metrics(errors(cameras))
