@@ -23,8 +23,7 @@ import numpy as np
 
 from internal import datasets
 from internal.cameras import alignment, corrections
-from internal.datasets import base, batching, camera_noise, loader
-from internal.evaluation import learning_curve
+from internal.datasets import batching, camera_noise, loader
 from internal.models import freq_schedule
 from internal.training import camera_refinement, optim
 
@@ -201,21 +200,3 @@ def evaluation_rays(config, model, state, step: int, test_set: datasets.Dataset,
             'errors': errors(cameras)}
   record['metrics'] = {name: METRIC_WORDS[name] for name in metrics(record['errors'])}
   return test_rays(test_set, train_set, rotations, shifts), record, similarity.scale
-
-
-class CurveCameras:
-  """The learning curve's views carried into the training frame at each curve point, with the camera errors of
-  that step (learning_curve.Recorder's cameras)."""
-
-  def __init__(self, config, train_set: datasets.Dataset):
-    self.train_set = train_set
-    self.reference = reference_cameras(config, train_set)
-    test_set = datasets.load_dataset('test', dataclasses.replace(config, eval_factor=config.curve_factor))
-    self.views = base.subset(test_set, learning_curve.curve_positions(config, len(test_set.ids)))
-
-  def at(self, camera_state) -> tuple:
-    """(the views' rays [V,h,w,...] in the frame of the training cameras of camera_state (None: as given), the
-    camera metrics of metrics.json at this step)."""
-    cameras = training_cameras(self.train_set, camera_state, self.reference)
-    rotations, shifts = aligned_corrections(self.views, test_similarity(cameras))
-    return test_rays(self.views, self.train_set, rotations, shifts), metrics(errors(cameras))

@@ -233,7 +233,7 @@ def _train_in(config, run_dir: str, stop_at_step: int, stop: Optional[StopFlag])
   state = restored if restored is not None else state
   primary = distributed.is_primary()
   writer = tensorboardX.SummaryWriter(os.path.join(run_dir, 'tensorboard')) if primary else NullWriter()
-  moving = camera_evaluation.CurveCameras(config, dataset) if (
+  moving = learning_curve.CurveCameras(config, dataset) if (
       curve_views is not None and primary and camera_evaluation.needs_alignment(config)) else None
   curve = learning_curve.Recorder(config, model, curve_views, run_dir, writer, int(state.step), moving) if (
       curve_views is not None and primary) else None
