@@ -8,8 +8,9 @@ A checkpoint save that finds the disk full (the earlier checkpoints stay intact)
 prints one line and exits with DISK_FULL_STATUS. Running out of accelerator memory is a user error too: its line
 names Config.batch_size (training, with XLA's estimate of the compiled step) or Config.render_chunk_size
 (rendering); so is running out of host memory drawing the training batch (Config.batch_size). Ctrl-C outside the
-training loop (which saves a checkpoint and stops itself) prints `interrupted: ...` and exits with 128 + SIGINT
-(before main, while a script imports, internal/interrupt.py prints the same line).
+training loop (which saves a checkpoint and stops itself) prints `interrupted: ...` and exits with 128 + SIGINT,
+whatever exception the interrupted code raised (before main, while a script imports, internal/interrupt.py prints
+the same line).
 Anything else is a bug and keeps its traceback (exit status 1). FREENERF_DEBUG=1 in the
 environment shows the traceback of user errors too. Warnings print as one line `warning: <message>`.
 """
@@ -73,35 +74,42 @@ def run(main) -> int:
   """Calls main() -> exit status; a user error prints one line on stderr (status 2, or 3 / 4 of OWN_STATUS).
 
   Ctrl-C outside training's own handling (eval.py, render.py, training before its loop) prints one line too and
-  exits with signal_status(SIGINT), as training stopped by SIGINT does. Warnings print as one line
-  `warning: ...` while main runs.
+  exits with signal_status(SIGINT), as training stopped by SIGINT does; so does any exception once a SIGINT arrived
+  (what an interrupted import made of it), and a SIGINT during the script's imports that they swallowed stops it
+  before main. Warnings print as one line `warning: ...` while main runs.
   """
   progress.robust_streams()
   debug = os.environ.get(DEBUG_ENV, '') not in ('', '0')
   python_format, warnings.formatwarning = warnings.formatwarning, format_warning
-  try:
-    return main()
-  except (*USER_ERRORS, *(cls for cls, _ in OWN_STATUS)) as err:
-    if debug:
-      raise
-    print(f'error: {one_line(err)}', file=sys.stderr)
-    return next((status for cls, status in OWN_STATUS if isinstance(err, cls)), USAGE_ERROR_STATUS)
-  except OSError as err:
-    if debug or not disk_full.is_disk_full(err):
-      raise
-    where = f' writing {err.filename!r}' if err.filename else ''
-    print(f'error: no space left on the device{where}; free disk space and run the same command again',
-          file=sys.stderr)
-    return DISK_FULL_STATUS
-  except KeyboardInterrupt:
-    if debug:
-      raise
+  with interrupt.recording() as sigint:
+    try:
+      sigint.raise_if_received()
+      return main()
+    except BaseException as err:  # pylint: disable=broad-except  (what is not named below is raised again)
+      status = None if debug else _one_line_status(err, sigint.received)
+      if status is None:
+        raise
+      return status
+    finally:
+      warnings.formatwarning = python_format
+
+
+def _one_line_status(err: BaseException, interrupted: bool):
+  """Prints err's one line and returns the exit status; None for a bug (or SystemExit), whose traceback stays."""
+  if isinstance(err, KeyboardInterrupt) or (interrupted and isinstance(err, Exception)):
     if threading.current_thread() is threading.main_thread():  # A Ctrl-C during the exit's cleanup (Ray's) would
       signal.signal(signal.SIGINT, signal.SIG_IGN)              # escape here and kill the process by signal.
     print(interrupt.MESSAGE, file=sys.stderr)
     return signal_status(signal.SIGINT)
-  finally:
-    warnings.formatwarning = python_format
+  if isinstance(err, (*USER_ERRORS, *(cls for cls, _ in OWN_STATUS))):
+    print(f'error: {one_line(err)}', file=sys.stderr)
+    return next((status for cls, status in OWN_STATUS if isinstance(err, cls)), USAGE_ERROR_STATUS)
+  if isinstance(err, OSError) and disk_full.is_disk_full(err):
+    where = f' writing {err.filename!r}' if err.filename else ''
+    print(f'error: no space left on the device{where}; free disk space and run the same command again',
+          file=sys.stderr)
+    return DISK_FULL_STATUS
+  return None
 
 
 MULTI_VALUE_FLAGS = ('--gin_configs', '--gin_bindings')

@@ -4,6 +4,7 @@ import csv
 
 import pytest
 
+from internal import cli
 from tools import camera_report
 
 
@@ -38,6 +39,36 @@ def test_the_share_of_the_noise_cost_recovered_per_seed(tmp_path):
     (['--study', 'nowhere.csv'], "--study 'nowhere.csv' does not exist"),
     (['--runs', 'nowhere'], "is not a run that refined its cameras")])
 def test_bad_input_is_one_line(tmp_path, args, message, capsys):
-  from internal import cli
   assert cli.run(lambda: camera_report.main(['--out', str(tmp_path), *args])) == 2
   assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('rows, args, message', [
+    ([{'method': 'freenerf', 'seed': 0, 'status': 'done', 'psnr': 20.}], [],
+     "--axis 'noise': --study '{study}' has no such column; expected the study axis of the camera noise"),
+    ([_row('freenerf', 'exact', 0, 20.), _row('freenerf', '5deg', 0, 16.)], ['--noisy', '7deg'],
+     "--noisy '7deg': no finished row of --study '{study}' has it; expected one of ['5deg', 'exact']"),
+    ([_row('freenerf', 'exact', 0, 20.), _row('freenerf', '5deg', 0, 16.)], ['--clean', 'none'],
+     "--clean 'none': no finished row"),
+    ([_row('freenerf', 'exact', 0, 20.), _row('freenerf', '5deg', 0, 16.)], ['--baseline', 'nerf'],
+     "--baseline 'nerf': no finished row of --study '{study}' has it; expected one of ['freenerf']"),
+    ([{**_row('freenerf', 'exact', 0, 20.), 'status': 'missing'}], [], "--study '{study}': no finished row"),
+])
+def test_a_study_without_the_noise_axis_or_the_labels_asked_is_one_line(tmp_path, capsys, rows, args, message):
+  _write(tmp_path / 'results.csv', rows)
+  study = str(tmp_path / 'results.csv')
+  assert cli.run(lambda: camera_report.main(['--out', str(tmp_path / 'out'), '--study', study, *args])) == 2
+  err = capsys.readouterr().err
+  assert err.startswith('error: ' + message.format(study=study)) and len(err.strip().splitlines()) == 1, err
+  assert not (tmp_path / 'out').exists()
+
+
+def test_two_runs_of_one_name_are_one_line_before_any_picture(tmp_path, capsys):
+  first, second = tmp_path / 'a' / 'freenerf__cup' / 'run', tmp_path / 'b' / 'freenerf__cup' / 'run'
+  assert cli.run(lambda: camera_report.main(['--out', str(tmp_path / 'out'), '--runs', str(first),
+                                             str(second)])) == 2
+  err = capsys.readouterr().err
+  assert err == (f"error: --runs {str(first)!r} and {str(second)!r} are both named 'freenerf__cup' (a study cell's "
+                 "folder, or the run's): both pictures would be cameras_freenerf__cup.png; give them in separate "
+                 'commands with another --out\n')
+  assert not (tmp_path / 'out').exists()

@@ -6,7 +6,9 @@ import dataclasses
 import os
 import subprocess
 import sys
+import warnings
 
+import jax.numpy as jnp
 import numpy as np
 import png
 from PIL import Image
@@ -16,6 +18,7 @@ from internal import config_loader
 from internal.configs import Config
 from internal.datasets import DatasetError, colmap_model as cm, depth_prior, load_dataset, sfm_depth
 from internal.datasets import capture as capture_loader
+from internal.losses import depth_pearson, depth_ranking
 from tests.conftest import SHARED_DATA
 from tests.test_datasets_capture import _capture_from
 from tests.test_datasets_dtu_layouts import config as dtu_config, synthetic_projections, write_idr
@@ -85,8 +88,10 @@ def _check_loader(config, tmp_path, png_first=False):
   written = _write_maps(tmp_path / 'priors', train, png_first=png_first)
   maps = depth_prior.load_maps(train, config)
   assert maps.shape == (len(train.ids), train.height, train.width) and maps.dtype == np.float32
-  for got, values in zip(maps, written):
-    np.testing.assert_allclose(got, values.reshape(train.height, 2, train.width, 2).mean((1, 3)), rtol=1e-6)
+  for got, values in zip(maps, written):  # Rescaled by a power of two, its largest value in [1, 2).
+    np.testing.assert_allclose(got, depth_prior.rescaled(values).reshape(train.height, 2, train.width, 2).mean((1, 3)),
+                               rtol=1e-6)
+    assert 2**-1 < got.max() < 2
 
 
 def test_generated_object_and_forward_scenes(tmp_path, scene_dir):
@@ -146,6 +151,51 @@ def test_bad_maps_are_one_line_naming_the_file(prior_setup, write, message):
   config, train, first = prior_setup
   write(first)
   _bad(config, train, message)
+
+
+def _prior_patches(maps):
+  """Each map [N, H, W] as one patch [N, H * W]."""
+  return jnp.asarray(maps.reshape(len(maps), -1))
+
+
+@pytest.mark.parametrize('scale', [1e40, 1e300, 1e-40])
+def test_a_map_in_units_float32_does_not_hold_trains_as_the_same_map(prior_setup, scale):
+  config, train, first = prior_setup
+  plain = depth_prior.load_maps(train, config)
+  for path in first.parent.glob('*.npy'):
+    np.save(path, np.load(path).astype(np.float64) * scale)
+  with warnings.catch_warnings():
+    warnings.simplefilter('error')  # Not even numpy's 'overflow encountered in cast'.
+    scaled = depth_prior.load_maps(train, config)
+  assert np.isfinite(scaled).all() and np.all(np.abs(scaled).max((1, 2)) < 2)
+  np.testing.assert_allclose(scaled / scaled.max((1, 2), keepdims=True), plain / plain.max((1, 2), keepdims=True),
+                             rtol=1e-6)
+  rendered = jnp.asarray(np.random.default_rng(0).uniform(1., 2., (len(plain), plain[0].size)), jnp.float32)
+  for loss in (depth_pearson.pearson_loss, lambda r, p: depth_ranking.ranking_loss(r, p, 1e-4, True)):
+    assert float(loss(rendered, _prior_patches(scaled))) == pytest.approx(float(loss(rendered, _prior_patches(plain))),
+                                                                          rel=1e-5)
+    assert float(loss(rendered, _prior_patches(plain))) > .1
+
+
+def test_a_map_scaled_by_a_power_of_two_loads_and_trains_bit_for_bit_alike(prior_setup):
+  config, train, first = prior_setup
+  plain = depth_prior.load_maps(train, config)
+  for path in first.parent.glob('*.npy'):
+    np.save(path, np.load(path) * 2.**-20)  # Exactly the same map, in other units: the same float32 map loads.
+  np.testing.assert_array_equal(depth_prior.load_maps(train, config), plain)
+  rendered = jnp.asarray(np.random.default_rng(0).uniform(1., 2., (len(plain), plain[0].size)), jnp.float32)
+  for scale in (2.**-9, 2.**7):  # So the rescaling leaves the losses of maps in ordinary units exactly as they were.
+    for loss in (depth_pearson.pearson_loss, lambda r, p: depth_ranking.ranking_loss(r, p, 1e-4, False)):
+      assert float(loss(rendered, _prior_patches(plain * np.float32(scale)))) == float(loss(rendered,
+                                                                                            _prior_patches(plain)))
+
+
+def test_a_map_spanning_more_than_float32_holds_is_named(prior_setup):
+  config, train, first = prior_setup
+  values = np.load(first).astype(np.float64)
+  values[:len(values) // 2] *= 1e-50  # Its top half would train as 0, "no prior", even rescaled.
+  np.save(first, values)
+  _bad(config, train, r"img0\d\.npy' holds values from 1e-50 to 12 \(in magnitude\), a wider span than float32 holds")
 
 
 def test_a_png_that_is_not_16_bit_grey_is_named(prior_setup):

@@ -146,3 +146,11 @@ def test_readme_block_runs_as_written(index, block, sandbox):
   assert proc.returncode == 0 and all(c['status'] == 0 for c in calls), report
   ran = {c['argv'][1] if c['argv'][0] == '-m' else c['argv'][0] for c in calls}
   assert ran == called(block), report
+
+
+def test_ci_runs_the_readme_test_command_word_for_word_then_the_slow_tests():
+  readme_tests = next(line for block in bash_blocks(README) for line in block.splitlines()
+                      if line.endswith('python -m pytest -q'))
+  commands = [line for line in (ROOT / '.ci' / 'run').read_text().splitlines()
+              if line.strip() and not line.startswith(('#', 'set ', 'cd '))]
+  assert commands == [readme_tests, 'python -m pytest -q -m slow']

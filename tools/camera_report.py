@@ -16,7 +16,8 @@ the method recovers on the noisy cameras, (method - baseline) / (baseline clean 
 The camera errors of the targets are after the similarity (camera_rotation_deg, camera_translation): a similarity
 explains part of any error, so a target on them is met only under that alignment; where the results hold the
 errors without it (cameras in the reference's frame: *_unaligned), their means follow.
-Bad input is one line (exit status 2).
+Bad input is one line (exit status 2), before anything is written: a study without the --axis column, a --clean,
+--noisy or --baseline that no finished row has, two --runs whose pictures would have one name.
 """
 
 import argparse
@@ -114,6 +115,24 @@ def _rows(path: str) -> list:
     return [row for row in csv.DictReader(f) if row.get('status') == 'done']
 
 
+def check_study(rows: list, path: str, axis: str, clean: str, noisy: str, baseline: str) -> None:
+  """ValueError naming the flag whose column or label the study's finished rows lack (a study without the noise
+  axis, a noise label or baseline that no row has), or naming the file when no row finished."""
+  if not rows:
+    raise ValueError(f'--study {path!r}: no finished row (status done); expected a study\'s results.csv')
+  if axis not in rows[0]:
+    raise ValueError(f'--axis {axis!r}: --study {path!r} has no such column; expected the study axis of the camera '
+                     f'noise among its columns {sorted(rows[0])}')
+  missing = [c for c in ('method', 'seed', 'psnr') if c not in rows[0]]
+  if missing:
+    raise ValueError(f'--study {path!r} has no column {missing[0]!r}; expected a study with seeds whose results '
+                     'give method, seed and psnr')
+  labels, methods = sorted({r[axis] for r in rows}), sorted({r['method'] for r in rows})
+  for flag, value, known in (('--clean', clean, labels), ('--noisy', noisy, labels), ('--baseline', baseline, methods)):
+    if value not in known:
+      raise ValueError(f'{flag} {value!r}: no finished row of --study {path!r} has it; expected one of {known}')
+
+
 def targets(rows: list, axis: str, clean: str, noisy: str, baseline: str) -> list:
   """[(method, seed, camera_rotation_deg, camera_translation, psnr, recovered share)] on the noisy cameras."""
   psnr = {(r['method'], r[axis], r['seed']): float(r['psnr']) for r in rows}
@@ -124,9 +143,21 @@ def targets(rows: list, axis: str, clean: str, noisy: str, baseline: str) -> lis
     key = (baseline, noisy, r['seed'])
     cost = psnr.get((baseline, clean, r['seed']), np.nan) - psnr.get(key, np.nan)
     share = (float(r['psnr']) - psnr.get(key, np.nan)) / cost if cost else np.nan
-    out.append((r['method'], int(r['seed']), float(r['camera_rotation_deg'] or 'nan'),
-                float(r['camera_translation'] or 'nan'), float(r['psnr']), share))
+    out.append((r['method'], int(r['seed']), float(r.get('camera_rotation_deg') or 'nan'),
+                float(r.get('camera_translation') or 'nan'), float(r['psnr']), share))
   return sorted(out)
+
+
+def check_runs(runs: list) -> None:
+  """ValueError naming two --runs whose pictures would have the same name (the second would replace the first)."""
+  seen = {}
+  for run_dir in runs:
+    name = run_name(run_dir)
+    if name in seen:
+      raise ValueError(f'--runs {seen[name]!r} and {run_dir!r} are both named {name!r} (a study cell\'s folder, or '
+                       f'the run\'s): both pictures would be cameras_{name}.png; give them in separate commands with '
+                       'another --out')
+    seen[name] = run_dir
 
 
 def unaligned_means(rows: list, axis: str, noisy: str) -> dict:
@@ -174,6 +205,8 @@ def main(argv=None) -> int:
   parser.add_argument('--noisy', default='5deg', help='its label with the noise of the targets')
   parser.add_argument('--baseline', default='freenerf', help='the method without refinement')
   args = parser.parse_args(argv)
+  check_runs(args.runs)
+  rows = _study_rows(args)
   os.makedirs(args.out, exist_ok=True)
   for run_dir in args.runs:
     cameras = run_cameras(run_dir)
@@ -181,15 +214,23 @@ def main(argv=None) -> int:
     draw(path, cameras, errors_title(run_name(run_dir), cameras))
     print(path)
   if args.study:
-    if not os.path.isfile(args.study):
-      raise FileNotFoundError(f'--study {args.study!r} does not exist; expected a study\'s results.csv')
     path = os.path.join(args.out, 'targets.md')
     with open(path, 'w', encoding='utf-8') as f:
-      rows = _rows(args.study)
       f.write(targets_markdown(targets(rows, args.axis, args.clean, args.noisy, args.baseline), args, argv,
                                unaligned_means(rows, args.axis, args.noisy)))
     print(path)
   return 0
+
+
+def _study_rows(args) -> list:
+  """The finished rows of --study, checked against --axis, --clean, --noisy and --baseline ([] without --study)."""
+  if not args.study:
+    return []
+  if not os.path.isfile(args.study):
+    raise FileNotFoundError(f'--study {args.study!r} does not exist; expected a study\'s results.csv')
+  rows = _rows(args.study)
+  check_study(rows, args.study, args.axis, args.clean, args.noisy, args.baseline)
+  return rows
 
 
 if __name__ == '__main__':

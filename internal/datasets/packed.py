@@ -106,8 +106,13 @@ def pack_arrays(config, datasets: dict, record: dict) -> dict:
 def write_pack(path: str, arrays: dict) -> None:
   """Writes arrays to path (.npz, compressed) through a temporary file, so a failed write leaves nothing."""
   tmp = path + '.partial.npz'
-  np.savez_compressed(tmp, **arrays)
-  os.replace(tmp, path)
+  try:
+    np.savez_compressed(tmp, **arrays)
+    os.replace(tmp, path)
+  except BaseException:
+    if os.path.exists(tmp):
+      os.remove(tmp)
+    raise
 
 
 def read_pack(path: str) -> tuple:

@@ -24,6 +24,7 @@ import numpy as np
 from internal import datasets
 from internal.cameras import alignment, corrections
 from internal.datasets import batching, camera_noise, loader
+from internal.evaluation import pose_progress
 from internal.models import freq_schedule
 from internal.training import camera_refinement, optim
 
@@ -137,9 +138,11 @@ def _view_batch(config, test_set: datasets.Dataset, flat, v: int, k: int) -> tup
   return type(flat)(*[x[v, pixel] for x in flat]), colours, pixels
 
 
-def test_time_poses(config, model, params, step: int, test_set: datasets.Dataset, rotations, shifts) -> tuple:
+def test_time_poses(config, model, params, step: int, test_set: datasets.Dataset, rotations, shifts,
+                    on_step=None) -> tuple:
   """(rotations [M,3,3], shifts [M,3]) refined per test view on its own image, the model frozen (as at step):
-  Config.test_pose_steps Adam steps (Config.test_pose_lr) of the fine level's squared colour error (_view_batch)."""
+  Config.test_pose_steps Adam steps (Config.test_pose_lr) of the fine level's squared colour error (_view_batch).
+  on_step(view, correction [6]), when given, follows every step (pose_progress.PoseProgress)."""
   space, cameras = test_set.space, test_set.cameras
   masks = freq_schedule.model_masks(config, model, jnp.asarray(step))
   adam = optim.adam(config.adam_eps)
@@ -165,6 +168,8 @@ def test_time_poses(config, model, params, step: int, test_set: datasets.Dataset
     camera = (jnp.asarray(rotations[v], jnp.float32), centres[v], jnp.asarray(shifts[v], jnp.float32))
     for k in range(config.test_pose_steps):
       delta, opt_state = adam_step(delta, opt_state, *_view_batch(config, test_set, flat, v, k), *camera)
+      if on_step is not None:
+        on_step(v, delta)
     delta = np.asarray(delta, np.float64)
     out_rotations.append(corrections.so3_exp(delta[:3]) @ rotations[v])
     out_shifts.append(shifts[v] + delta[3:])
@@ -191,7 +196,8 @@ def evaluation_rays(config, model, state, step: int, test_set: datasets.Dataset,
   similarity = test_similarity(cameras)
   rotations, shifts = aligned_corrections(test_set, similarity)
   if config.test_pose_steps:
-    rotations, shifts = test_time_poses(config, model, state.params, step, test_set, rotations, shifts)
+    with pose_progress.PoseProgress(config, len(test_set.ids)) as on_step:
+      rotations, shifts = test_time_poses(config, model, state.params, step, test_set, rotations, shifts, on_step)
   record = {'refined': bool(config.optimize_cameras), 'reference': reference_words(config),
             'test_cameras': 'similarity' + (' + test-time pose optimization' if config.test_pose_steps else ''),
             'test_pose_steps': config.test_pose_steps,

@@ -10,12 +10,12 @@ from typing import Optional
 import jax
 import numpy as np
 from jax import random
-import tensorboardX
 import tqdm
 
 from internal.run import camera_export
 from internal.run import checkpoints
 from internal.run import disk_full
+from internal.run import event_file
 from internal import datasets
 from internal.run import distributed
 from internal.evaluation import camera_evaluation
@@ -232,7 +232,7 @@ def _train_in(config, run_dir: str, stop_at_step: int, stop: Optional[StopFlag])
   restored = checkpoints.restore_latest(mngr, state)
   state = restored if restored is not None else state
   primary = distributed.is_primary()
-  writer = tensorboardX.SummaryWriter(os.path.join(run_dir, 'tensorboard')) if primary else NullWriter()
+  writer = event_file.EventWriter(os.path.join(run_dir, 'tensorboard')) if primary else NullWriter()
   moving = learning_curve.CurveCameras(config, dataset) if (
       curve_views is not None and primary and camera_evaluation.needs_alignment(config)) else None
   curve = learning_curve.Recorder(config, model, curve_views, run_dir, writer, int(state.step), moving) if (

@@ -1,12 +1,14 @@
 """One jit-compiled, pure training step: masks, losses, clipping, Adam, non-finite guard."""
 
 import functools
+import re
 from typing import Any
 
 import flax
 import jax
 import jax.numpy as jnp
 from jax import random
+import numpy as np
 import optax
 
 from internal.datasets import batching
@@ -41,9 +43,21 @@ class NonFiniteError(FloatingPointError):
   """A step's loss, gradients, learning rate or update was not finite (policy 'raise' or too many skips)."""
 
 
-# What the guard checks, as (stats flag, words for the error message).
-GUARD_CHECKS = (('loss_finite', 'loss'), ('grads_finite', 'gradients'), ('lr_valid', 'learning rate'),
+# What the guard checks, as (stats flag, words for the error message): an update is skipped unless all hold.
+GUARD_CHECKS = (('loss_finite', 'loss'), ('grads_finite', 'gradients'),
+                ('lr_valid', 'learning rate (Config.lr_init, lr_final, lr_delay_mult)'),
                 ('update_finite', 'new parameters / optimizer state'))
+# What a skipped step's message names before them, in the order the step computes it: the batch's inputs (stats
+# flags: the batch's Rays, under keys ending in 'rays', and its other arrays), then each loss term (LOSS_TERMS).
+INPUT_CHECKS = (('rays_finite', 'rays of the batch (the training cameras)'),
+                ('targets_finite', 'targets of the batch (colours of the images, depth priors)'))
+# The loss terms of stats in the order compute_loss adds them, with the Config setting that weights each ('' =
+# none): the data loss and weight decay, then the regularizers' table (losses/terms.py); a name ending in 'level'
+# is one term per level, every level but the last weighted by coarse_loss_mult. A weighted term's stats flag
+# '<term>_weighted_finite' says whether it times its weight is finite, so that a message names the weight whose
+# size made a finite term overflow.
+LOSS_TERMS = (('loss_level', ''), ('weight_l2', 'weight_decay_mult')) + tuple(
+    (term.stats, term.weight) for term in terms.TERMS)
 
 
 def create_train_state(config, key, example_rays, cameras=None):
@@ -88,6 +102,36 @@ def compute_loss(config, model, params, batch: batching.Batch, key, step):
   return loss, stats
 
 
+def _input_flags(batch: batching.Batch) -> dict:
+  """INPUT_CHECKS' flags of a batch: whether its Rays (every family's), and its other arrays (the targets, not the
+  pixels), are finite."""
+  fields = batch._asdict()
+  rays = [name for name, _ in batching.FAMILIES]
+  pixels = [name for _, name in batching.FAMILIES if name]
+  return {'rays_finite': optim.all_finite([fields[name] for name in rays]),
+          'targets_finite': optim.all_finite([v for k, v in fields.items() if k not in rays + pixels])}
+
+
+def loss_terms(stats) -> list:
+  """(stats key, weighting Config setting or '') of each loss term in stats, in the order compute_loss adds them."""
+  found = []
+  for name, setting in LOSS_TERMS:
+    if not name.endswith('level'):
+      found += [(name, setting)] if name in stats else []
+      continue
+    levels = sorted((k for k in stats if re.fullmatch(rf'{name}\d+', k)), key=lambda k: int(k[len(name):]))
+    found += [(k, 'coarse_loss_mult' if i < len(levels) - 1 else setting) for i, k in enumerate(levels)]
+  return found
+
+
+def _weighted_term_flags(config, stats, step) -> dict:
+  """'<term>_weighted_finite' of each weighted loss term of stats: whether it times its weight at step is finite."""
+  scheduled = {term.weight: term.weight_at for term in terms.TERMS if term.weight_at is not None}
+  weight = lambda setting: scheduled[setting](config, step) if setting in scheduled else getattr(config, setting)
+  return {f'{key}_weighted_finite': jnp.isfinite(weight(setting) * stats[key])
+          for key, setting in loss_terms(stats) if setting}
+
+
 def make_train_step(config, model):
   """jit-compiled (state, batch, key) -> (state, stats); step t = state.step + 1 drives mask and lr."""
   adam = optim.adam(config.adam_eps)
@@ -103,6 +147,7 @@ def make_train_step(config, model):
     else:  # The batch's rays made from the corrected cameras; the corrections get their own gradient.
       (loss, stats), (grads, camera_grads) = camera_refinement.value_and_grads(
           loss_fn, state.params, cameras, batch, random.fold_in(key, step), step)
+    stats.update(_input_flags(batch), **_weighted_term_flags(config, stats, step))
     stats.update(loss_finite=jnp.isfinite(loss), grads_finite=optim.all_finite((grads, camera_grads)))
     grads, clip_stats = optim.clip_gradients(grads, config.grad_max_val, config.grad_max_norm)
     lr = schedule.config_learning_rate(config, step)
@@ -126,9 +171,24 @@ def make_train_step(config, model):
   return jax.jit(train_step, donate_argnums=(0,))
 
 
+def nonfinite_quantities(stats) -> list:
+  """Words for each checked quantity of a step's (host) stats that is not finite (or, the learning rate, not
+  positive), in the order the step computes them: a loss term finite only before its weight names the weight."""
+  found = [words for flag, words in INPUT_CHECKS if flag in stats and not bool(stats[flag])]
+  for key, setting in loss_terms(stats):
+    if not np.isfinite(stats[key]):
+      found.append(key)
+    elif not bool(stats.get(f'{key}_weighted_finite', True)):
+      found.append(f'{key} x its weight Config.{setting}')
+  return found + [words for flag, words in GUARD_CHECKS if not bool(stats[flag])]
+
+
 def skip_reason(stats) -> str:
-  """Which guarded values of a step's (host) stats were not finite, in words."""
-  return ', '.join(words for flag, words in GUARD_CHECKS if not bool(stats[flag]))
+  """The first quantity of a step's (host) stats that was not finite, in the step's order, then the guarded
+  values that followed it, in words."""
+  first, *later = nonfinite_quantities(stats)
+  after = [words for _, words in GUARD_CHECKS if words in later]
+  return ', then '.join([first, ', '.join(after)] if after else [first])
 
 
 class SkipCounter:

@@ -1,6 +1,7 @@
 """Copies a study's results into a folder meant to be committed: what was run, on what, and what came out.
 
-<dest>/ gets results.csv, the statistics over seeds (summary.csv, comparisons.csv and .md) and the plots, cells.jsonl
+<dest>/ gets results.csv, the statistics over seeds (summary.csv, comparisons.csv and .md, and looks.json: the seed
+counts at which the comparisons were read, tools/study/looks.py) and the plots, cells.jsonl
 (a line per finished cell: its gin, its cell.json, its evaluation's metrics.json and its learning curve; a cell
 reused from another study's export a reference to that export's line: tools/study/cells_file.py), a side-by-side
 picture per scene (ground truth, then each method's render of the first evaluated test views, of the first seed),
@@ -21,6 +22,7 @@ from PIL import Image
 from internal.evaluation import vis
 from tools import provenance
 from tools.study import cells_file
+from tools.study import looks as study_looks
 from tools.study import spec as study_spec
 
 RUN_SUBDIR = 'run'    # A cell's run directory (Config.checkpoint_dir) inside its folder.
@@ -121,6 +123,15 @@ def _ground_truth(cell_path: str, cell: dict, count: int) -> Dict[int, np.ndarra
   return {i: np.asarray(test_set.images[list(test_set.ids).index(i)]) for i in ids}
 
 
+def checkout_path(path: str) -> str:
+  """path relative to the git checkout that holds it (a worktree's own, not the one whose code runs), else to REPO."""
+  folder = os.path.dirname(os.path.abspath(path))
+  while not os.path.exists(os.path.join(folder, '.git')) and os.path.dirname(folder) != folder:
+    folder = os.path.dirname(folder)
+  root = folder if os.path.exists(os.path.join(folder, '.git')) else REPO
+  return os.path.relpath(os.path.abspath(path), root)
+
+
 def markdown_table(cells: List[dict]) -> str:
   """table.md: a row per cell with its labels, metrics (3 decimals), wall times in minutes and short commit."""
   metrics = [m for m in TABLE_METRICS if any(c['means'].get(m) is not None for c in cells)]
@@ -181,7 +192,7 @@ def _write(study: study_spec.Study, study_file: str, study_folder: str, dest: st
   """The export itself, into dest; returns the pictures written."""
   os.makedirs(dest, exist_ok=True)
   for name in sorted(os.listdir(study_folder)):
-    if name.endswith(('.csv', '.png', '.md')):
+    if name.endswith(('.csv', '.png', '.md')) or name == study_looks.FILE:
       shutil.copy2(os.path.join(study_folder, name), dest)
   finished, paths, lines = [], {}, []
   for cell in study_spec.cells(study):
@@ -203,7 +214,7 @@ def _write(study: study_spec.Study, study_file: str, study_folder: str, dest: st
   with open(os.path.join(dest, TABLE_FILE), 'w') as f:
     f.write(markdown_table(finished))
   record = {'command': command, 'machine': provenance.machine(),
-            'study_file': {'path': os.path.relpath(os.path.abspath(study_file), REPO),
+            'study_file': {'path': checkout_path(study_file),
                            'sha256': provenance.file_sha256(study_file)}}
   with open(os.path.join(dest, PROVENANCE_FILE), 'w') as f:
     json.dump(record, f, indent=1)

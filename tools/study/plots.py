@@ -93,7 +93,8 @@ def _seed_figure(lines: dict, joined: bool) -> tuple:
 
 
 def comparison_plot(study: study_spec.Study, comparisons, metric: str, path: str) -> bool:
-  """Draws each comparison's paired mean difference and 95% interval (red: undecided); False when none."""
+  """Draws each comparison's paired mean difference and interval (95%, or more when corrected for several looks;
+  red: undecided); False when none."""
   if not comparisons:
     return False
   fig, ax = vis.line_figure({})
@@ -110,7 +111,7 @@ def comparison_plot(study: study_spec.Study, comparisons, metric: str, path: str
   ax.set_ylim(-.6, len(comparisons) - .2)
   if any(c.verdict.startswith(study_stats.UNDECIDED) for c in comparisons):
     ax.plot([], [], color='red', label=f'{study_stats.UNDECIDED}: no difference shown')
-  vis.save_figure(fig, ax, f'a - b: paired mean, {study_stats.LEVEL:.0%} interval', '',
+  vis.save_figure(fig, ax, f'a - b: paired mean, {study_stats.level_text(comparisons[0].level)} interval', '',
                   f'{study.name}: {metric}, paired', path)
   return True
 

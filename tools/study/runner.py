@@ -21,7 +21,8 @@ results of all finished cells are gathered into <out>/<study>/results.csv and <m
 the cells' learning curves (Config.curve_every > 0) into psnr_vs_step.png (and psnr_masked_vs_step.png on DTU).
 `python -m tools.tables <out>/<study>` gathers the same runs into the paper's tables.
 With seeds (a `seeds` key or an axis named seed) results also give per cell the mean, spread and n over seeds and
-the paired comparisons with their 95% intervals (tools/study/stats.py). `--list --estimate` measures each distinct
+the paired comparisons with their 95% intervals, corrected for the seed counts at which they were read
+(tools/study/stats.py, looks.py). `--list --estimate` measures each distinct
 setting of the pending cells on this machine (about a minute each) and prints the expected wall time before any
 cell runs (tools/study/estimate.py); with --cluster-gpus N, the GPU-hours and the wall time on N GPUs from the step
 times measured on a GPU (results/gpu). Bad input is one line (exit status 2, internal/cli.py).
@@ -49,6 +50,7 @@ from tools.study import cells_file
 from tools.study import claim as study_claim
 from tools.study import estimate
 from tools.study import export as study_export
+from tools.study import looks as study_looks
 from tools.study import plots as study_plots
 from tools.study import reuse as study_reuse
 from tools.study import dispatch
@@ -64,6 +66,8 @@ SUMMARY_FILE = 'summary.csv'          # Per cell pooled over seeds: mean, std, n
 COMPARISONS_FILE = 'comparisons.csv'  # The paired comparisons with their intervals and verdicts.
 COMPARISONS_MD = 'comparisons.md'
 REPO = dispatch.REPO
+TERMINATED_MESSAGE = ('terminated: stopped by SIGTERM before the command finished; its cells saved their checkpoints, '
+                      'what it wrote is kept, and the same command run again finishes the work')
 
 
 def study_dir(study: study_spec.Study, out: str) -> str:
@@ -148,6 +152,15 @@ class CellStopped(Exception):
     super().__init__(f'stopped by signal {signum} at step {step} with a checkpoint saved; the study run again '
                      'resumes it')
     self.signum = signum
+
+
+class Terminated(KeyboardInterrupt):
+  """SIGTERM to the study command: its cells stop as on Ctrl-C (dispatch.run cancels them on a KeyboardInterrupt)."""
+
+
+def _raise_terminated(signum, frame):
+  del signum, frame
+  raise Terminated()
 
 
 def _peak_memory() -> dict:
@@ -343,9 +356,12 @@ def _number(value, digits: int = 3) -> str:
   return '' if value is None else f'{value:.{digits}f}'
 
 
-def comparisons_markdown(comparisons: List[study_stats.Comparison]) -> str:
-  """The comparisons as a Markdown table: a - b, n, mean, interval, verdict (undecided ones in bold)."""
-  lines = ['| metric | a - b | n | mean | 95% interval | verdict |', '|---|---|---|---|---|---|']
+def comparisons_markdown(study: study_spec.Study, comparisons: List[study_stats.Comparison]) -> str:
+  """The intervals' level and looks (study_looks.describe), then the comparisons as a Markdown table: a - b, n,
+  mean, interval, verdict (undecided ones in bold)."""
+  level = study_stats.level_text(study_stats.look_level(study))
+  lines = [study_looks.describe(study), '', f'| metric | a - b | n | mean | {level} interval | verdict |',
+           '|---|---|---|---|---|---|']
   for c in comparisons:
     verdict = f'**{c.verdict}**' if c.verdict.startswith(study_stats.UNDECIDED) else c.verdict
     interval = f'[{_number(c.low)}, {_number(c.high)}]' if c.low is not None else 'none'
@@ -361,7 +377,7 @@ def write_statistics(study: study_spec.Study, rows: List[dict], out_dir: str) ->
   if comparisons:
     written.append(_write_csv(os.path.join(out_dir, COMPARISONS_FILE), [c.row() for c in comparisons]))
     with open(os.path.join(out_dir, COMPARISONS_MD), 'w') as f:
-      f.write(comparisons_markdown(comparisons))
+      f.write(comparisons_markdown(study, comparisons))
     written.append(os.path.join(out_dir, COMPARISONS_MD))
   return written
 
@@ -371,6 +387,8 @@ def write_results(study: study_spec.Study, out: str) -> List[str]:
   returns the written paths."""
   rows, curve_rows = gather(study, out), gather_curves(study, out)
   out_dir = study_dir(study, out)
+  study_looks.record_if_finished(study, out_dir, rows)
+  study = study_looks.with_recorded(study, out_dir)  # Every interval corrected for the looks (tools/study/looks.py).
   path = _write_csv(os.path.join(out_dir, RESULTS_FILE), rows)
   return ([path] + write_statistics(study, rows, out_dir) + study_plots.write_plots(study, rows, out_dir)
           + study_plots.write_curve_plots(study, curve_rows, out_dir)
@@ -522,16 +540,29 @@ def main(argv=None) -> int:
       print(path)
     _export(study, args, argv)
     return 0
-  job = dispatch.new_job()
-  executor = _executor(study, args, job)
   try:
-    failed = run_study(study, args.out, args.data_root, args.shard, executor, job, tuple(args.gin_bindings))
-  finally:
-    executor.close()
+    failed = _run_on_executor(study, args)
+  except Terminated:
+    print(TERMINATED_MESSAGE, file=sys.stderr)
+    return cli.signal_status(signal.SIGTERM)
   for path, error in failed.items():
     print(f'FAILED {path}: {error}', file=sys.stderr)
   _export(study, args, argv)
   return 1 if failed else 0
+
+
+def _run_on_executor(study: study_spec.Study, args) -> Dict[str, str]:
+  """Runs the study's cells on the executor of the flags; returns {cell dir: error}. SIGTERM meanwhile stops the
+  cells as Ctrl-C does (Terminated), its handler set once the executor is made: Ray's (sys.exit) would leave the
+  running cells behind."""
+  job, before = dispatch.new_job(), signal.getsignal(signal.SIGTERM)
+  executor = _executor(study, args, job)
+  try:
+    signal.signal(signal.SIGTERM, _raise_terminated)
+    return run_study(study, args.out, args.data_root, args.shard, executor, job, tuple(args.gin_bindings))
+  finally:
+    executor.close()
+    signal.signal(signal.SIGTERM, before)
 
 
 def _export(study: study_spec.Study, args, argv) -> None:
