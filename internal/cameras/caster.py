@@ -4,10 +4,10 @@ as float32) or jax.numpy ones inside the step (float32).
 A pixel (x, y) of view v is cast through (x, y) + RaySpace.pixel_offset of camera v: a camera-frame direction with
 |z| = 1 (its pixtocam, or COLMAP's distortion inverted, distortion.py), turned into the world by the camera's
 rotation, from its centre. mip-NeRF's radius of a ray is 2/sqrt(12) times a distance to its neighbours, cast in the
-same call: between the world directions of its column neighbours for world rays, the mean of the row and column
-distances between NDC origins for NDC rays. Which neighbours: the next pixel's; on an image's last row or column the
-second-to-last distance again, as the released code's images (RaySpace.released_edges; RegNeRF's patches take the
-next pixel's everywhere). The space then maps the rays: DTU's origins onto their world plane (from the float32 rays,
+same call: between the world directions of the pixel and the one below (the next row) for world rays, the mean of
+that distance and the one to the next column between NDC origins for NDC rays. On an image's last row or column the
+second-to-last distance serves again, as the released code's images (RaySpace.released_edges; RegNeRF's patches take
+the next pixel's everywhere). The space then maps the rays: DTU's origins onto their world plane (from the float32 rays,
 as its loader always did), LLFF's NDC map.
 """
 

@@ -31,7 +31,8 @@ class Batch(NamedTuple):
   sfm_weight: Any = None                 # [K] and their weights.
 
 
-# The ray families of a Batch: (its rays field, its pixels field, or None for rays of no training view).
+# The ray families of a Batch: (its rays field, its pixels field, or None for rays of no training view); a family's
+# position salts its sampling key (training/renderer.py), so that a new one goes last.
 FAMILIES = (('rays', 'pixels'), ('patch_rays', None), ('prior_rays', 'prior_pixels'), ('sfm_rays', 'sfm_pixels'))
 
 

@@ -1,17 +1,15 @@
 """The one renderer of a training step: every ray family of the batch (datasets/batching.FAMILIES) rendered once by
 the model at the step's frequency masks and resampling padding, near and far annealed where Config asks (RegNeRF),
-each family with its own sampling key; the loss terms read the renderings (losses/terms.py)."""
-
-from jax import random
+each family with its own sampling key: the step's own for the training pixels (the first family), else the step's
+folded with the family's position in FAMILIES; the loss terms read the renderings (losses/terms.py)."""
 
 import jax
+from jax import random
 
+from internal.datasets import batching
 from internal.losses.rendered import Rendered
 from internal.training import anneal
 from internal.training import schedule
-
-# The sampling key of each family: the step's own for the training pixels, else folded with a salt.
-SALTS = {'rays': None, 'patch_rays': 1, 'prior_rays': 2, 'sfm_rays': 3}
 
 
 def render(config, model, params, rays, key, step, masks) -> Rendered:
@@ -25,8 +23,11 @@ def render(config, model, params, rays, key, step, masks) -> Rendered:
   return Rendered(flat, levels, history, rays.origins.shape[:-1])
 
 
-def render_batch(config, model, params, batch, key, step, masks) -> dict:
+def render_batch(config, model, params, batch: batching.Batch, key, step, masks) -> dict:
   """{Batch field: Rendered} of every ray family batch holds."""
-  families = {name: getattr(batch, name) for name in SALTS if getattr(batch, name) is not None}
-  return {name: render(config, model, params, rays, key if SALTS[name] is None else random.fold_in(key, SALTS[name]),
-                       step, masks) for name, rays in families.items()}
+  out = {}
+  for salt, (name, _) in enumerate(batching.FAMILIES):
+    rays = getattr(batch, name)
+    if rays is not None:
+      out[name] = render(config, model, params, rays, random.fold_in(key, salt) if salt else key, step, masks)
+  return out
