@@ -29,7 +29,7 @@ from internal.datasets import batching
 from internal.datasets import depth_prior
 from internal.datasets import image_io
 from internal.datasets import loader
-from internal.datasets import raygen
+from internal.cameras import caster
 
 
 # `include 'configs/common/...'` in the repository's configs resolves from any working directory.
@@ -301,9 +301,9 @@ def _check_ndc_near_far(config: Config) -> None:
     return
   fields = {f.name: f.default for f in dataclasses.fields(Config)}
   unset = (config.near, config.far) == (fields['near'], fields['far']) and not config.anneal_nearfar
-  if unset or (config.near, config.far) == raygen.NDC_NEAR_FAR:
+  if unset or (config.near, config.far) == caster.NDC_NEAR_FAR:
     return
-  name, value = ('near', config.near) if config.near != raygen.NDC_NEAR_FAR[0] else ('far', config.far)
+  name, value = ('near', config.near) if config.near != caster.NDC_NEAR_FAR[0] else ('far', config.far)
   why = ' (Config.anneal_nearfar reads them)' if config.anneal_nearfar else ''
   raise ValueError(f'Config.{name} = {value}: {config.dataset_loader!r} scenes use NDC rays, which fix near = 0 '
                    f'and far = 1{why}; set Config.near = 0 and Config.far = 1')

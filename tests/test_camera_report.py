@@ -17,7 +17,8 @@ def _write(path, rows):
 
 def _row(method, noise, seed, psnr, rotation=''):
   return {'method': method, 'noise': noise, 'seed': seed, 'status': 'done', 'psnr': psnr,
-          'camera_rotation_deg': rotation, 'camera_translation': rotation and .01}
+          'camera_rotation_deg': rotation, 'camera_translation': rotation and .01,
+          'camera_rotation_deg_unaligned': rotation and rotation + 1., 'camera_translation_unaligned': rotation and .02}
 
 
 def test_the_share_of_the_noise_cost_recovered_per_seed(tmp_path):
@@ -31,6 +32,7 @@ def test_the_share_of_the_noise_cost_recovered_per_seed(tmp_path):
   assert camera_report.main(['--out', str(tmp_path / 'out'), '--study', str(tmp_path / 'results.csv')]) == 0
   text = (tmp_path / 'out' / 'targets.md').read_text()
   assert '| refine | 0.850 | 0.010 | 18.500 | 0.125 |' in text and '"command"' in text
+  assert 'after the similarity' in text and '| refine | 1.850 | 0.0200 |' in text  # The target's alignment said.
 
 
 @pytest.mark.parametrize('args, message', [

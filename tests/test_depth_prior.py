@@ -219,8 +219,6 @@ def test_a_missing_folder_and_a_pack_without_names(prior_setup):
     (["Config.depth_prior_dir = '/tmp'", "Config.depth_prior_kind = 'depth'", 'Config.depth_rank_loss_mult = 1.',
       'Config.depth_patch_size = 1'], 'Config.depth_patch_size = 1 and Config.depth_prior_rays = 512'),
     (['Config.sfm_depth_loss_mult = 1.'], "needs a capture.*Config.dataset_loader = 'generated'"),
-    (["Config.depth_prior_dir = '/tmp'", "Config.depth_prior_kind = 'depth'", 'Config.depth_rank_loss_mult = 1.',
-      'Config.optimize_cameras = True'], 'optimize_cameras = True with a depth prior .* not supported'),
 ])
 def test_settings_that_cannot_work_are_refused_naming_them(bindings, message):
   with pytest.raises(ValueError, match=message):
@@ -409,14 +407,14 @@ def test_the_strict_form_reads_a_model_of_the_training_photos_in_its_own_frame(s
     sfm_depth.training_prior(train, dataclasses.replace(config, sfm_depth_model=str(tmp_path / 'nowhere')))
 
 
-def test_the_similarity_is_recovered_exactly():
-  rng = np.random.default_rng(3)
-  source = rng.normal(size=(6, 3))
-  rotation = cm.qvec_to_rotmat(rng.normal(size=4))
-  found = sfm_depth.similarity(source, 2.5 * source @ rotation.T + [1., 2., 3.])
-  assert found.scale == pytest.approx(2.5)
-  np.testing.assert_allclose(found.rotation, rotation, atol=1e-12)
-  np.testing.assert_allclose(found.translation, [1., 2., 3.], atol=1e-12)
+def test_the_similarity_carries_the_models_cameras_onto_the_captures(sfm_capture):
+  model, _, folder = sfm_capture
+  capture = capture_loader.read_capture(_sfm_config(folder))
+  found = sfm_depth.align(model, capture, 'model')  # The loader's frame: centred, scaled, z up.
+  by_name = {image.name: image for image in model.images.values()}
+  cameras = np.stack([cm.camtoworld(by_name[name]) for name in capture.names])
+  assert found.scale != pytest.approx(1.)
+  np.testing.assert_allclose(found.cameras(cameras), capture.camtoworlds, atol=1e-9)
 
 
 def test_evaluation_depths_hold_every_point_a_test_view_observed(sfm_capture):
@@ -452,7 +450,7 @@ def test_a_forward_captures_prior_is_the_ndc_t_where_each_pixels_ray_reaches_its
   names = [capture.names[i] for i in train.ids]
   by_name = {image.name: image for image in model.images.values()}
   def depth_of(view, row, col, point_id):  # The NDC t at which the pixel's ray reaches the point's world z.
-    world_z = (found.scale * found.rotation @ model.points[int(point_id)].xyz + found.translation)[2]
+    world_z = (found.scale * found.rotation @ model.points[int(point_id)].xyz + found.shift)[2]
     origin, direction = train.rays.origins[view, row, col], train.rays.directions[view, row, col]
     return (1. + 2. / world_z - origin[2]) / direction[2]
 

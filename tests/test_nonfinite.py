@@ -32,7 +32,7 @@ def _nan_data_at(monkeypatch, steps):
 
   def make_batcher(dataset, config):
     batcher = make(dataset, config)
-    return lambda step: dict(batcher(step), rgb=np.full((config.batch_size, 3), np.nan, np.float32)) \
+    return lambda step: batcher(step)._replace(rgb=np.full((config.batch_size, 3), np.nan, np.float32)) \
         if step in steps else batcher(step)
   monkeypatch.setattr(datasets, 'make_batcher', make_batcher)
 

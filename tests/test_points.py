@@ -11,11 +11,14 @@ import pytest
 
 from internal import cli
 from internal.configs import Config
-from internal.datasets import cameras, load_dataset, raygen, scene_generator
+from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
+from internal.datasets import load_dataset, scene_generator
 from internal.datasets import capture as capture_loader
 from internal.geometry import mesh_scores, ply
 from internal.geometry import points as points_lib
 from internal.pipeline import loop
+from internal.rays import Rays
 from internal.run import out_of_memory
 from test_checkpoints import DEMO, TINY, tiny_config
 from test_read_only import read_only
@@ -73,7 +76,9 @@ def test_a_lone_view_has_no_points_and_min_views_one_keeps_them_all(object_views
 def test_ndc_depths_come_back_to_the_world():
   c2w = np.array([[1., 0., 0., .1], [0., 1., 0., -.2], [0., 0., 1., .3]])  # OpenGL, looking down -z.
   focal, height, width = 30., 12, 16
-  rays = raygen.llff_rays(c2w, cameras.focal_pixtocam(focal, height, width), height, width, focal)
+  space = RaySpace(opengl=True, near=0., far=1., height=height, width=width, ndc_focal=focal)
+  camera = Cameras(c2w[None], algebra.focal_pixtocam(focal, height, width)[None])
+  rays = Rays(*[x[0] for x in caster.image_rays(camera, space)])
   depth = np.random.default_rng(0).uniform(1.5, 9., (height, width))  # World t along viewdirs (camera z = 1).
   world = c2w[:, 3] + depth[..., None] * rays.viewdirs
   ndc_t = (1. + 2. / world[..., 2] - rays.origins[..., 2]) / rays.directions[..., 2]

@@ -14,6 +14,7 @@ from jax import random
 
 from conftest import random_rays
 from internal import configs
+from internal.datasets.batching import Batch
 from internal.losses import occlusion
 from internal.losses import reconstruction
 from internal.training import schedule
@@ -33,7 +34,7 @@ def _setup(num_rays=8, **overrides):
   rays = random_rays(0, num_rays)
   model, state = ts.create_train_state(config, random.PRNGKey(0), rays)
   rgb = np.random.default_rng(0).uniform(size=(num_rays, 3)).astype(np.float32)
-  return config, model, state, {'rays': rays, 'rgb': rgb}
+  return config, model, state, Batch(rays=rays, rgb=rgb)
 
 
 def _run(config, model, state, batch, steps):
@@ -93,11 +94,11 @@ COLOURS = 'targets of the batch (colours of the images, depth priors)'
 def test_guard_skips_the_update_and_names_the_first_cause(cause, reason, monkeypatch):
   config, model, state, batch = _setup()
   if cause == 'data':
-    batch['rgb'][0, 0] = np.nan
+    batch.rgb[0, 0] = np.nan
   elif cause == 'rays':
-    origins = np.array(batch['rays'].origins)
+    origins = np.array(batch.rays.origins)
     origins[0, 0] = np.nan
-    batch['rays'] = batch['rays']._replace(origins=origins)
+    batch = batch._replace(rays=batch.rays._replace(origins=origins))
   elif cause == 'gradients':
     monkeypatch.setattr(reconstruction, 'data_loss', _nan_gradients(reconstruction.data_loss))
   else:
@@ -166,7 +167,7 @@ def test_extreme_settings_train_finitely(overrides):
 
 def test_batch_of_one_ray_and_zero_length_viewdir():
   config, model, state, batch = _setup(num_rays=1)
-  batch['rays'] = batch['rays']._replace(viewdirs=np.zeros((1, 3), np.float32))
+  batch = batch._replace(rays=batch.rays._replace(viewdirs=np.zeros((1, 3), np.float32)))
   _, state, stats = _run(config, model, state, batch, 2)
   assert bool(stats['grads_finite']) and np.isfinite(float(stats['loss']))
 

@@ -16,7 +16,7 @@ from scipy.spatial import transform as spatial_transform
 from internal.datasets import base
 
 # COLMAP's camera models: id -> (name, number of parameters). The readers know them all (so that an unsupported
-# one is named); SUPPORTED are those whose projection internal/datasets/distortion.py inverts.
+# one is named); SUPPORTED are those whose projection internal/cameras/distortion.py inverts.
 CAMERA_MODELS = {0: ('SIMPLE_PINHOLE', 3), 1: ('PINHOLE', 4), 2: ('SIMPLE_RADIAL', 4), 3: ('RADIAL', 5),
                  4: ('OPENCV', 8), 5: ('OPENCV_FISHEYE', 8), 6: ('FULL_OPENCV', 12), 7: ('FOV', 5),
                  8: ('SIMPLE_RADIAL_FISHEYE', 4), 9: ('RADIAL_FISHEYE', 5), 10: ('THIN_PRISM_FISHEYE', 12)}
@@ -88,6 +88,11 @@ def rotmat_to_qvec(rotation) -> np.ndarray:
 def camera_center(image: Image) -> np.ndarray:
   """The camera centre [3] in world coordinates, -R^T t."""
   return -qvec_to_rotmat(image.qvec).T @ image.tvec
+
+
+def camtoworld(image: Image) -> np.ndarray:
+  """The camera-to-world [3, 4] of an image in COLMAP's (OpenCV) axes: [R^T | centre]."""
+  return np.concatenate([qvec_to_rotmat(image.qvec).T, camera_center(image)[:, None]], -1)
 
 
 def depth_bounds(model: Model, points_file: str = 'points3D', percentiles=(0.1, 99.9)) -> Dict[int, np.ndarray]:

@@ -30,6 +30,11 @@ def dense_losses_on(config) -> bool:
   return config.depth_rank_loss_mult > 0 or config.depth_pearson_loss_mult > 0
 
 
+def any_on(config) -> bool:
+  """Whether a depth-prior loss is on: a dense one or the structure-from-motion points'."""
+  return dense_losses_on(config) or config.sfm_depth_loss_mult > 0
+
+
 def check_settings(config) -> None:
   """ValueError naming the setting when the depth-prior settings cannot work together; warns when the maps or
   the model would not be read."""
@@ -52,10 +57,6 @@ def check_settings(config) -> None:
     raise ValueError(f'Config.sfm_depth_loss_mult = {config.sfm_depth_loss_mult} needs a capture\'s structure-'
                      "from-motion points (Config.dataset_loader = 'capture'); this Config.dataset_loader = "
                      f'{config.dataset_loader!r}. Other scenes can use depth maps (Config.depth_prior_dir)')
-  if config.optimize_cameras and (dense_losses_on(config) or config.sfm_depth_loss_mult > 0):
-    raise ValueError('Config.optimize_cameras = True with a depth prior (Config.depth_rank_loss_mult, '
-                     'depth_pearson_loss_mult or sfm_depth_loss_mult > 0) is not supported: the prior\'s rays are '
-                     'made from the given cameras, not the refined ones; turn one of them off')
   if config.sfm_depth_model and config.sfm_depth_loss_mult <= 0:
     warnings.warn(f'Config.sfm_depth_model = {config.sfm_depth_model!r} is not read: Config.sfm_depth_loss_mult '
                   'is 0', stacklevel=3)

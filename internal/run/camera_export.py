@@ -21,12 +21,6 @@ FOLDER = 'cameras'
 OPENGL_TO_OPENCV = np.diag([1., -1., -1.])
 
 
-def is_opengl(dataset: base.Dataset) -> bool:
-  """Whether dataset's cameras look down their -z axis (OpenGL: LLFF, Blender), by its centre pixels' rays."""
-  centre = np.asarray(dataset.rays.viewdirs[:, dataset.height // 2, dataset.width // 2], np.float64)
-  return bool(np.mean(np.sum(centre * dataset.camtoworlds[:, :, 2], -1)) < 0)
-
-
 def image_names(config, dataset: base.Dataset) -> list:
   """The views' image names: a capture's file names, else view_<id>.png."""
   if config.dataset_loader == 'capture':
@@ -54,7 +48,7 @@ def write(run_dir: str, config, dataset: base.Dataset, camera_state) -> str:
   folder = os.path.join(run_dir, FOLDER)
   given = np.asarray(dataset.camtoworlds, np.float64)
   sets = {'given': given, 'refined': camera_refinement.refined_cameras(camera_state, given)}
-  names, opengl = image_names(config, dataset), is_opengl(dataset)
+  names, opengl = image_names(config, dataset), dataset.space.opengl
   for label, c2w in sets.items():
     colmap_model.write_text(colmap_cameras(c2w, dataset, names, opengl), os.path.join(folder, label))
   record = {'ids': [int(i) for i in dataset.ids], 'names': names, 'axes': 'OpenGL' if opengl else 'OpenCV',

@@ -19,6 +19,7 @@ from internal import atomic
 from internal import cli
 from internal import config_loader
 from internal import configs
+from internal.cameras import alignment
 from internal.datasets import colmap_model, load_dataset
 from internal.datasets import capture as capture_loader
 from internal.evaluation import learning_curve
@@ -177,10 +178,10 @@ def next_command(out: str, gin_bindings: list) -> str:
 
 def draw_picture(path: str, sized, capture, views: dict, order: list, title: str) -> None:
   """cameras.png: the model's points moved into the loader's frame by the similarity between both camera sets."""
-  scale, rotation, translation = poses.similarity(poses.model_cameras(sized)[1][:, :, 3], capture.camtoworlds[:, :, 3])
+  fit = alignment.fit(poses.model_cameras(sized)[1], capture.camtoworlds)
   xyz = np.stack([p.xyz for p in sized.points.values()]) if sized.points else np.zeros((0, 3))
   rgb = np.stack([p.rgb for p in sized.points.values()]) / 255. if sized.points else np.zeros((0, 3))
-  picture.draw(path, capture.camtoworlds, capture.forward, scale * xyz @ rotation.T + translation, rgb,
+  picture.draw(path, capture.camtoworlds, capture.forward, fit.scale * xyz @ fit.rotation.T + fit.shift, rgb,
                capture.names, order, views, title)
 
 

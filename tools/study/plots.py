@@ -12,7 +12,9 @@ from tools.study import spec as study_spec
 from tools.study import stats as study_stats
 
 # Learning-curve metrics (internal/evaluation/learning_curve.py) plotted against the training step.
-CAMERA_CURVE_METRICS = ('camera_rotation_deg', 'camera_translation')  # Of the training cameras, where they move.
+# Of the training cameras, where they move (after the similarity, and without it where the frames are shared).
+CAMERA_CURVE_METRICS = ('camera_rotation_deg', 'camera_translation', 'camera_rotation_deg_unaligned',
+                        'camera_translation_unaligned')
 CURVE_METRICS = ('psnr', 'psnr_masked') + CAMERA_CURVE_METRICS
 
 

@@ -1,27 +1,6 @@
-"""Camera algebra: checks of read cameras, projection decomposition, pose recentering/rescaling, render paths."""
-
-from typing import Sequence
+"""Camera algebra: look-at matrices, projection decomposition, pose recentering/rescaling, render paths."""
 
 import numpy as np
-
-from internal.datasets import base
-
-# A camera's 3x3 part (rotation, or K R of a projection) whose smallest singular value is below this fraction of
-# its largest cannot be inverted to rays (a rotation has 1, DTU's projections 3e-4).
-SINGULAR_RATIO = 1e-8
-
-
-def check_cameras(matrices: np.ndarray, path: str, labels: Sequence[str], what: str = 'camera') -> None:
-  """Raises DatasetError naming path and labels[i] when camera i of [N,3,K] (K >= 3) holds NaN or Inf or when
-  its 3x3 part is singular (e.g. a zero column), so that no ray could be made from it."""
-  for matrix, label in zip(np.asarray(matrices, np.float64), labels):
-    if not np.isfinite(matrix).all():
-      raise base.DatasetError(f'{path!r}: the {what} of {label} holds NaN or Inf; expected finite numbers')
-    values = np.linalg.svd(matrix[:3, :3], compute_uv=False)
-    if values[-1] <= SINGULAR_RATIO * values[0]:
-      raise base.DatasetError(f'{path!r}: the {what} of {label} is degenerate: its 3x3 part (the rotation, or '
-                              f'K R of a projection) is singular (singular values '
-                              f'{np.array2string(values, precision=3)}); expected an invertible one')
 
 
 def normalize(x: np.ndarray) -> np.ndarray:

@@ -41,18 +41,23 @@ def scaled(params: np.ndarray, factor: float) -> np.ndarray:
   return np.concatenate([params[:4] / factor, params[4:]])
 
 
-def distort(params: np.ndarray, u: np.ndarray, v: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-  """Distorted normalized coordinates (u', v') [...] of (u, v) [...]."""
-  k1, k2, p1, p2 = params[4:]
+def _coefficients(params) -> tuple:
+  """(k1, k2, p1, p2) [...] of params [..., 8]."""
+  return tuple(params[..., i] for i in range(4, 8))
+
+
+def distort(params, u, v) -> Tuple:
+  """Distorted normalized coordinates (u', v') [...] of (u, v) [...] (params [..., 8] broadcast)."""
+  k1, k2, p1, p2 = _coefficients(params)
   r2 = u * u + v * v
   radial = k1 * r2 + k2 * r2 * r2
   return (u + u * radial + 2. * p1 * u * v + p2 * (r2 + 2. * u * u),
           v + v * radial + p1 * (r2 + 2. * v * v) + 2. * p2 * u * v)
 
 
-def _jacobian(params: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple:
+def _jacobian(params, u, v) -> tuple:
   """(du'/du, du'/dv, dv'/du, dv'/dv) [...] of distort at (u, v)."""
-  k1, k2, p1, p2 = params[4:]
+  k1, k2, p1, p2 = _coefficients(params)
   r2 = u * u + v * v
   radial = k1 * r2 + k2 * r2 * r2
   d_radial = 2. * (k1 + 2. * k2 * r2)  # d radial / du = d_radial * u, likewise for v.
@@ -62,10 +67,10 @@ def _jacobian(params: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple:
           1. + radial + d_radial * v * v + 6. * p1 * v + 2. * p2 * u)
 
 
-def undistort(params: np.ndarray, ud: np.ndarray, vd: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-  """(u, v) [...] with distort(u, v) = (ud, vd): Newton's method from (ud, vd)."""
-  u, v = np.array(ud, np.float64), np.array(vd, np.float64)
-  if not params[4:].any():
+def undistort(params, ud, vd, xp=np) -> Tuple:
+  """(u, v) [...] with distort(u, v) = (ud, vd): Newton's method from (ud, vd) (numpy in float64, or jax.numpy)."""
+  u, v = (xp.asarray(x, np.float64 if xp is np else None) for x in (ud, vd))
+  if xp is np and not np.any(params[..., 4:]):
     return u, v
   for _ in range(NEWTON_STEPS):
     fu, fv = distort(params, u, v)
@@ -76,14 +81,9 @@ def undistort(params: np.ndarray, ud: np.ndarray, vd: np.ndarray) -> Tuple[np.nd
   return u, v
 
 
-def pixel_to_normalized(params: np.ndarray, x: np.ndarray, y: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-  """Undistorted normalized coordinates (u, v) [...] of pixel positions (x, y) [...] (COLMAP's convention)."""
-  return undistort(params, (np.asarray(x, np.float64) - params[2]) / params[0],
-                   (np.asarray(y, np.float64) - params[3]) / params[1])
-
-
-def camera_directions(params: np.ndarray, height: int, width: int) -> np.ndarray:
-  """[H, W, 3] OpenCV camera-frame directions (z = 1) through the pixel centres of an image."""
-  x, y = np.meshgrid(np.arange(width) + .5, np.arange(height) + .5)
-  u, v = pixel_to_normalized(params, x, y)
-  return np.stack([u, v, np.ones_like(u)], -1)
+def pixel_to_normalized(params, x, y, xp=np) -> Tuple:
+  """Undistorted normalized coordinates (u, v) [...] of pixel positions (x, y) [...] (COLMAP's convention) of
+  cameras params [..., 8]."""
+  real = np.float64 if xp is np else None
+  return undistort(params, (xp.asarray(x, real) - params[..., 2]) / params[..., 0],
+                   (xp.asarray(y, real) - params[..., 3]) / params[..., 1], xp)
