@@ -72,6 +72,12 @@ def test_pack_scene_refuses_an_existing_out_and_a_missing_scene_in_one_line(tmp_
   _one_error_line(capsys.readouterr().err, f"Config.data_dir = {str(tmp_path / 'absent')!r} does not exist")
 
 
+@pytest.fixture(scope='module')
+def small_scene_dir(tmp_path_factory):
+  """A generated scene of this module's own (the session's shared one may hold another rig or size)."""
+  return tmp_path_factory.mktemp('small_generated_scene')
+
+
 SEED_EXPECTED = "expected a whole number in [0, 2^63) (a seed of jax's and numpy's random generators)"
 
 
@@ -83,8 +89,8 @@ SEED_EXPECTED = "expected a whole number in [0, 2^63) (a seed of jax's and numpy
     (['--seed', str(2**63)], f'--seed {2**63}: {SEED_EXPECTED}'),
     (['--blur', '41'], "--blur 41.0: expected at most the images' longer side, 40 pixels"),
     (['--noise', '1e38'], '--noise 1e+38: the maps overflow float32; expected a smaller noise (of the range)')])
-def test_synthetic_depth_names_the_flag_out_of_its_range_in_one_line(tmp_path, scene_dir, capsys, flags, line):
-  bindings = [f"Config.data_dir = '{scene_dir}'", 'Config.generated_size = (32, 40)']
+def test_synthetic_depth_names_the_flag_out_of_its_range_in_one_line(tmp_path, small_scene_dir, capsys, flags, line):
+  bindings = [f"Config.data_dir = '{small_scene_dir}'", 'Config.generated_size = (32, 40)']
   argv = ['--gin_bindings', *bindings, '--out', str(tmp_path / 'maps'), *flags]
   assert cli.run(lambda: synthetic_depth.main(argv)) == cli.USAGE_ERROR_STATUS
   err = capsys.readouterr().err
