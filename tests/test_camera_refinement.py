@@ -14,7 +14,7 @@ import pytest
 from jax import random
 
 from internal import datasets
-from internal.cameras import alignment, caster, corrections
+from internal.cameras import algebra, alignment, caster, corrections
 from internal.cameras.records import Cameras, RaySpace
 from internal.datasets import base, colmap_model
 from internal.evaluation import camera_evaluation
@@ -91,7 +91,7 @@ def test_resumed_refinement_equals_uninterrupted_refinement_and_writes_its_camer
   model = colmap_model.read_model(os.path.join(folder, 'refined'))
   for k, image in sorted(model.images.items()):  # World-to-camera poses in OpenCV axes (the loader's are OpenGL).
     np.testing.assert_allclose(colmap_model.camera_center(image), refined[k - 1, :, 3], atol=1e-7)
-    np.testing.assert_allclose(colmap_model.qvec_to_rotmat(image.qvec).T,
+    np.testing.assert_allclose(algebra.quaternion_to_rotation(image.qvec).T,
                                refined[k - 1, :, :3] @ np.diag([1., -1., -1.]), atol=1e-7)
   pycolmap = pytest.importorskip('pycolmap')
   assert pycolmap.Reconstruction(os.path.join(folder, 'refined')).num_reg_images() == len(data.ids)

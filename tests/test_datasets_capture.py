@@ -50,7 +50,7 @@ def _capture_from(data, folder, camera_model='PINHOLE', extra=()):
     rotation = (c2w[:, :3] @ np.diag([1., -1., -1.])).T  # World to OpenCV camera.
     cameras[k + 1] = cm.Camera(k + 1, camera_model, data.width, data.height,
                                np.array([focal, focal, data.width / 2., data.height / 2., *extra]))
-    images[k + 1] = cm.Image(k + 1, cm.rotmat_to_qvec(rotation), -rotation @ c2w[:, 3], k + 1, name,
+    images[k + 1] = cm.Image(k + 1, algebra.rotation_to_quaternion(rotation), -rotation @ c2w[:, 3], k + 1, name,
                              np.zeros(0, cm.POINT2D))
   grid = np.stack(np.meshgrid(*[np.linspace(-.8, .8, 4)] * 3), -1).reshape(-1, 3)
   track = np.array([(k, 0) for k in images], cm.TRACK)
@@ -279,8 +279,8 @@ def test_forward_captures_follow_llffs_pipeline(tmp_path):
   for k, row in enumerate(rows):
     pose = row[:15].reshape(3, 5)
     rotation = np.stack([pose[:, 1], pose[:, 0], -pose[:, 2]], 1).T  # World to OpenCV camera.
-    images[k + 1] = cm.Image(k + 1, cm.rotmat_to_qvec(rotation), -rotation @ pose[:, 3], 1, f'image{k:03d}.png',
-                             np.zeros(0, cm.POINT2D))
+    images[k + 1] = cm.Image(k + 1, algebra.rotation_to_quaternion(rotation), -rotation @ pose[:, 3], 1,
+                             f'image{k:03d}.png', np.zeros(0, cm.POINT2D))
   rng = np.random.default_rng(0)
   lookat = rows[:, :15].reshape(-1, 3, 5)[:, :, 3].mean(0) - rows[:, :15].reshape(-1, 3, 5)[:, :, 2].mean(0) * 3.
   track = np.array([(k, 0) for k in images], cm.TRACK)
@@ -299,7 +299,7 @@ def test_forward_captures_follow_llffs_pipeline(tmp_path):
   read = capture_loader.read_capture(capture)  # Its points carried along: their depths scale as LLFF scales the scene.
   xyz = np.stack([p.xyz for p in points.values()])
   for k, image in enumerate(images.values()):
-    depths = (xyz @ cm.qvec_to_rotmat(image.qvec).T + image.tvec)[:, 2]
+    depths = (xyz @ algebra.quaternion_to_rotation(image.qvec).T + image.tvec)[:, 2]
     loaded = ((read.points - read.camtoworlds[k, :, 3]) @ read.camtoworlds[k, :, :3])[:, 2]
     np.testing.assert_allclose(loaded, depths / (.75 * converted[:, 15:].min()), rtol=1e-9)
   llff = Config(dataset_loader='llff', data_dir=str(tmp_path), llff_scan='llff', n_input_views=3)

@@ -120,6 +120,31 @@ def test_rq3_properties():
   assert np.allclose(np.tril(r, -1), 0.) and (np.diag(r) > 0).all()
 
 
+@pytest.mark.parametrize('seed', range(6))
+def test_a_rotation_survives_its_quaternion(seed):
+  rotation = random_rotation(np.random.default_rng(seed))
+  q = algebra.rotation_to_quaternion(rotation)
+  assert q[0] >= 0 and abs(np.linalg.norm(q) - 1) < 1e-12
+  np.testing.assert_allclose(algebra.quaternion_to_rotation(q), rotation, atol=1e-14)
+
+
+@pytest.mark.parametrize('angle', [0., np.pi / 2, np.pi, 3.])
+def test_quaternions_of_known_turns_about_z_including_a_half_turn(angle):
+  c, s = np.cos(angle), np.sin(angle)
+  rotation = np.array([[c, -s, 0.], [s, c, 0.], [0., 0., 1.]])
+  np.testing.assert_allclose(algebra.rotation_to_quaternion(rotation), [np.cos(angle / 2), 0., 0., np.sin(angle / 2)],
+                             atol=1e-15)
+
+
+def test_the_quaternion_of_a_float32_rotation_is_a_unit_one():
+  """Cameras are kept in float32, a little off orthogonal: their quaternions (viser's frustums, COLMAP's files) are
+  still of unit length."""
+  rng = np.random.default_rng(7)
+  for _ in range(50):
+    q = algebra.rotation_to_quaternion(random_rotation(rng).astype(np.float32))
+    assert abs(np.linalg.norm(q) - 1.) < 1e-15
+
+
 def test_recenter_and_rescale():
   rng = np.random.default_rng(4)
   poses = np.stack([np.concatenate([random_rotation(rng), rng.normal(size=(3, 1)) * 5.], 1) for _ in range(7)])

@@ -16,6 +16,7 @@ import pytest
 
 from internal import config_loader
 from internal.configs import Config
+from internal.cameras import algebra
 from internal.datasets import DatasetError, colmap_model as cm, depth_prior, load_dataset, sfm_depth
 from internal.datasets import capture as capture_loader
 from internal.losses import depth_pearson, depth_ranking
@@ -284,7 +285,7 @@ def _capture_with_points(tmp_path, scene_dir, n_points=150, **settings):
       continue
     rows, cols = np.nonzero(data.depths[k] > 0)
     pick = rng.choice(len(rows), n_points // 4, replace=False)
-    rotation = cm.qvec_to_rotmat(image.qvec)
+    rotation = algebra.quaternion_to_rotation(image.qvec)
     camera = model.cameras[image.camera_id]
     z = data.depths[k][rows[pick], cols[pick]].astype(np.float64)
     local = np.stack([(cols[pick] + .5 - camera.params[2]) / camera.params[0] * z,
@@ -294,7 +295,7 @@ def _capture_with_points(tmp_path, scene_dir, n_points=150, **settings):
   tracks = [[] for _ in xyz]
   for k, image in enumerate(model.images.values()):
     camera = model.cameras[image.camera_id]
-    pixel, z = _project(cm.qvec_to_rotmat(image.qvec), image.tvec, camera, xyz)
+    pixel, z = _project(algebra.quaternion_to_rotation(image.qvec), image.tvec, camera, xyz)
     col, row = np.floor(pixel[:, 0]).astype(int), np.floor(pixel[:, 1]).astype(int)
     inside = (row >= 0) & (row < data.height) & (col >= 0) & (col < data.width) & (z > 0)
     exact = np.where(inside, data.depths[k][np.clip(row, 0, data.height - 1), np.clip(col, 0, data.width - 1)], 0.)
@@ -325,7 +326,7 @@ def _brute_prior(model, names, height, width, scale, keep):
       for x, y, point_id in image.points2d:
         if point_id != point.point_id:
           continue
-        z = (cm.qvec_to_rotmat(image.qvec) @ point.xyz + image.tvec)[2]
+        z = (algebra.quaternion_to_rotation(image.qvec) @ point.xyz + image.tvec)[2]
         row, col = int(y * height // camera.height), int(x * width // camera.width)
         w = np.exp(-(point.error / mean_error)**2)
         if w > weight[view, row, col]:
@@ -374,13 +375,14 @@ def test_the_strict_form_reads_a_model_of_the_training_photos_in_its_own_frame(s
   train = load_dataset('train', config)
   names = {capture_loader.read_capture(config).names[i] for i in train.ids}
   # Structure-from-motion on the training photos: another frame (a similarity), only their images and points.
-  rotation = cm.qvec_to_rotmat([.9, .1, -.3, .2])
+  rotation = algebra.quaternion_to_rotation([.9, .1, -.3, .2])
   scale, shift = 3.7, np.array([1., -2., .5])
   images = {}
   for image_id, image in model.images.items():
     if image.name in names:
-      r = cm.qvec_to_rotmat(image.qvec) @ rotation.T
-      images[image_id] = dataclasses.replace(image, qvec=cm.rotmat_to_qvec(r), tvec=scale * image.tvec - r @ shift)
+      r = algebra.quaternion_to_rotation(image.qvec) @ rotation.T
+      images[image_id] = dataclasses.replace(image, qvec=algebra.rotation_to_quaternion(r),
+                                             tvec=scale * image.tvec - r @ shift)
   points = {j: dataclasses.replace(p, xyz=scale * rotation @ p.xyz + shift) for j, p in model.points.items()}
   cm.write_binary(cm.Model(model.cameras, images, points), str(tmp_path / 'strict'))
   strict = dataclasses.replace(config, sfm_depth_model=str(tmp_path / 'strict'))

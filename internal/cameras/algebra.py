@@ -1,11 +1,29 @@
-"""Camera algebra: look-at matrices, projection decomposition, pose recentering/rescaling, render paths."""
+"""Camera algebra: rotations as quaternions, look-at matrices, projection decomposition, pose
+recentering/rescaling, render paths."""
 
 import numpy as np
+from scipy.spatial import transform as spatial_transform
 
 
 def normalize(x: np.ndarray) -> np.ndarray:
   """Unit vectors along the last axis of x [...,3]."""
   return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def quaternion_to_rotation(wxyz) -> np.ndarray:
+  """[3,3] rotation of a quaternion (w, x, y, z) [4], normalized first."""
+  w, x, y, z = np.asarray(wxyz, np.float64) / np.linalg.norm(wxyz)
+  return np.array([[1. - 2. * (y * y + z * z), 2. * (x * y - w * z), 2. * (x * z + w * y)],
+                   [2. * (x * y + w * z), 1. - 2. * (x * x + z * z), 2. * (y * z - w * x)],
+                   [2. * (x * z - w * y), 2. * (y * z + w * x), 1. - 2. * (x * x + y * y)]])
+
+
+def rotation_to_quaternion(rotation) -> np.ndarray:
+  """[4] unit quaternion (w, x, y, z) with w >= 0 of a rotation [3,3]: scipy's, which starts from the largest of
+  the four components (Shepperd's choice; stable at any angle, a half turn included) and normalizes."""
+  x, y, z, w = spatial_transform.Rotation.from_matrix(np.asarray(rotation, np.float64)).as_quat()
+  wxyz = np.array([w, x, y, z])
+  return -wxyz if w < 0 else wxyz
 
 
 def viewmatrix(lookdir: np.ndarray, up: np.ndarray, position: np.ndarray) -> np.ndarray:

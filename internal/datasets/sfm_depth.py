@@ -18,7 +18,7 @@ from typing import Callable, List
 
 import numpy as np
 
-from internal.cameras import alignment
+from internal.cameras import algebra, alignment
 from internal.datasets import base, colmap_model
 from internal.datasets import capture as capture_loader
 
@@ -75,7 +75,7 @@ def view_depths(model: colmap_model.Model, similarity: alignment.Similarity, nam
     chosen[chosen] = serves[rows[chosen]]
     observed, rows = image.points2d[chosen], rows[chosen]
     camera = model.cameras[image.camera_id]
-    z = (xyz[rows] @ colmap_model.qvec_to_rotmat(image.qvec).T + image.tvec)[:, 2]
+    z = (xyz[rows] @ algebra.quaternion_to_rotation(image.qvec).T + image.tvec)[:, 2]
     r = np.floor(observed['y'] * height / camera.height).astype(int)
     c = np.floor(observed['x'] * width / camera.width).astype(int)
     inside = (z > 0) & (r >= 0) & (r < height) & (c >= 0) & (c < width)

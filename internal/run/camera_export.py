@@ -13,6 +13,7 @@ import os
 import numpy as np
 
 from internal import atomic
+from internal.cameras import algebra
 from internal.datasets import base, colmap_model
 from internal.datasets import capture as capture_loader
 from internal.training import camera_refinement
@@ -38,7 +39,7 @@ def colmap_cameras(camtoworlds: np.ndarray, dataset: base.Dataset, names: list, 
     intrinsics = np.linalg.inv(np.asarray(pixtocam, np.float64))
     params = np.array([intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]])
     cameras[k] = colmap_model.Camera(k, 'PINHOLE', dataset.width, dataset.height, params)
-    images[k] = colmap_model.Image(k, colmap_model.rotmat_to_qvec(rotation.T), -rotation.T @ centre, k, name,
+    images[k] = colmap_model.Image(k, algebra.rotation_to_quaternion(rotation.T), -rotation.T @ centre, k, name,
                                    np.zeros(0, colmap_model.POINT2D))
   return colmap_model.Model(cameras, images, {})
 
