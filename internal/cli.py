@@ -127,21 +127,27 @@ def command_line(module: str, argv=None) -> str:
   return quoted(['python', '-m', module] + list(sys.argv[1:] if argv is None else argv))
 
 
-def split_flag_values(argv):
-  """argv with '--gin_bindings=A' split into '--gin_bindings', 'A', so that values after it join it."""
+def split_flag_values(argv, flags=MULTI_VALUE_FLAGS):
+  """argv with '--gin_bindings=A' split into '--gin_bindings', 'A' for each of the flags, so that values after it
+  join it."""
   out = []
   for arg in argv:
     name, sep, value = arg.partition('=')
-    out.extend([name, value] if sep and name in MULTI_VALUE_FLAGS else [arg])
+    out.extend([name, value] if sep and name in flags else [arg])
   return out
 
 
 class FlagParser(argparse.ArgumentParser):
-  """An ArgumentParser that accepts `--flag=A B` for the multi-value flags (argparse alone takes only A)."""
+  """An ArgumentParser that accepts `--flag=A B` for its multi-value flags, multi_value_flags (default the gin
+  flags; argparse alone takes only A)."""
+
+  def __init__(self, *args, multi_value_flags=MULTI_VALUE_FLAGS, **kwargs):
+    super().__init__(*args, **kwargs)
+    self.multi_value_flags = tuple(multi_value_flags)
 
   def parse_known_args(self, args=None, namespace=None):
     args = sys.argv[1:] if args is None else args
-    return super().parse_known_args(split_flag_values(args), namespace)
+    return super().parse_known_args(split_flag_values(args, self.multi_value_flags), namespace)
 
 
 class PrintEnvironment(argparse.Action):
@@ -155,10 +161,10 @@ class PrintEnvironment(argparse.Action):
     parser.exit()
 
 
-def flag_parser(description: str) -> argparse.ArgumentParser:
+def flag_parser(description: str, more_multi_value_flags=()) -> argparse.ArgumentParser:
   """An argument parser with --gin_configs / --gin_bindings, each repeatable and taking one or more values, and
-  --env."""
-  parser = FlagParser(description=description)
+  --env; the caller's own such flags (more_multi_value_flags, added by it) take `--flag=A B` as they do."""
+  parser = FlagParser(description=description, multi_value_flags=MULTI_VALUE_FLAGS + tuple(more_multi_value_flags))
   parser.add_argument('--env', action=PrintEnvironment,
                       help='print the environment for a bug report (jax backend and devices, package versions, '
                            'numerics) and exit')

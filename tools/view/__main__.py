@@ -38,18 +38,11 @@ DEFAULT_PORT = 8080
 LOCAL_HOST = '127.0.0.1'
 
 
-COMPARE_FLAGS = ('--compare_configs', '--compare_bindings')
-
-
-def split_compare_flags(argv) -> list:
-  """argv with '--compare_bindings=A' split into '--compare_bindings', 'A', so that values after it join it (as
-  cli.FlagParser does for --gin_configs and --gin_bindings)."""
-  return [part for arg in argv
-          for part in (arg.split('=', 1) if arg.partition('=')[0] in COMPARE_FLAGS and '=' in arg else [arg])]
+COMPARE_FLAGS = ('--compare_configs', '--compare_bindings')  # Multi-value flags, as the gin flags.
 
 
 def parse_args(argv):
-  parser = cli.flag_parser(__doc__.split('\n')[0])
+  parser = cli.flag_parser(__doc__.split('\n')[0], COMPARE_FLAGS)
   parser.add_argument('--compare_configs', action='extend', nargs='+', default=[], metavar='FILE',
                       help="the second run's gin configs (default: the first run's)")
   parser.add_argument('--compare_bindings', action='extend', nargs='+', default=[], metavar='BINDING',
@@ -61,7 +54,7 @@ def parse_args(argv):
   parser.add_argument('--port', type=int, default=DEFAULT_PORT, help=f'the port to serve on (default {DEFAULT_PORT})')
   parser.add_argument('--host', default=LOCAL_HOST, help='the address to listen on (default 127.0.0.1: this machine '
                                                          'only; 0.0.0.0: every network this machine is on)')
-  args = parser.parse_args(split_compare_flags(argv))
+  args = parser.parse_args(argv)
   if args.height is not None and args.height < 1 or args.check_every < 0:
     raise ValueError(f'--height {args.height} and --check_every {args.check_every}: expected >= 1 and >= 0')
   return args
