@@ -33,6 +33,7 @@ from internal import atomic
 from internal import cli
 from internal import config_loader
 from internal import datasets
+from internal.cameras import algebra
 from internal.training import train_step
 from tools import provenance
 from tools.view import cameras, frames, resolution, runs
@@ -58,7 +59,7 @@ def test_view(run: runs.Run, aspect: float) -> frames.View:
   """Test camera 0 of run as a browser of the given aspect sends it."""
   test = run.test_cameras()
   c2w = test.camtoworlds[0]
-  return frames.View(tuple(cameras.quaternion(c2w[:, :3])), tuple(c2w[:, 3]),
+  return frames.View(tuple(algebra.rotation_to_quaternion(c2w[:, :3])), tuple(c2w[:, 3]),
                      cameras.field_of_view(test.pixtocams[0], test.size[0]), aspect)
 
 

@@ -2,18 +2,24 @@
 loaders', frame sizes, the comparison's panels, chunk sizes; the render thread and the checkpoint watcher with
 stand-in runs. None of these needs viser."""
 
+import dataclasses
 import socket
 import sys
 import threading
 import time
 
+import gin
 import numpy as np
 import pytest
 
-from internal.datasets import cameras as dataset_cameras
-from internal.datasets import pose_correction, raygen
+from internal import config_loader
+from internal import datasets
+from internal.cameras import algebra, caster, corrections
+from internal.cameras.records import Cameras, RaySpace
+from internal.datasets import base, blender, generated, llff
 from internal.evaluation import vis
 from internal.rays import Rays
+from test_checkpoints import DEMO, TINY
 from tools.view import app, cameras, frames, layout, resolution, runs, service, watch
 from tools.view import __main__ as view_main
 
@@ -33,29 +39,19 @@ def assert_rays_equal(a: Rays, b: Rays):
     np.testing.assert_array_equal(x, y, err_msg=name)
 
 
+def loader_rays(camtoworld, pixtocam, space: RaySpace) -> Rays:
+  """Rays [H,W,...] of one camera as a loader casts its images' (caster.image_rays)."""
+  return Rays(*[x[0] for x in caster.image_rays(Cameras(camtoworld[None], pixtocam[None]), space)])
+
+
 # ---------------------------------------------------------------- cameras
-
-
-@pytest.mark.parametrize('seed', range(6))
-def test_a_rotation_survives_its_quaternion(seed):
-  rotation = random_rotation(seed)
-  q = cameras.quaternion(rotation)
-  assert q[0] >= 0 and abs(np.linalg.norm(q) - 1) < 1e-12
-  np.testing.assert_allclose(cameras.rotation_matrix(q), rotation, atol=1e-14)
-
-
-@pytest.mark.parametrize('angle', [0., np.pi / 2, np.pi, 3.])
-def test_quaternions_of_known_turns_about_z_including_a_half_turn(angle):
-  c, s = np.cos(angle), np.sin(angle)
-  rotation = np.array([[c, -s, 0.], [s, c, 0.], [0., 0., 1.]])
-  np.testing.assert_allclose(cameras.quaternion(rotation), [np.cos(angle / 2), 0., 0., np.sin(angle / 2)], atol=1e-15)
 
 
 def test_a_viser_camera_is_a_centred_pinhole_of_its_vertical_field_of_view():
   c2w, pixtocam = cameras.view_camera([1., 0., 0., 0.], [1., 2., 3.], np.radians(60.), 30, 40)
   np.testing.assert_array_equal(c2w, [[1., 0., 0., 1.], [0., 1., 0., 2.], [0., 0., 1., 3.]])
   focal = 15. / np.tan(np.radians(30.))
-  np.testing.assert_allclose(pixtocam, dataset_cameras.focal_pixtocam(focal, 30, 40), rtol=1e-15)
+  np.testing.assert_allclose(pixtocam, algebra.focal_pixtocam(focal, 30, 40), rtol=1e-15)
   assert cameras.field_of_view(pixtocam, 30) == pytest.approx(np.radians(60.), rel=1e-14)
 
 
@@ -69,55 +65,93 @@ def test_opengl_cameras_turn_into_opencv_axes_with_the_same_centre():
 
 def viser_camera(c2w_opencv, pixtocam, height, width):
   """(c2w, pixtocam) after the trip through viser's representation (a quaternion, a vertical field of view)."""
-  view = frames.View(tuple(cameras.quaternion(c2w_opencv[:, :3])), tuple(c2w_opencv[:, 3]),
+  view = frames.View(tuple(algebra.rotation_to_quaternion(c2w_opencv[:, :3])), tuple(c2w_opencv[:, 3]),
                      cameras.field_of_view(pixtocam, height), width / height)
   return cameras.view_camera(view.wxyz, view.position, view.fov, height, width)
 
 
 def test_world_rays_of_a_viser_camera_equal_blenders_bit_for_bit():
   gl, (height, width) = opengl_camera(1), (12, 16)
-  pixtocam = dataset_cameras.focal_pixtocam(20., height, width)
-  expected = raygen.pinhole_rays(gl, pixtocam, height, width, 2., 6., True, .25)
-  rule = cameras.RayRule(pose_correction.RaySpace(), 2., 6., .25)
+  pixtocam = algebra.focal_pixtocam(20., height, width)
+  space = RaySpace(opengl=True, near=2., far=6., height=height, width=width, pixel_offset=.25)  # Blender's.
   assert_rays_equal(cameras.camera_rays(*viser_camera(cameras.to_opencv(gl[None], True)[0], pixtocam, height,
-                                                      width), height, width, rule), expected)
+                                                      width), height, width, space), loader_rays(gl, pixtocam, space))
+
+
+def test_world_rays_of_another_size_are_the_loaders_at_that_size():
+  gl, (height, width) = opengl_camera(3), (12, 16)
+  space = RaySpace(opengl=True, near=2., far=6., height=height, width=width)
+  small = algebra.focal_pixtocam(9., 5, 7)  # The released radii of the last row and column at the frame's size.
+  got = cameras.camera_rays(cameras.to_opencv(gl[None], True)[0], small, 5, 7, space)
+  assert_rays_equal(got, loader_rays(gl, small, dataclasses.replace(space, height=5, width=7)))
 
 
 def test_dtu_rays_of_a_camera_equal_the_loaders_with_their_origins_on_the_plane():
   cv, (height, width) = cameras.to_opencv(opengl_camera(2)[None], False)[0], (10, 14)
-  pixtocam = dataset_cameras.focal_pixtocam(17., height, width)
-  rule = cameras.RayRule(pose_correction.RaySpace(plane_z=.3), .5, 3.5)
-  got = cameras.camera_rays(cv, pixtocam, height, width, rule)
-  assert_rays_equal(got, raygen.dtu_rays(cv, pixtocam, height, width, .5, 3.5, .3))
+  pixtocam = algebra.focal_pixtocam(17., height, width)
+  space = RaySpace(opengl=False, near=.5, far=3.5, height=height, width=width, plane_z=.3)  # DTU's.
+  got = cameras.camera_rays(cv, pixtocam, height, width, space)
+  assert_rays_equal(got, loader_rays(cv, pixtocam, space))
   np.testing.assert_allclose(got.origins[..., 2], .3, atol=1e-6)
 
 
-def test_ndc_rays_of_a_camera_equal_llffs_with_the_training_views_ndc_space():
-  gl = np.concatenate([pose_correction.so3_exp(np.array([.05, -.03, .02])), [[.1], [-.2], [.3]]], 1)  # Forward.
-  focal, (height, width) = 18.3, (16, 20)
-  pixtocam = dataset_cameras.focal_pixtocam(focal, height, width)
-  rule = cameras.RayRule(pose_correction.RaySpace(ndc_focal=focal, height=height, width=width), 0., 1.)
+def forward_camera() -> np.ndarray:
+  """[3,4] an OpenGL camera near LLFF's reference, looking down -z."""
+  return np.concatenate([corrections.so3_exp(np.array([.05, -.03, .02])), [[.1], [-.2], [.3]]], 1)
+
+
+def test_ndc_rays_of_a_camera_equal_llffs_in_the_training_views_ndc_space_bit_for_bit():
+  gl, focal, (height, width) = forward_camera(), 18.3, (16, 20)
+  pixtocam = algebra.focal_pixtocam(focal, height, width)
+  space = llff.ray_space(focal, height, width)
   got = cameras.camera_rays(*viser_camera(cameras.to_opencv(gl[None], True)[0], pixtocam, height, width), height,
-                            width, rule)
-  assert_rays_equal(got, raygen.llff_rays(gl, pixtocam, height, width, focal))
-  # A frame at half the size keeps the training views' NDC space: LLFF's own half-size rays map the same.
-  small = dataset_cameras.focal_pixtocam(focal / 2, height // 2, width // 2)
-  half = cameras.camera_rays(cameras.to_opencv(gl[None], True)[0], small, height // 2, width // 2, rule)
-  for x, y in zip(half, raygen.llff_rays(gl, small, height // 2, width // 2, focal / 2)):
-    np.testing.assert_allclose(x, y, atol=1e-6)
+                            width, space)
+  assert_rays_equal(got, loader_rays(gl, pixtocam, space))
+
+
+@pytest.mark.parametrize('scale', [.5, 2.])
+def test_ndc_rays_of_another_size_keep_the_training_views_ndc_space(scale):
+  gl, focal, (height, width) = forward_camera(), 18.3, (16, 20)
+  space = llff.ray_space(focal, height, width)
+  rows, columns = int(height * scale), int(width * scale)
+  pixtocam = algebra.focal_pixtocam(focal * scale, rows, columns)
+  got = cameras.camera_rays(cameras.to_opencv(gl[None], True)[0], pixtocam, rows, columns, space)
+  # LLFF's own rays at that size map the same (its NDC space scales with the size); every radius, the last row's
+  # and column's too, from the next pixel's.
+  own = dataclasses.replace(llff.ray_space(focal * scale, rows, columns), released_edges=False)
+  for name, x, y in zip(Rays._fields, got, loader_rays(gl, pixtocam, own)):
+    np.testing.assert_allclose(x, y, atol=1e-6, err_msg=name)
 
 
 @pytest.mark.parametrize('ndc', [False, True])
 def test_path_centres_are_the_cameras_centres_in_world_and_ndc_rays(ndc):
   height, width, focal = 8, 10, 9.
-  pixtocam = dataset_cameras.focal_pixtocam(focal, height, width)
-  poses = [np.concatenate([np.eye(3), [[x], [.5 * x], [.2]]], 1) for x in (-.3, 0., .4)]  # Looking down -z.
-  space = pose_correction.RaySpace(ndc_focal=focal, height=height, width=width) if ndc else pose_correction.RaySpace()
-  make = (lambda p: raygen.llff_rays(p, pixtocam, height, width, focal)) if ndc else (
-      lambda p: raygen.pinhole_rays(p, pixtocam, height, width, 2., 6., True))
-  path = raygen.stack_rays((make(p) for p in poses), len(poses))
-  np.testing.assert_allclose(cameras.path_centres(path, cameras.RayRule(space, 0., 1.)),
-                             np.array(poses)[:, :, 3], atol=1e-5)
+  pixtocam = algebra.focal_pixtocam(focal, height, width)
+  poses = np.array([np.concatenate([np.eye(3), [[x], [.5 * x], [.2]]], 1) for x in (-.3, 0., .4)])  # Down -z.
+  space = llff.ray_space(focal, height, width) if ndc else RaySpace(opengl=True, near=2., far=6., height=height,
+                                                                    width=width)
+  path = caster.image_rays(Cameras(poses, np.broadcast_to(pixtocam, (len(poses), 3, 3))), space)
+  np.testing.assert_allclose(cameras.path_centres(path, space), poses[:, :, 3], atol=1e-5)
+
+
+@pytest.mark.parametrize('rig', ['object', 'forward'])
+def test_render_path_cameras_in_the_training_views_space_cast_render_pys_rays_bit_for_bit(rig, tmp_path):
+  """The object rig's world rays and the forward rig's NDC rays (the training views' own NDC focal length)."""
+  configs = [DEMO] + ([DEMO.replace('demo.gin', 'demo_forward.gin')] if rig == 'forward' else [])
+  gin.clear_config()
+  scene = [f"Config.data_dir = '{tmp_path}'", 'Config.generated_size = (16, 20)', 'Config.render_path_frames = 2']
+  config = config_loader.load_config(configs, TINY + scene)
+  space = datasets.load_dataset('train', config).space
+  if rig == 'object':
+    poses, pixtocam, height, width = blender.render_cameras(generated.scene(config), base.render_factor(config))
+    path = algebra.orbit_path(poses, 2)
+  else:
+    poses, bounds, _, pixtocam, height, width = llff.render_cameras(generated.scene(config),
+                                                                    base.render_factor(config))
+    path = algebra.spiral_path_llff(poses, bounds, 2)
+  expected = datasets.render_path_rays(config)
+  for frame, pose in enumerate(cameras.to_opencv(path, True)):
+    assert_rays_equal(cameras.camera_rays(pose, pixtocam, height, width, space), Rays(*[x[frame] for x in expected]))
 
 
 # ---------------------------------------------------------------- sizes, panels, chunks
@@ -177,7 +211,7 @@ class FakeRun:
   """Renders the rays' view directions as colour, taking `seconds` a call; counts its calls."""
 
   def __init__(self, seconds=0., step=7):
-    self.rule = cameras.RayRule(pose_correction.RaySpace(), 1., 2.)
+    self.space = RaySpace(opengl=False, near=1., far=2., height=1, width=1)  # World rays: any frame size.
     self.seconds, self.step, self.calls = seconds, step, []
 
   def compiled_shapes(self):

@@ -13,6 +13,7 @@ from jax import random
 
 from internal import config_loader
 from internal import datasets
+from internal.cameras import algebra
 from internal.evaluation import camera_evaluation
 from internal.geometry import ply
 from internal.training import camera_refinement, train_step
@@ -74,7 +75,7 @@ def test_frustums_stand_where_the_cameras_are_and_look_where_their_rays_look(ref
   assert len(groups['given cameras']) == len(groups['training cameras']) == len(train.ids)
   given = [frustums[name] for name in groups['given cameras']]
   np.testing.assert_allclose([f['position'] for f in given], train.camtoworlds[:, :, 3], atol=1e-6)
-  looks = np.array([cameras.rotation_matrix(f['wxyz'])[:, 2] for f in given])  # OpenCV: +z looks ahead.
+  looks = np.array([algebra.quaternion_to_rotation(f['wxyz'])[:, 2] for f in given])  # OpenCV: +z looks ahead.
   directions = centre_directions(train)
   assert np.all(np.sum(looks * directions, -1) / np.linalg.norm(directions, axis=-1) > .99)
   assert all(f['image'] is None for f in given)

@@ -23,7 +23,8 @@ from PIL import Image
 from internal import cli
 from internal import config_loader
 from internal import interrupt
-from internal.datasets import base, blender, cameras as dataset_cameras, generated, llff
+from internal.cameras import algebra
+from internal.datasets import base, blender, generated, llff
 from internal.evaluation import render_path
 from internal.pipeline import loop
 from test_checkpoints import DEMO, ROOT, TINY, tiny_config
@@ -160,11 +161,11 @@ def path_camera(config_of: str, trained, frame: int) -> dict:
   config = config_loader.load_config(trained[config_of]['configs'], trained[config_of]['flags'])
   if config_of == 'object':
     poses, pixtocam, height, width = blender.render_cameras(generated.scene(config), base.render_factor(config))
-    pose = dataset_cameras.orbit_path(poses, config.render_path_frames)[frame]
+    pose = algebra.orbit_path(poses, config.render_path_frames)[frame]
   else:
     poses, bounds, _, pixtocam, height, width = llff.render_cameras(generated.scene(config),
                                                                     base.render_factor(config))
-    pose = dataset_cameras.spiral_path_llff(poses, bounds, config.render_path_frames)[frame]
+    pose = algebra.spiral_path_llff(poses, bounds, config.render_path_frames)[frame]
   rotation = pose[:, :3] @ np.diag([1., -1., -1.])  # OpenGL -> OpenCV axes.
   return {'wxyz': [float(v) for v in viser.transforms.SO3.from_matrix(rotation).wxyz],
           'position': [float(v) for v in pose[:, 3]],
@@ -183,16 +184,14 @@ def test_a_camera_sent_as_a_browser_does_comes_back_as_render_pys_frame(trained)
   np.testing.assert_array_equal(image, run['frames'][1])          # ... and the viewer's is render.py's, exactly.
 
 
-def test_a_forward_scenes_ndc_frame_is_render_pys_to_the_float32_rounding_of_its_ndc_focal_length(trained):
+def test_a_forward_scenes_ndc_frame_is_render_pys_frame_exactly(trained):
   run = trained['forward']
   camera, height = path_camera('forward', trained, 0)
   with viewer(run['configs'], run['flags'], '--height', str(height)) as port, browser(port) as page:
     page.send_camera(camera)
     media_type, image = page.last_frame(time.monotonic())
-  # The NDC focal length is read off the loaded float32 rays (a relative 1e-8 off the loader's): values may move by
-  # one float32 step, and a pixel by one level where a value sits on a level's edge.
-  difference = np.abs(image.astype(int) - run['frames'][0])
-  assert media_type == 'image/png' and difference.max() <= 1 and np.mean(difference == 0) > .99
+  assert media_type == 'image/png'
+  np.testing.assert_array_equal(image, run['frames'][0])  # Cast in the training views' own NDC space.
 
 
 def test_two_runs_compare_in_one_frame_split_and_side_by_side(trained):

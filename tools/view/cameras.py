@@ -1,11 +1,12 @@
 """The viewer's cameras: viser's (a unit quaternion wxyz, a position, a vertical field of view, an aspect) against
-this project's (camera-to-world [3,4], inverse intrinsics [3,3]), and the rays of any camera in a scene's ray space.
+this project's (camera-to-world [3,4], inverse intrinsics [3,3]), and the rays of any camera in a scene's RaySpace.
 
 viser's cameras have OpenCV axes (+x right, +y down, looking down +z), as DTU's and COLMAP's; LLFF and Blender keep
-OpenGL axes (+y up, looking down -z). A pixel's world direction does not depend on the axes its camera is written
-in, so the rays made here equal the loaders' bit for bit for the same camera: a centred pinhole through the pixel
-centres (Blender-layout scenes: Config.pixel_offset), DTU's origins moved onto their plane, and NDC rays mapped by
-the training views' focal length and size (a forward scene's NDC space is its training cameras').
+OpenGL axes (+y up, looking down -z). A browser's camera is cast by the camera room's one caster
+(internal/cameras/caster.py) in the RaySpace of the run's training views, as their loader cast theirs: a pixel's
+world direction does not depend on the axes its camera is written in, so at the training views' size the rays equal
+the loader's (and render.py's) bit for bit for the same camera: world rays, DTU's origins on their plane, NDC rays.
+A frame of another size keeps the scene's space (frame_space).
 """
 
 import dataclasses
@@ -13,38 +14,11 @@ import math
 
 import numpy as np
 
-from internal.datasets import cameras, loader, pose_correction, raygen
+from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
 from internal.rays import Rays
 
 OPENGL_TO_OPENCV = np.diag([1., -1., -1.])
-
-
-def rotation_matrix(wxyz) -> np.ndarray:
-  """[3,3] rotation of a quaternion (w, x, y, z) [4], normalised first."""
-  w, x, y, z = np.asarray(wxyz, np.float64) / np.linalg.norm(wxyz)
-  return np.array([[1. - 2. * (y * y + z * z), 2. * (x * y - w * z), 2. * (x * z + w * y)],
-                   [2. * (x * y + w * z), 1. - 2. * (x * x + z * z), 2. * (y * z - w * x)],
-                   [2. * (x * z - w * y), 2. * (y * z + w * x), 1. - 2. * (x * x + y * y)]])
-
-
-def quaternion(rotation) -> np.ndarray:
-  """[4] unit quaternion (w, x, y, z) with w >= 0 of a rotation [3,3] (Shepperd's method: from the largest of the
-  four squared components, stable at any angle)."""
-  m = np.asarray(rotation, np.float64)
-  squares = 1. + np.array([np.trace(m), 2. * m[0, 0] - np.trace(m), 2. * m[1, 1] - np.trace(m),
-                           2. * m[2, 2] - np.trace(m)])
-  k = int(np.argmax(squares))
-  big = .5 * math.sqrt(squares[k])
-  # For each component k: the sums and differences of off-diagonal pairs that give 4 * q_k * q_j.
-  pairs = {0: (m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]),
-           1: (m[2, 1] - m[1, 2], m[0, 1] + m[1, 0], m[0, 2] + m[2, 0]),
-           2: (m[0, 2] - m[2, 0], m[0, 1] + m[1, 0], m[1, 2] + m[2, 1]),
-           3: (m[1, 0] - m[0, 1], m[0, 2] + m[2, 0], m[1, 2] + m[2, 1])}[k]
-  others = [i for i in range(4) if i != k]
-  q = np.empty(4)
-  q[k] = big
-  q[others] = np.array(pairs) / (4. * big)
-  return q if q[0] >= 0 else -q
 
 
 def to_opencv(camtoworlds, opengl: bool) -> np.ndarray:
@@ -63,42 +37,31 @@ def field_of_view(pixtocam, height: int) -> float:
 def view_camera(wxyz, position, fov: float, height: int, width: int) -> tuple:
   """(camera-to-world [3,4] with OpenCV axes, inverse intrinsics [3,3]) of viser's camera wxyz [4], position [3],
   vertical field of view fov (radians) at height x width pixels (a centred pinhole)."""
-  c2w = np.concatenate([rotation_matrix(wxyz), np.asarray(position, np.float64)[:, None]], 1)
-  return c2w, cameras.focal_pixtocam(.5 * height / math.tan(.5 * fov), height, width)
+  c2w = np.concatenate([algebra.quaternion_to_rotation(wxyz), np.asarray(position, np.float64)[:, None]], 1)
+  return c2w, algebra.focal_pixtocam(.5 * height / math.tan(.5 * fov), height, width)
 
 
-@dataclasses.dataclass(frozen=True)
-class RayRule:
-  """How a scene's rays follow from a camera: its ray space (world rays, DTU's origin plane, or NDC of the training
-  views' focal length and size), the near and far of its training rays, and its pixel offset."""
-  space: pose_correction.RaySpace
-  near: float
-  far: float
-  pixel_offset: float = .5
+def frame_space(space: RaySpace, height: int, width: int) -> RaySpace:
+  """The RaySpace of a height x width frame of cameras with OpenCV axes in a scene's space: world rays at the
+  frame's size; NDC rays keep the training views' NDC map (its focal length and their size, which the released
+  radii rule also reads), so that at another size a ray's radius comes from the next pixel's on the last row and
+  column too."""
+  if not space.ndc_focal:
+    return dataclasses.replace(space, opengl=False, height=height, width=width)
+  same_size = (height, width) == (space.height, space.width)
+  return dataclasses.replace(space, opengl=False, released_edges=space.released_edges and same_size)
 
 
-def ray_rule(config, train_set) -> RayRule:
-  """The RayRule of a run's scene, from its training split as loaded (the NDC focal length is read off its rays)."""
-  offset = config.pixel_offset if loader.filed_as(config)[0] == 'blender' else .5  # Only Blender's rays use it.
-  return RayRule(loader.ray_space(config, train_set), float(train_set.near), float(train_set.far), offset)
+def camera_rays(camtoworld, pixtocam, height: int, width: int, space: RaySpace) -> Rays:
+  """Rays [H,W,...] of a camera, camera-to-world [3,4] with OpenCV axes and inverse intrinsics [3,3] (a pinhole),
+  in a scene's RaySpace (its training views')."""
+  cameras = Cameras(np.asarray(camtoworld, np.float64)[None], np.asarray(pixtocam, np.float64)[None])
+  return caster.cast(cameras, caster.image_pixels(0, height, width), frame_space(space, height, width))
 
 
-def camera_rays(camtoworld, pixtocam, height: int, width: int, rule: RayRule) -> Rays:
-  """Rays [H,W,...] of a camera, camera-to-world [3,4] with OpenCV axes and inverse intrinsics [3,3], as the
-  scene's loader makes them."""
-  space = rule.space
-  if space.ndc_focal:
-    directions = raygen.camera_directions(pixtocam, height, width, opengl=False)
-    return raygen.ndc_camera_rays(camtoworld, directions, space.ndc_focal, space.height, space.width)
-  if space.plane_z is not None:
-    return raygen.dtu_rays(camtoworld, pixtocam, height, width, rule.near, rule.far, space.plane_z)
-  return raygen.pinhole_rays(camtoworld, pixtocam, height, width, rule.near, rule.far, False, rule.pixel_offset)
-
-
-def world_lines(rays: Rays, rule: RayRule) -> tuple:
+def world_lines(rays: Rays, space: RaySpace) -> tuple:
   """(points [...,3], directions [...,3]) float64: the world lines of rays (NDC rays mapped back: their origins lie
-  where the world rays cross z = -1, raygen.convert_to_ndc)."""
-  space = rule.space
+  where the world rays cross z = -1, caster.convert_to_ndc)."""
   if not space.ndc_focal:
     return rays.origins.astype(np.float64), rays.directions.astype(np.float64)
   ndc = rays.origins.astype(np.float64)
@@ -114,10 +77,10 @@ def nearest_point(points, directions) -> np.ndarray:
   return np.linalg.solve(projections.sum(0), np.einsum('nij,nj->i', projections, points))
 
 
-def path_centres(path_rays: Rays, rule: RayRule) -> np.ndarray:
-  """[F,3] camera centres of render-path frames, rays [F,H,W,...]: the point nearest to each frame's corner and
-  centre rays."""
+def path_centres(path_rays: Rays, space: RaySpace) -> np.ndarray:
+  """[F,3] camera centres of render-path frames, rays [F,H,W,...] in the scene's space: the point nearest to each
+  frame's corner and centre rays."""
   height, width = path_rays.origins.shape[1:3]
   rows, cols = np.array([0, 0, height - 1, height - 1, height // 2]), np.array([0, width - 1, 0, width - 1, width // 2])
-  points, directions = world_lines(Rays(*[x[:, rows, cols] for x in path_rays]), rule)
+  points, directions = world_lines(Rays(*[x[:, rows, cols] for x in path_rays]), space)
   return np.stack([nearest_point(p, d) for p, d in zip(points, directions)])

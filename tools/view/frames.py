@@ -76,7 +76,7 @@ def render_frame(runs: list, view: View, rows: int, options: Options, cancelled=
   chosen = options.layout if len(runs) > 1 else None
   renderings = []
   for index, start, end in layout.panels(chosen, width, options.fraction):
-    rays = cameras.camera_rays(c2w, pixtocam, rows, width, runs[index].rule)
+    rays = cameras.camera_rays(c2w, pixtocam, rows, width, runs[index].space)
     renderings.append(render_panel(runs[index], Rays(*[x[:, start:end] for x in rays]), cancelled))
   frame = layout.compose(pictures(renderings, options.output), chosen)
   return vis.to_uint8(frame), rows * width

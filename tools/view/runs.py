@@ -22,7 +22,7 @@ from internal import datasets
 from internal import rays as rays_lib
 from internal.datasets import base, loader
 from internal.evaluation import camera_evaluation, inference
-from internal.run import camera_export, checkpoints, run_dir as run_dir_lib
+from internal.run import checkpoints, run_dir as run_dir_lib
 from internal.training import camera_refinement
 from tools.view import cameras
 
@@ -56,8 +56,8 @@ class Run:
   def __init__(self, config, run_dir: str, model, state, train_set, test_set):
     self.config, self.run_dir, self.model = config, run_dir, model
     self.train_set, self.test_set = train_set, test_set
-    self.rule = cameras.ray_rule(config, train_set)
-    self.opengl = camera_export.is_opengl(train_set)
+    self.space = train_set.space  # How rays follow from cameras in the scene (its loader set it), and its axes.
+    self.opengl = self.space.opengl
     self._compiled = inference.compile_render(config, model)
     self._lock = threading.Lock()
     self._chunks = set()  # The chunk sizes rendered so far: each compiled once.
@@ -132,7 +132,7 @@ class Run:
       small = dataclasses.replace(small, render_factor=base.render_factor(self.config) * shrink)
     with warnings.catch_warnings():
       warnings.simplefilter('ignore')  # An LLFF scene warns that it builds images of that size from a finer one.
-      return cameras.path_centres(datasets.render_path_rays(small), self.rule)
+      return cameras.path_centres(datasets.render_path_rays(small), self.space)
 
 
 def load(gin_configs, gin_bindings) -> Run:

@@ -8,7 +8,7 @@ import os
 
 import numpy as np
 
-from internal.datasets import camera_noise
+from internal.cameras import algebra, alignment
 from internal.datasets import capture as capture_loader
 from internal.geometry import ply
 from tools.view import cameras
@@ -25,8 +25,8 @@ POINT_SIZE = .005      # A point's size, as a fraction of the scene's camera dis
 def frustum_poses(camera_set) -> list:
   """[(wxyz [4], position [3], fov, aspect)] of a runs.CameraSet, as viser places frustums."""
   height, width = camera_set.size
-  return [(cameras.quaternion(c2w[:, :3]), c2w[:, 3], cameras.field_of_view(pixtocam, height), width / height)
-          for c2w, pixtocam in zip(camera_set.camtoworlds, camera_set.pixtocams)]
+  return [(algebra.rotation_to_quaternion(c2w[:, :3]), c2w[:, 3], cameras.field_of_view(pixtocam, height),
+           width / height) for c2w, pixtocam in zip(camera_set.camtoworlds, camera_set.pixtocams)]
 
 
 def photo(image) -> np.ndarray:
@@ -69,7 +69,7 @@ def read_points(path: str, run) -> tuple:
 
 def scene_distance(run) -> float:
   """The distance of a camera from the middle of the scene (the unit the scene's objects are sized by)."""
-  return camera_noise.camera_distance(run.train_set, run.rule.space)
+  return alignment.camera_distance(run.train_set.camtoworlds, run.space)
 
 
 def draw(server, runs: list, points) -> dict:
