@@ -21,6 +21,7 @@ from internal.pipeline import loop
 from tools import provenance
 from tools import tables
 from tools.study import cells_file
+from tools.study import export as study_export
 from tools.study import plots as study_plots
 from tools.study import runner as study_lib
 from tools.study import spec as study_spec
@@ -269,8 +270,8 @@ def test_pictures_come_from_the_first_seed_whose_cells_kept_their_renders(tmp_pa
   cells = [{'cell': f'{m}_{s}', 'step': 20, 'labels': {study_spec.SEED_AXIS: s}} for s in ('1', '2') for m in 'ab']
   kept = {'a_1': True, 'b_1': False, 'a_2': True, 'b_2': True}           # b_1 was imported from an export.
   paths = {c['cell']: _cell_folder(tmp_path, c['cell'], kept[c['cell']]) for c in cells}
-  assert study_lib.study_export._picture_cells(cells, paths, ['1', '2']) == cells[2:]
-  assert study_lib.study_export._picture_cells(cells, paths, ['1']) == []
+  assert study_export._picture_cells(cells, paths, ['1', '2']) == cells[2:]
+  assert study_export._picture_cells(cells, paths, ['1']) == []
 
 
 def test_export_without_renders_warns_and_draws_no_picture(ran, tmp_path, capsys):
@@ -292,7 +293,7 @@ def test_an_export_that_fails_half_way_leaves_no_folder_and_the_retry_succeeds(r
   def fail(*_):
     raise ValueError('Config.data_dir = \'x\' does not exist')
   with monkeypatch.context() as patched:                    # Fails at the pictures, after the csv and cells.
-    patched.setattr(study_lib.study_export, '_scene_picture', fail)
+    patched.setattr(study_export, '_scene_picture', fail)
     with pytest.raises(ValueError, match='does not exist'):
       study_lib.main([str(path), '--out', out, '--plots-only', '--export', str(dest)])
   assert sorted(os.listdir(tmp_path)) == []                 # Neither dest nor its staging folder.

@@ -157,7 +157,7 @@ def bindings(out: str, factor: int, n_registered: int) -> list:
 
 def load_back(gin_bindings: list) -> tuple:
   """(Config, the loader's Capture, default views {split: ids}): the capture read, both splits loaded through the
-  colmap loader and the learning curve's views checked, with the printed command's config."""
+  capture loader and the learning curve's views checked, with the printed command's config."""
   gin.clear_config()  # The tool's own process: the config is parsed once, fresh.
   config = config_loader.load_config([os.path.join(REPO, CONFIG)], gin_bindings)
   load_dataset('train', config)
