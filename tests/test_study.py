@@ -171,7 +171,9 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
     assert texts['learning_curve.csv'] == (run / 'learning_curve.csv').read_bytes().decode()
     evaluated = run / f'test_preds_step_{record["step"]}'
     assert texts['metrics.csv'] == (evaluated / 'metrics.csv').read_bytes().decode()
-    assert texts['metrics.json'] == (evaluated / 'metrics.json').read_text()
+    written = json.loads((evaluated / 'metrics.json').read_text())  # Its run folder as the spec names it.
+    assert written['run_dir'] == str(run.resolve()) and texts['metrics.json'] == json.dumps(
+        dict(written, run_dir=f'{{out}}/mini/{cell}/run'), indent=1)
   assert (dest / 'psnr_vs_step.png').is_file()
   table = (dest / 'table.md').read_text().splitlines()
   assert table[0].startswith('| method | scene | views | step | psnr |') and len(table) == 2 + 4
@@ -314,10 +316,10 @@ def test_reuse_takes_the_exported_cells_with_the_same_settings(ran, tmp_path, ca
   assert pick(_rows(fresh / 'mini' / 'results.csv')) == pick(_rows(pathlib.Path(out, 'mini', 'results.csv')))
   assert (fresh / 'mini' / 'psnr_vs_step.png').is_file()                 # The learning curves came along.
   cell = study_spec.cells(study_spec.load(path))[0].cell_id
-  for name in ('metrics.csv', 'metrics.json'):                           # Placed as the run wrote them.
-    placed = fresh / 'mini' / cell / study_lib.RUN_SUBDIR / f'test_preds_step_{STEPS}' / name
-    assert placed.read_bytes() == (pathlib.Path(out, 'mini', cell, study_lib.RUN_SUBDIR, placed.parent.name,
-                                                name).read_bytes())
+  for name in ('metrics.csv', 'metrics.json'):                           # Placed as the run wrote them (its run
+    placed = fresh / 'mini' / cell / study_lib.RUN_SUBDIR / f'test_preds_step_{STEPS}' / name  # folder templated).
+    ran = pathlib.Path(out, 'mini', cell, study_lib.RUN_SUBDIR, placed.parent.name, name).read_text()
+    assert placed.read_text() == ran.replace(str(pathlib.Path(out).resolve()), '{out}')
   renamed = tmp_path / 'mini_again.toml'                                 # Another study taking the same cells:
   renamed.write_text(path.read_text().replace('name = "mini"', 'name = "mini_again"'))
   again = tmp_path / 'again'                                             # its export refers to the first one.

@@ -159,8 +159,8 @@ def check_runs(runs: list) -> None:
 
 def targets_markdown(found: list, args, argv) -> str:
   """targets.md: a row per method and seed, each method's means, and the provenance."""
-  lines = [f'On the {args.noisy!r} cameras of {args.study}; the share is (method - {args.baseline}) / '
-           f'({args.baseline} {args.clean} - {args.baseline} {args.noisy}) in PSNR, per seed.', '',
+  lines = [f'On the {args.noisy!r} cameras of {cli.relative_paths(args.study)}; the share is (method - '
+           f'{args.baseline}) / ({args.baseline} {args.clean} - {args.baseline} {args.noisy}) in PSNR, per seed.', '',
            '| method | seed | camera rotation error (deg, median) | camera translation error (median) | PSNR | '
            'share of the noise cost recovered |', '|---|---|---|---|---|---|']
   lines += [f'| {m} | {s} | {r:.3f} | {t:.4f} | {p:.3f} | {share:.2f} |' for m, s, r, t, p, share in found]

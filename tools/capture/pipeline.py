@@ -83,8 +83,8 @@ def checked_inputs(source: str, kind: str, folder: str, names: list, skipped: li
   if duplicates:
     warnings.warn('left out, byte-for-byte repeats of an earlier photo: '
                   + report_lib.listed([f'{a} (= {b})' for a, b in duplicates.items()]))
-  return found, {'input': os.path.abspath(source), 'kind': kind, 'photos': len(found), 'skipped': skipped,
-                 'duplicates': duplicates, 'rotated': [p.name for p in found if p.orientation != 1]}
+  return found, {'input': cli.relative_paths(os.path.abspath(source)), 'kind': kind, 'photos': len(found),
+                 'skipped': skipped, 'duplicates': duplicates, 'rotated': [p.name for p in found if p.orientation != 1]}
 
 
 def run_sfm(args: Options, found, output, kind: str) -> tuple:

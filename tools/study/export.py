@@ -1,13 +1,14 @@
 """Copies a study's results into a folder meant to be committed: what was run, on what, and what came out.
 
 <dest>/ gets results.csv, the statistics over seeds (summary.csv, comparisons.csv and .md, and looks.json: the seed
-counts at which the comparisons were read, tools/study/looks.py) and the plots, cells.jsonl
-(a line per finished cell: its gin, its cell.json, its evaluation's metrics.json and its learning curve; a cell
-reused from another study's export a reference to that export's line: tools/study/cells_file.py), a side-by-side
-picture per scene (ground truth, then each method's render of the first evaluated test views, of the first seed),
-table.md (per cell its metrics, wall times and commit) and provenance.json: the command, the study file's path and
-SHA-256, the machine and the package versions (each cell's commit, with the tracked files that differed from it,
-is in its line). No checkpoints, no renders.
+counts at which the comparisons were read, tools/study/looks.py) and the plots, cells.jsonl (a line per finished
+cell: its gin, its cell.json, its evaluation's metrics.json, whose run folder is written as the spec writes it,
+{out}/<study>/<cell>/run, and its learning curve; a cell reused from another study's export a reference to that
+export's line: tools/study/cells_file.py), a side-by-side picture per scene (ground truth, then each method's render
+of the first evaluated test views, of the first seed), table.md (per cell its metrics, wall times and commit) and
+provenance.json: the command (its paths relative to the repository: internal/cli.py's recorded_command), the study
+file's path and SHA-256, the machine and the package versions (each cell's commit, with the tracked files that
+differed from it, is in its line). No checkpoints, no renders.
 """
 
 import glob
@@ -51,12 +52,22 @@ def _cell_line(study: study_spec.Study, cell: study_spec.Cell, path: str, record
   from internal.evaluation import learning_curve  # pylint: disable=import-outside-toplevel
   metrics = os.path.join(eval_dir(path, record['step']), cells_file.METRICS_FILE)
   curve = learning_curve.csv_path(os.path.join(path, RUN_SUBDIR))
-  entry = cells_file.line(cell.cell_id, record, cells_file.read_json(metrics) if os.path.isfile(metrics) else None,
-                          _text(curve), cells_file.spec(study, cell))
+  evaluation = _portable(cells_file.read_json(metrics), path) if os.path.isfile(metrics) else None
+  entry = cells_file.line(cell.cell_id, record, evaluation, _text(curve), cells_file.spec(study, cell))
   source = _reused_from(path)
   if source and record.get('study') != study.name:
     return cells_file.reference(dest, entry, source) or entry
   return entry
+
+
+def _portable(evaluation: dict, cell_path: str) -> dict:
+  """A cell's metrics.json with the run folder it names, where absolute, as its spec writes it: {out}/<study>/<cell>/run
+  (a cell --reuse placed names the folder of the export's line already)."""
+  run_dir = evaluation.get('run_dir')
+  out = os.path.dirname(os.path.dirname(os.path.abspath(cell_path)))
+  if not (run_dir and os.path.isabs(run_dir) and run_dir.startswith(out + os.sep)):
+    return evaluation
+  return {**evaluation, 'run_dir': '{out}' + run_dir[len(out):]}
 
 
 def _text(path: str) -> Optional[str]:
