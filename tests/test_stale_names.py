@@ -29,3 +29,14 @@ def test_the_study_runner_imports_its_siblings_by_their_own_names():
   aliased = [f'{a.name} as {a.asname}' for node in ast.walk(tree)
              if isinstance(node, ast.ImportFrom) and node.module == 'tools.study' for a in node.names if a.asname]
   assert not aliased, f'tools/study/runner.py imports tools.study modules under other names: {aliased}'
+
+
+def test_no_text_calls_a_budgets_value_the_curves_best_point():
+  from tools.study import time_budgets  # pylint: disable=import-outside-toplevel
+  assert time_budgets.value_at([(10., 12.), (50., 11.), (90., 13.)], 60.) == 11.  # The last point within, not the best.
+  said = []
+  for named_in in test_named_paths._texts():  # pylint: disable=protected-access
+    with open(os.path.join(ROOT, named_in), errors='replace') as f:
+      said += [f'{named_in}:{n}' for n, line in enumerate(f, 1)
+               if re.search(r"best curve point|curve's best within", line) and named_in.endswith('.md')]
+  assert not said, f'these lines call the value at a budget the best curve point; it is the last one within: {said}'
