@@ -3,6 +3,7 @@ truth where the scene has one, and each rendered depth in its own colour range, 
 little (a depth prior's) still shows its structure."""
 
 import numpy as np
+from PIL import Image
 
 from internal.evaluation import vis
 from tools.study import export
@@ -36,3 +37,19 @@ def test_without_exact_depths_the_panel_under_the_ground_truth_is_blank(tmp_path
   truth = export.Truth({0: np.full((H, W, 3), .5)}, {0: None}, lambda view, distance: distance)
   blank, _ = export._depth_row(folders, 0, truth)  # pylint: disable=protected-access
   assert (blank == 1.).all()
+
+
+def test_a_picture_is_a_palette_png_exact_where_it_can_be(tmp_path):
+  few = np.repeat(np.linspace(0., 1., 16)[None, :, None], 3, 2).repeat(4, 0)  # 16 greys: kept exactly.
+  vis.save_picture(few, str(tmp_path / 'few.png'))
+  with Image.open(tmp_path / 'few.png') as saved:
+    assert saved.mode == 'P' and (np.asarray(saved.convert('RGB')) == vis.to_uint8(few)).all()
+  rows = np.random.default_rng(0).random((64, 96, 3))  # A render's many colours, on a white page.
+  page = np.ones((80, 112, 3))
+  page[8:72, 8:104] = rows
+  vis.save_picture(page, str(tmp_path / 'many.png'))
+  vis.save_png(page, str(tmp_path / 'full.png'))
+  with Image.open(tmp_path / 'many.png') as saved:
+    got = np.asarray(saved.convert('RGB')).astype(int)
+  assert (got[:8] == 255).all() and np.abs(got - vis.to_uint8(page)).mean() < 10
+  assert (tmp_path / 'many.png').stat().st_size < (tmp_path / 'full.png').stat().st_size / 2

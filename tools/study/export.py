@@ -126,7 +126,7 @@ def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Truth, path:
                      [f'{k}={v}' for k, v in c['labels'].items()]) for c in cells]
   scale = -(-MIN_TILE_WIDTH // rows[0][0].shape[1])
   picture = demo.grid(rows, ['ground truth'] + titles, row_titles, scale=scale)
-  vis.save_png(picture / 255., path)
+  vis.save_picture(picture, path)
 
 
 def _ground_truth(cell_path: str, cell: dict, count: int) -> Truth:
