@@ -35,7 +35,8 @@ from internal.run import out_of_memory
 from internal.run import run_dir
 from internal.training import train_step
 
-CONFIG_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'configs')
+REPOSITORY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+CONFIG_DIR = os.path.join(REPOSITORY, 'configs')
 # The demo's FreeNeRF: the short CPU schedule (demo.gin), then its scene, 2 views and NeRF model (demo_forward.gin).
 DEMO_CONFIGS = [os.path.join(CONFIG_DIR, name) for name in ('demo.gin', 'demo_forward.gin')]
 USAGE_ERROR_STATUS = 2
@@ -122,9 +123,24 @@ def quoted(words) -> str:
                   else shlex.quote(w) for w in words)
 
 
+# An absolute path in a word or a text: a '/' that starts it or follows '=', a quote, a space or a bracket.
+ABSOLUTE_PATH = re.compile(r"(?<![\w.~/-])/[\w.@+,=-]+(?:/[\w.@+,=-]*)*")
+
+
+def relative_paths(text: str) -> str:
+  """text with each absolute path written relative to the repository (/work/x/out -> ../x/out from /work/repo),
+  so that what a command writes into a committed record names no machine's folders."""
+  return ABSOLUTE_PATH.sub(lambda m: os.path.relpath(m.group(0), REPOSITORY), text)
+
+
+def recorded_command(words) -> str:
+  """A command's words as the line a record keeps: quoted, each absolute path relative to the repository."""
+  return quoted([relative_paths(w) for w in words])
+
+
 def command_line(module: str, argv=None) -> str:
-  """The line that ran `python -m module` with argv (default: this process's arguments), quoted."""
-  return quoted(['python', '-m', module] + list(sys.argv[1:] if argv is None else argv))
+  """The line that ran `python -m module` with argv (default: this process's arguments), as a record keeps it."""
+  return recorded_command(['python', '-m', module] + list(sys.argv[1:] if argv is None else argv))
 
 
 def split_flag_values(argv, flags=MULTI_VALUE_FLAGS):

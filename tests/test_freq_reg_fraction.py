@@ -44,7 +44,12 @@ STUDIES = {
     'mini_dtu_long': {'freenerf__dtu_scan24': LONG},
     'mini_llff_long': {'freenerf__fern': LONG},
     'capture_cup': {'freenerf__cup': MINI, 'freenerf_nerf__cup': MINI},
+    'depth_prior_cup': {'freenerf__cup': (700, 630), 'freenerf_sfm__cup': (700, 630)},
+    'cameras_cup': {f'freenerf__cup__cameras={c}': (800, 560) for c in ('allphoto', 'sfm6', 'sfm6_refine')},
+    'depth_prior_cup_9views': {f'{m}__cup': (700, 350) for m in ('freenerf', 'freenerf_sfm', 'freenerf_sfm_strict')},
 }
+# Study files that once bound T in steps by hand (issue 59): T is now their method's gin fraction of the steps.
+FRACTION_STUDIES = ('depth_prior_cup', 'cameras_cup', 'depth_prior_cup_9views')
 
 
 def resolved(configs, bindings=()) -> tuple:
@@ -113,3 +118,13 @@ def test_each_study_cell_keeps_the_t_it_had_in_steps(name):
     if key not in found:  # The seeds of a setting bind nothing else.
       found[key] = resolved(*study_spec.cell_gin(study, cell, 'out', '../shared/data', 'out/cell'))
   assert {k: v for k, v in found.items() if v[1] or k in STUDIES[name]} == STUDIES[name]
+
+
+@pytest.mark.parametrize('name', FRACTION_STUDIES)
+def test_these_studies_take_t_from_the_fraction_of_their_gin(name):
+  study = study_spec.load(f'studies/{name}.toml')
+  for cell in study_spec.cells(study):
+    gin.clear_config()
+    config = config_loader.load_config(*study_spec.cell_gin(study, cell, 'out', '../shared/data', 'out/cell'))
+    assert config.freq_reg_end_fraction is not None, f'{name}: {cell.cell_id} binds T in steps'
+    assert config.freq_reg_end == round(config.freq_reg_end_fraction * config.max_steps)

@@ -174,8 +174,9 @@ def unaligned_means(rows: list, axis: str, noisy: str) -> dict:
 
 def targets_markdown(found: list, args, argv, unaligned: dict) -> str:
   """targets.md: a row per method and seed, each method's means (and unaligned_means'), and the provenance."""
-  lines = [f'On the {args.noisy!r} cameras of {args.study}; the share is (method - {args.baseline}) / '
-           f'({args.baseline} {args.clean} - {args.baseline} {args.noisy}) in PSNR, per seed. Camera errors are '
+  lines = [f'On the {args.noisy!r} cameras of {cli.relative_paths(args.study)}; the share is (method - '
+           f'{args.baseline}) / ({args.baseline} {args.clean} - {args.baseline} {args.noisy}) in PSNR, per seed. '
+           'Camera errors are '
            'medians over the training views against the reference after the similarity taking the cameras onto it '
            '(camera_rotation_deg, camera_translation): the alignment the targets use.', '',
            '| method | seed | camera rotation error (deg, median) | camera translation error (median) | PSNR | '

@@ -84,8 +84,8 @@ def checked_inputs(source: str, kind: str, folder: str, names: list, skipped: li
   if duplicates:
     warnings.warn('left out, byte-for-byte repeats of an earlier photo: '
                   + report_lib.listed([f'{a} (= {b})' for a, b in duplicates.items()]))
-  return found, {'input': os.path.abspath(source), 'kind': kind, 'photos': len(found), 'skipped': skipped,
-                 'duplicates': duplicates, 'rotated': [p.name for p in found if p.orientation != 1]}
+  return found, {'input': cli.relative_paths(os.path.abspath(source)), 'kind': kind, 'photos': len(found),
+                 'skipped': skipped, 'duplicates': duplicates, 'rotated': [p.name for p in found if p.orientation != 1]}
 
 
 def run_sfm(args: Options, found, output, kind: str) -> tuple:
@@ -158,7 +158,7 @@ def bindings(out: str, factor: int, n_registered: int) -> list:
 
 def load_back(gin_bindings: list) -> tuple:
   """(Config, the loader's Capture, default views {split: ids}): the capture read, both splits loaded through the
-  colmap loader and the learning curve's views checked, with the printed command's config."""
+  capture loader and the learning curve's views checked, with the printed command's config."""
   gin.clear_config()  # The tool's own process: the config is parsed once, fresh.
   config = config_loader.load_config([os.path.join(REPO, CONFIG)], gin_bindings)
   load_dataset('train', config)
