@@ -21,7 +21,6 @@ import os
 import resource
 import sys
 
-import gin
 import jax
 import jax.numpy as jnp
 
@@ -134,7 +133,6 @@ def main(argv=None):
   for name in names:  # Rows printed as each precision finishes.
     report['results'][name] = measure_precision(name, methods, args, bindings)
     print(table_rows(name, report['results'][name]), flush=True)
-  gin.clear_config()
   if args.out:
     with open(args.out, 'w') as f:
       json.dump(report, f, indent=2)

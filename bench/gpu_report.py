@@ -21,7 +21,6 @@ from PIL import Image
 
 from bench import step_variants
 from internal import cli
-from internal import demo
 from internal.datasets import image_io
 from internal.datasets import packed
 from internal.evaluation import vis
@@ -135,7 +134,7 @@ def picture(out_dir: str, runs) -> str:
       rows += [f'{run} {label}' for label in KINDS.values()]
   path = os.path.join(out_dir, 'test_views.png')
   columns = [f'test view {_view_id(n)}' for n in names]
-  vis.save_picture(demo.grid(tiles, columns, rows, scale=1), path)
+  vis.save_picture(vis.grid(tiles, columns, rows, scale=1), path)
   return path
 
 

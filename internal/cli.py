@@ -24,10 +24,10 @@ import sys
 import threading
 import warnings
 
-from internal import config_loader
 from internal import environment
 from internal import interrupt
 from internal import progress
+from internal import runs
 from internal.run import checkpoints
 from internal.run import disk_full
 from internal.run import distributed
@@ -192,5 +192,6 @@ def flag_parser(description: str, more_multi_value_flags=()) -> argparse.Argumen
 
 
 def config_from_flags(args: argparse.Namespace):
-  """The validated Config of parsed flags; the demo's FreeNeRF configs when no --gin_configs was given."""
-  return config_loader.load_config(args.gin_configs or DEMO_CONFIGS, args.gin_bindings)
+  """The validated Config of parsed flags, gin bound to them afresh (runs.bind_fresh); the demo's FreeNeRF configs
+  when no --gin_configs was given."""
+  return runs.bind_fresh(args.gin_configs or DEMO_CONFIGS, args.gin_bindings)

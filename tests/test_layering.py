@@ -56,9 +56,10 @@ def test_internal_does_not_import_tools(path):
 STAGES = ('records', 'cameras', 'datasets', 'models', 'losses', 'training', 'run', 'evaluation', 'geometry', 'pipeline',
           'entry')
 # The modules directly under internal/: plain data and utilities that import nothing of internal/, and the entry
-# points of the scripts (the command line, the demo, config loading that validates every stage's settings).
+# points of the scripts and the lab (the command line, the demo, config loading that validates every stage's settings,
+# the door to runs).
 RECORDS = {'rays', 'configs', 'atomic', 'progress', 'environment', 'interrupt', 'lock_holders'}
-ENTRY_POINTS = {'cli', 'demo', 'config_loader'}
+ENTRY_POINTS = {'cli', 'demo', 'config_loader', 'runs'}
 
 
 def stage(module: str) -> str:

@@ -11,7 +11,6 @@ import subprocess
 import sys
 import tarfile
 
-import gin
 import jax
 import numpy as np
 import pytest
@@ -20,7 +19,7 @@ from bench import ledger as ledger_lib
 from bench import ledger_commit
 from bench import prepare_lease
 from conftest import SHARED_DATA
-from internal import config_loader
+from internal import runs
 from internal.datasets import packed
 from internal.evaluation import evaluate
 from internal.evaluation import learning_curve
@@ -76,8 +75,7 @@ def test_the_ledger_holds_the_released_runs_in_order():
   assert [r.name for r in ledger.runs] == ['freenerf_dtu3_scan24', 'freenerf_dtu3_scan24_tf32', 'mipnerf_dtu3_scan24',
                                            'freenerf_llff3_fern', 'mipnerf_llff3_fern']
   for run in ledger.runs:
-    gin.clear_config()
-    released = config_loader.load_config([os.path.join(ROOT, run.gin)], ["Config.data_dir = 'x'"])
+    released = runs.bind_fresh([os.path.join(ROOT, run.gin)], ["Config.data_dir = 'x'"])
     assert run.steps == released.max_steps and run.metric in tables.PAPER[run.paper]
     assert run.precision == ('default' if run.follow_up_of else 'bfloat16')
   assert [r.steps for r in ledger.runs] == [43945, 43945, 43945, 69768, 69768]
@@ -99,9 +97,8 @@ def test_every_run_trains_on_its_pack_and_scores_its_curve_on_every_test_view(tm
   ledger = ledger_lib.load()
   prepare_lease.make_packs(ledger, str(SHARED_DATA), str(tmp_path))
   for run in ledger.runs:
-    gin.clear_config()
     bindings = ledger_lib.train_bindings(ledger, run, str(tmp_path), str(tmp_path / run.name), [])
-    config = config_loader.load_config([os.path.join(ROOT, run.gin)], bindings)
+    config = runs.bind_fresh([os.path.join(ROOT, run.gin)], bindings)
     path = ledger_lib.pack_path(ledger, run, str(tmp_path))
     packed.check_settings(config, packed.read_pack(path)[0], path)  # The pack's data is this run's.
     assert config.curve_spread_views == (13 if run.pack == 'dtu_scan24' else 3) and config.curve_every == 4000
@@ -173,18 +170,16 @@ def _lease(tmp_path, name, ledger, data, results, **env):
 
 def _uninterrupted(ledger, run, data, run_dir):
   """The parameters of the run trained in one go, as the lease trains it."""
-  gin.clear_config()
-  config = config_loader.load_config([os.path.join(ROOT, run.gin)],
-                                     ledger_lib.train_bindings(ledger, run, data, str(run_dir), []))
+  config = runs.bind_fresh([os.path.join(ROOT, run.gin)],
+                           ledger_lib.train_bindings(ledger, run, data, str(run_dir), []))
   return loop.train(config).state.params
 
 
 def _committed_style(ledger, run, data, results, tmp_path, step):
   """<results>/<run>/ as a window's commit leaves it: the run trained to step, its folder as checkpoint.tar.gz."""
-  gin.clear_config()
   run_dir = tmp_path / 'first_window'
-  config = config_loader.load_config([os.path.join(ROOT, run.gin)],
-                                     ledger_lib.train_bindings(ledger, run, data, str(run_dir), []))
+  config = runs.bind_fresh([os.path.join(ROOT, run.gin)],
+                           ledger_lib.train_bindings(ledger, run, data, str(run_dir), []))
   loop.train(config, stop_at_step=step)
   os.makedirs(results / run.name)
   ledger_lib._tar(str(results / run.name / ledger_lib.CHECKPOINT), str(run_dir),  # pylint: disable=protected-access
@@ -266,8 +261,7 @@ def test_a_finished_runs_model_is_a_run_folder_eval_reads(tiny, tmp_path):
   ledger_commit.model_run_dir(ledger, run.name, str(tmp_path / 'results'), data, str(tmp_path / 'model'))
   psnrs = []
   for folder in ('model', 'run'):  # The model's run folder, and the run that trained it.
-    gin.clear_config()
-    psnrs.append(evaluate.evaluate(config_loader.load_config(
+    psnrs.append(evaluate.evaluate(runs.bind_fresh(
         [os.path.join(ROOT, run.gin)], ledger_lib.train_bindings(ledger, run, data, str(tmp_path / folder), [])))
                  ['means']['psnr'])
   assert psnrs[0] == psnrs[1]

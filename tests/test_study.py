@@ -10,13 +10,12 @@ import shutil
 import subprocess
 import sys
 
-import gin
 import numpy as np
 from PIL import Image
 import pytest
 
-from internal import config_loader
-from internal import demo
+from internal import runs
+from internal.evaluation import vis
 from internal.pipeline import loop
 from tools import provenance
 from tools import tables
@@ -75,8 +74,7 @@ def fixture_ran(tmp_path_factory):
   study = study_spec.load(path)
   half = study_lib.write_spec(study, study_spec.cells(study)[0], out, 'data')
   spec = json.loads(pathlib.Path(half, study_lib.SPEC_FILE).read_text())
-  gin.clear_config()
-  loop.train(config_loader.load_config(spec['gin_configs'], spec['gin_bindings']), stop_at_step=10)
+  loop.train(runs.bind_fresh(spec['gin_configs'], spec['gin_bindings']), stop_at_step=10)
   assert study_lib.run_study(study, out) == {}  # No executor: in this process.
   return study, out, path
 
@@ -184,13 +182,13 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   h, w = 120, 160                                                         # 12 x 16 renders upscaled x10.
   for scene in ('object', 'forward'):
     with Image.open(dest / f'side_by_side_{scene}.png') as picture:    # Two views x (colour, depth) x (truth + 2).
-      left0 = picture.size[0] - 3 * (w + demo.GAP)                       # The row titles fit their column.
-      assert left0 == demo.label_width(['depth'] + [f'test view {i}' for i in range(10)])
-      assert picture.size[1] == demo.HEADER + 4 * (h + demo.GAP)
+      left0 = picture.size[0] - 3 * (w + vis.GAP)                       # The row titles fit their column.
+      assert left0 == vis.label_width(['depth'] + [f'test view {i}' for i in range(10)])
+      assert picture.size[1] == vis.HEADER + 4 * (h + vis.GAP)
       pixels = np.asarray(picture.convert('RGB'))
-    depth_row = pixels[demo.HEADER + h + demo.GAP + h // 2]                # The exact depth under the truth (the
+    depth_row = pixels[vis.HEADER + h + vis.GAP + h // 2]                # The exact depth under the truth (the
     truth_column = slice(left0, left0 + w)                                 # generated scene has one), the renders'
-    render_columns = slice(left0 + w + demo.GAP, None)                     # beside it.
+    render_columns = slice(left0 + w + vis.GAP, None)                     # beside it.
     assert (depth_row[truth_column] != 255).any(axis=-1).mean() > 0.5
     assert (depth_row[render_columns] != 255).any(axis=-1).mean() > 0.5
 

@@ -109,7 +109,6 @@ def _depth_row(folders: List[str], view_id: int, truth: Truth):
 def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Truth, path: str) -> None:
   """Writes one scene's picture: per test view (by id) a colour row and, where kept, a depth row; columns ground
   truth then each cell's render."""
-  from internal import demo  # pylint: disable=import-outside-toplevel
   folders = [eval_dir(paths[c['cell']], c['step']) for c in cells]
   rows, row_titles = [], []
   for view_id, image in truth.images.items():
@@ -125,7 +124,7 @@ def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Truth, path:
   titles = [' '.join(([] if one_method and c['labels'] else [c['method']]) +
                      [f'{k}={v}' for k, v in c['labels'].items()]) for c in cells]
   scale = -(-MIN_TILE_WIDTH // rows[0][0].shape[1])
-  picture = demo.grid(rows, ['ground truth'] + titles, row_titles, scale=scale)
+  picture = vis.grid(rows, ['ground truth'] + titles, row_titles, scale=scale)
   vis.save_picture(picture, path)
 
 
