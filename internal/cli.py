@@ -18,6 +18,7 @@ environment shows the traceback of user errors too. Warnings print as one line `
 import argparse
 import os
 import re
+import runpy
 import shlex
 import signal
 import sys
@@ -189,6 +190,13 @@ def flag_parser(description: str, more_multi_value_flags=()) -> argparse.Argumen
   parser.add_argument('--gin_bindings', action='extend', nargs='+', default=[], metavar='BINDING',
                       help='gin bindings applied after the files, e.g. "Config.freq_reg_end = 20000"')
   return parser
+
+
+def run_moved(old: str, new: str) -> None:
+  """Runs the command `python -m new` with this process's arguments, after one line on stderr saying that `python -m
+  old` is its name before it moved (a shim at the old name runs it for a turn)."""
+  print(f'note: {old} is now {new} (python -m {new}); the old name goes in a later version', file=sys.stderr)
+  runpy.run_module(new, run_name='__main__', alter_sys=True)
 
 
 def config_from_flags(args: argparse.Namespace):

@@ -1,7 +1,7 @@
 """Camera refinement's report: pictures of the refined cameras of runs, and what a study's results say about the
 refinement targets.
 
-Usage: python -m tools.camera_report --out DIR [--runs RUN_DIR ...] [--study RESULTS_CSV [--axis noise
+Usage: python -m lab.camera_report --out DIR [--runs RUN_DIR ...] [--study RESULTS_CSV [--axis noise
                                       --clean exact --noisy 5deg --baseline freenerf]]
 
 --runs: for each run that refined its cameras (<run>/cameras/cameras.json, internal/run/camera_export.py) writes
@@ -10,7 +10,7 @@ carried onto the reference (exact, or the all-photo model's) by their best simil
 and from the side as tools.capture's camera picture frames them (tools/capture/picture.view_axes); each camera is its
 centre and its viewing ray out to the depth of the scene's middle, so that a few degrees show as the rays' ends
 apart; the title gives the median errors before and after.
---study: a study's results.csv (tools.study); writes DIR/targets.md with provenance: per method and seed, the
+--study: a study's results.csv (lab.study); writes DIR/targets.md with provenance: per method and seed, the
 median camera errors on the noisy cameras and the share of the baseline's noise cost in PSNR (clean - noisy) that
 the method recovers on the noisy cameras, (method - baseline) / (baseline clean - baseline noisy), with its mean.
 The camera errors of the targets are after the similarity (camera_rotation_deg, camera_translation): a similarity
@@ -191,7 +191,7 @@ def targets_markdown(found: list, args, argv, unaligned: dict) -> str:
     lines += ['', 'Without the similarity (the cameras in the reference\'s frame):', '',
               '| method | mean rotation error (deg) | mean translation error |', '|---|---|---|']
     lines += [f'| {method} | {r:.3f} | {t:.4f} |' for method, (r, t) in unaligned.items()]
-  return '\n'.join(lines + ['', '```json', json.dumps(provenance.record(['python', '-m', 'tools.camera_report',
+  return '\n'.join(lines + ['', '```json', json.dumps(provenance.record(['python', '-m', 'lab.camera_report',
                                                                          *argv]), indent=1), '```', ''])
 
 

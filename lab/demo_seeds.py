@@ -40,7 +40,7 @@ from internal.evaluation import evaluate
 from internal.evaluation import learning_curve
 from internal.evaluation import results
 from tools import provenance
-from tools.study import stats as study_stats
+from lab.study import stats as study_stats
 
 ROOT = provenance.ROOT
 DEFAULT_SEED = next(f.default for f in dataclasses.fields(Config) if f.name == 'jax_rng_seed')

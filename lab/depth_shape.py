@@ -1,6 +1,6 @@
 """How a study's rendered depths match the generated scene's exact depths in shape, not only in value.
 
-  python -m tools.depth_shape studies/depth_prior_generated.toml --out out/studies --export DIR [--also FOLDER ...]
+  python -m lab.depth_shape studies/depth_prior_generated.toml --out out/studies --export DIR [--also FOLDER ...]
 
 A prior known only up to scale and shift (a monocular depth map) can fix the order and shape of the rendered
 depths but not their overall offset, which the study's depth_mae mixes in. Per cell and test view this reads the
@@ -10,7 +10,7 @@ rendered over exact median depth; `mae_affine`, the mean absolute error left aft
 shift of the rendered depths onto the exact ones; `mae`, before it. A cell's value is the mean over the
 views its evaluation rendered (all test views, or those of Config.eval_test_ids); the study's [[compare]] entries pair
 them over seeds with Student's t intervals, corrected for the study's looks as its comparisons.md is
-(tools/study/looks.py). Writes
+(lab/study/looks.py). Writes
 DIR/depth_shape.csv (per cell and view), DIR/depth_shape.md (means per method and the comparisons) and
 DIR/depth_shape.json (provenance). --also: other studies' folders whose cells of the same name stand in for
 cells without renders here (cells a study reused from an export have none).
@@ -35,10 +35,10 @@ from internal import config_loader
 from internal.datasets import load_dataset, loader
 from internal.evaluation import depth_metrics
 from tools import provenance
-from tools.study import looks as study_looks
-from tools.study import runner
-from tools.study import spec as study_spec
-from tools.study import stats as study_stats
+from lab.study import looks as study_looks
+from lab.study import runner
+from lab.study import spec as study_spec
+from lab.study import stats as study_stats
 
 METRICS = (('corr', False), ('median_ratio', None), ('mae_affine', True), ('mae', True))  # (name, lower better).
 
@@ -143,7 +143,7 @@ def main(argv=None) -> int:
   writer.writerows(rows)
   atomic.write_text(os.path.join(args.export, 'depth_shape.csv'), text.getvalue())
   atomic.write_text(os.path.join(args.export, 'depth_shape.md'), _table(study, rows))
-  record = provenance.record(['python', '-m', 'tools.depth_shape', *argv])
+  record = provenance.record(['python', '-m', 'lab.depth_shape', *argv])
   atomic.write_text(os.path.join(args.export, 'depth_shape.json'), json.dumps(record, indent=1) + '\n')
   print(_table(study, rows))
   return 0

@@ -9,9 +9,9 @@
 #      each then evaluated on its test views; a run the budget cuts keeps its checkpoints in
 #      ckpt_RUN.tar.gz (RUN: METHOD_PRECISION[_VARIANT]), which RESUME_DIR gives back to a later call (it resumes);
 #   4. with time left, the numerics tests (TEST_FILES) on the device;
-#   5. `bench.gpu_report`: the tables (variants, profiles, precision trade) and a picture (the ground truth of its
+#   5. `lab.gpu_report`: the tables (variants, profiles, precision trade) and a picture (the ground truth of its
 #      views from the packed scene, then each run's renders), printed last.
-# Usage: bash bench/gpu_check.sh PACKED_SCENE OUT_DIR
+# Usage: bash lab/gpu_check.sh PACKED_SCENE OUT_DIR
 #   Environment: BUDGET (seconds for everything, default 540), RUNS (default below), BENCH=0 (skips stage 2),
 #   VARIANT_FLAGS (flags of bench.step_variants; by default the fused Pallas layers against the plain step: the
 #   XLA flags' variants made no difference on the H100, results/gpu/h100_2026-11-26), EXTRA_BINDINGS (gin
@@ -59,7 +59,7 @@ for spec in $runs; do
     stage "eval_$run" 120 30 "$py" eval.py --gin_configs="configs/$method/dtu3_$method.gin" \
       --gin_bindings "${bindings[@]}" && preds=$(ls -d "$dir"/test_preds_step_* | tail -n 1) &&
       cp "$preds/metrics.json" "$out/metrics_$run.json" && mkdir -p "$out/test_preds_$run" &&
-      for colour in $(ls "$preds"/color_*.png | head -n 3); do  # The picture's views (bench.gpu_report).
+      for colour in $(ls "$preds"/color_*.png | head -n 3); do  # The picture's views (lab.gpu_report).
         cp "$colour" "${colour/color_/depth_}" "$out/test_preds_$run/"
       done
   elif [ -d "$dir/checkpoints" ]; then
@@ -70,5 +70,5 @@ done
 tests=${TEST_FILES:-tests/test_activations.py tests/test_fused_dense.py tests/test_precision.py tests/test_train_step.py
   tests/test_trig.py}
 stage tests 120 45 "$py" -m pytest -q -p no:cacheprovider $tests  # On every core (pytest.ini).
-"$py" -c "from bench import gpu_report; gpu_report.write_truth('$scene', '$out')" || true  # The picture's truth.
-"$py" -m bench.gpu_report "$out"
+"$py" -c "from lab import gpu_report; gpu_report.write_truth('$scene', '$out')" || true  # The picture's truth.
+"$py" -m lab.gpu_report "$out"

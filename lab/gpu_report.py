@@ -1,6 +1,6 @@
-"""The tables of a bench/gpu_check.sh run: step variants, kernel profiles and the precision trade, and a picture.
+"""The tables of a lab/gpu_check.sh run: step variants, kernel profiles and the precision trade, and a picture.
 
-Usage: python -m bench.gpu_report OUT_DIR
+Usage: python -m lab.gpu_report OUT_DIR
 
 Reads what gpu_check.sh left in OUT_DIR (stages.tsv, step_variants.json, train_<run>.log, metrics_<run>.json,
 test_preds_<run>/, test_truth/) and writes gpu_report.md (printed too) and test_views.png (a column per test view;
@@ -159,7 +159,7 @@ def report(out_dir: str) -> str:
 def main(argv=None):
   argv = sys.argv[1:] if argv is None else argv
   if len(argv) != 1 or not os.path.isfile(os.path.join(argv[0], 'stages.tsv')):
-    raise ValueError('usage: python -m bench.gpu_report OUT_DIR (a bench/gpu_check.sh output with stages.tsv)')
+    raise ValueError('usage: python -m lab.gpu_report OUT_DIR (a lab/gpu_check.sh output with stages.tsv)')
   text = report(argv[0])
   with open(os.path.join(argv[0], 'gpu_report.md'), 'w') as f:
     f.write(text + '\n')

@@ -1,15 +1,15 @@
 """Everything a GPU window needs, prepared on a CPU machine in one command, and the device call to make.
 
-Usage: python -m bench.prepare_lease [--data_root ../shared/data] [--ledger bench/ledger.toml] [--offline]
+Usage: python -m lab.prepare_lease [--data_root ../shared/data] [--ledger lab/ledger/ledger.toml] [--offline]
 
-1. Each pack of the ledger ([pack.*] of bench/ledger.toml) into .devdata/PACK.npz by tools.pack_scene from
+1. Each pack of the ledger ([pack.*] of lab/ledger/ledger.toml) into .devdata/PACK.npz by tools.pack_scene from
    <data_root>/<its data folder> (a pack already there is kept: tools.pack_scene never replaces a file). When
    tools.pack_scene fails, its one line says why and this command exits with its status (2; 4: the disk is full).
 2. The wheels the GPU image lacks (WHEELS, at constraints.txt's versions: pure-Python wheels that install on its
    Python 3.12) into .whl/ by `pip download` (kept when there; --offline downloads nothing).
 3. What travels to the GPU machine counted against its 64 MiB: the files git tracks or does not ignore, and the
    carried folders (.whl, .devdata: both in .gitignore).
-4. The device tool's call, printed: `bash bench/lease.sh` with the carry list and its time limit (TIMEOUT_S: the
+4. The device tool's call, printed: `bash lab/lease.sh` with the carry list and its time limit (TIMEOUT_S: the
    lease's BUDGET and a minute to spare).
 """
 
@@ -19,13 +19,13 @@ import re
 import subprocess
 import sys
 
-from bench import ledger as ledger_lib
 from internal import cli
+from lab.ledger import window as ledger_lib
 
 WHEELS = ('gin-config', 'pypng', 'tensorboardX')  # Not in the GPU image (docs/benchmarks.md); protobuf and numpy are.
 CARRY = ('.whl', ledger_lib.DATA)
 TRAVEL_LIMIT = 64 * 2**20  # The device tool's limit on what travels.
-# The call's limit: bench/lease.sh ends within its BUDGET, 530 s by default, a minute less (docs/benchmarks.md).
+# The call's limit: lab/lease.sh ends within its BUDGET, 530 s by default, a minute less (docs/benchmarks.md).
 TIMEOUT_S = 590
 
 
@@ -84,7 +84,7 @@ def travelling(root: str = ledger_lib.ROOT) -> dict:
 
 def device_call() -> str:
   """The device tool's run call that moves the ledger forward."""
-  return f'run(command="bash bench/lease.sh", carry={list(CARRY)}, timeout_s={TIMEOUT_S})'
+  return f'run(command="bash lab/lease.sh", carry={list(CARRY)}, timeout_s={TIMEOUT_S})'
 
 
 def main(argv=None) -> int:
@@ -106,7 +106,7 @@ def main(argv=None) -> int:
   if total > TRAVEL_LIMIT:
     raise ValueError(f'{total / 2**20:.2f} MiB would travel, over the device tool\'s {TRAVEL_LIMIT / 2**20:.0f} MiB; '
                      'commit fewer large files or carry less')
-  print(f'The GPU window\'s one call (device tool), then `python -m bench.ledger unpack FILES_AT`:\n{device_call()}')
+  print(f'The GPU window\'s one call (device tool), then `python -m lab.ledger unpack FILES_AT`:\n{device_call()}')
   return 0
 
 

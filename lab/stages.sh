@@ -1,4 +1,4 @@
-# Stages inside a time budget, for the scripts a lent GPU runs (bench/gpu_check.sh, bench/lease.sh): source it,
+# Stages inside a time budget, for the scripts a lent GPU runs (lab/gpu_check.sh, lab/lease.sh): source it,
 # then set budget (seconds for the whole script, counted by bash's SECONDS), reserve (seconds kept for what
 # follows the last stage), stage_dir (each stage's log NAME.log and the table stages.tsv go there) and, if 20 s are
 # too few, grace (seconds a stopped stage has between SIGTERM and SIGKILL). A stage ends by budget - reserve.

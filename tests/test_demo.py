@@ -18,7 +18,7 @@ from internal.evaluation import evaluate
 from internal.evaluation import vis
 from internal.pipeline import loop
 from test_checkpoints import TINY
-from tools import demo_seeds
+from lab import demo_seeds
 from tools import provenance
 import train
 

@@ -5,7 +5,7 @@ gave it in steps (the tables below are those step counts, resolved from the file
 import pytest
 
 from internal import runs
-from tools.study import spec as study_spec
+from lab.study import spec as study_spec
 
 DEMO = ['configs/demo.gin']
 FORWARD = DEMO + ['configs/demo_forward.gin']

@@ -1,4 +1,4 @@
-"""bench.gpu_report's picture: a labelled column per test view, the ground truth of those views (from the packed
+"""lab.gpu_report's picture: a labelled column per test view, the ground truth of those views (from the packed
 scene the runs were evaluated on), then each run's colour and depth rows, every row labelled."""
 
 import json
@@ -6,9 +6,9 @@ import json
 import numpy as np
 from PIL import Image
 
-from bench import gpu_report
 from internal.datasets import packed
 from internal.evaluation import vis
+from lab import gpu_report
 
 H, W = 6, 8
 IDS = [1, 9, 11]

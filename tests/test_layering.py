@@ -162,9 +162,9 @@ def test_internal_has_no_import_cycles():
 
 
 def test_every_module_is_checked():
-  checked = {p.relative_to(ROOT).as_posix() for p in _modules('internal') + _modules('tools')}
+  checked = {p.relative_to(ROOT).as_posix() for p in _modules('internal') + _modules('tools') + _modules('lab')}
   assert {'internal/pipeline/loop.py', 'internal/evaluation/evaluate.py', 'internal/evaluation/render_path.py',
-          'internal/demo.py', 'internal/models/mip_nerf.py', 'tools/study/runner.py', 'tools/tables.py'} <= checked
+          'internal/demo.py', 'internal/models/mip_nerf.py', 'lab/study/runner.py', 'tools/tables.py'} <= checked
 
 
 # The loader files and their registry: the modules every loader shares import none of them, so that a dataset is

@@ -1,4 +1,4 @@
-"""The ledger of paper-length runs: its file, the plan, the TF32 follow-up rule, and bench/lease.sh end to end on the
+"""The ledger of paper-length runs: its file, the plan, the TF32 follow-up rule, and lab/lease.sh end to end on the
 CPU at a tiny size (a generated scene's pack, 30 steps) through budget cuts, unpacked as a commit would be.
 
 On the CPU the lease skips what only a GPU does (timing the step variants and RegNeRF's step, the fused layer's
@@ -15,15 +15,15 @@ import jax
 import numpy as np
 import pytest
 
-from bench import ledger as ledger_lib
-from bench import ledger_commit
-from bench import prepare_lease
 from conftest import SHARED_DATA
 from internal import runs
 from internal.datasets import packed
 from internal.evaluation import evaluate
 from internal.evaluation import learning_curve
 from internal.pipeline import loop
+from lab import prepare_lease
+from lab.ledger import commit as ledger_commit
+from lab.ledger import window as ledger_lib
 from tools import tables
 
 ROOT = ledger_lib.ROOT
@@ -62,7 +62,7 @@ precision = 'default'
 
 @pytest.fixture(name='tiny')
 def tiny_fixture(tmp_path_factory):
-  """(ledger, data folder) of the tiny ledger, its pack made by tools.pack_scene as bench.prepare_lease makes them."""
+  """(ledger, data folder) of the tiny ledger, its pack made by tools.pack_scene as lab.prepare_lease makes them."""
   folder = tmp_path_factory.mktemp('tiny_ledger')
   (folder / 'ledger.toml').write_text(TINY_LEDGER)
   ledger = ledger_lib.load(str(folder / 'ledger.toml'))
@@ -112,7 +112,7 @@ def _window(**overrides) -> dict:
 
 def test_the_plan_says_how_far_each_run_is_and_what_this_window_does(tmp_path):
   lines = ledger_lib.plan_lines(ledger_lib.load(), str(tmp_path / 'results'), str(tmp_path / 'work'), _window())
-  assert lines[0] == ('Ledger bench/ledger.toml: 5 runs; this window: NVIDIA H100 80GB HBM3 (gpu), jax 0.11.2, '
+  assert lines[0] == ('Ledger lab/ledger/ledger.toml: 5 runs; this window: NVIDIA H100 80GB HBM3 (gpu), jax 0.11.2, '
                       'budget 540 s')
   assert lines[1] == ('  1. freenerf_dtu3_scan24: 0 of 43,945 steps (0%), bfloat16, '
                       'configs/freenerf/dtu3_freenerf.gin')
@@ -150,7 +150,7 @@ def test_the_tf32_follow_up_goes_next_only_when_the_run_falls_short_by_more_than
     ("curve_every = 1\ncheckpoint_every = 1\nseed_spread_db = 0.5\nvariants_seconds = 1\n[[run]]\nname = 'a'\n",
      r"run 1: gin = None; expected a str"),
     ("[[run]]\nname = 'b'\nfollow_up_of = 'a'\n", r"run 1: follow_up_of = 'a'; expected a run named before it"),
-    ('x = ', 'expected a TOML file like bench/ledger.toml')])
+    ('x = ', 'expected a TOML file like lab/ledger/ledger.toml')])
 def test_a_bad_ledger_is_named(tmp_path, text, message):
   (tmp_path / 'l.toml').write_text(text)
   with pytest.raises(ValueError, match=message):
@@ -158,11 +158,11 @@ def test_a_bad_ledger_is_named(tmp_path, text, message):
 
 
 def _lease(tmp_path, name, ledger, data, results, **env):
-  """Runs bash bench/lease.sh into tmp_path/name; returns (OUT, the lease's output)."""
+  """Runs bash lab/lease.sh into tmp_path/name; returns (OUT, the lease's output)."""
   out = tmp_path / name
   env = {**os.environ, 'OUT': str(out), 'PYTHON': sys.executable, 'LEASE_WORK': str(tmp_path / f'{name}_work'),
          'LEDGER': ledger.path, 'RESULTS': str(results), 'DATA': data, 'LEASE_ON_CPU': '1', **env}
-  result = subprocess.run(['bash', 'bench/lease.sh'], cwd=ROOT, env=env, text=True, capture_output=True, timeout=900)
+  result = subprocess.run(['bash', 'lab/lease.sh'], cwd=ROOT, env=env, text=True, capture_output=True, timeout=900)
   assert result.returncode == 0, result.stdout + result.stderr
   assert (out / 'lease.log').read_text() == result.stdout  # Everything it printed comes back.
   return out, result.stdout
@@ -269,7 +269,7 @@ def test_a_finished_runs_model_is_a_run_folder_eval_reads(tiny, tmp_path):
 
 def test_the_preparation_counts_what_travels_and_prints_the_one_call():
   call = prepare_lease.device_call()
-  assert call == "run(command=\"bash bench/lease.sh\", carry=['.whl', '.devdata'], timeout_s=590)" and len(call) < 2000
+  assert call == "run(command=\"bash lab/lease.sh\", carry=['.whl', '.devdata'], timeout_s=590)" and len(call) < 2000
   sizes = prepare_lease.travelling()
   assert sizes['tree'] > 10 * 2**20 and set(sizes) == {'tree', '.whl', '.devdata'}
   assert prepare_lease.pinned('tensorboardX') == 'tensorboardX==2.6.5'
@@ -303,7 +303,7 @@ WORST_CASE_PYTHON = """#!/usr/bin/env bash
 case " $* " in
   *" train.py "*folded_bias*) echo 'this variant fails'; exit 1;;
   *" train.py "*) "{python}" "$@" & trap '' TERM; wait $!; sleep 600;;
-  *" bench.ledger pack"*) trap '' TERM; sleep 600;;
+  *" lab.ledger pack"*) trap '' TERM; sleep 600;;
   *) exec "{python}" "$@";;
 esac
 """

@@ -1,4 +1,4 @@
-"""tools.study end to end on the generated scene (2 methods x 2 scenes, tiny): cells, CSV, plots, resume, tables;
+"""lab.study end to end on the generated scene (2 methods x 2 scenes, tiny): cells, CSV, plots, resume, tables;
 and the study file's errors."""
 
 import csv
@@ -19,11 +19,11 @@ from internal.evaluation import vis
 from internal.pipeline import loop
 from tools import provenance
 from tools import tables
-from tools.study import cells_file
-from tools.study import export as study_export
-from tools.study import plots as study_plots
-from tools.study import runner as study_lib
-from tools.study import spec as study_spec
+from lab.study import cells_file
+from lab.study import export as study_export
+from lab.study import plots as study_plots
+from lab.study import runner as study_lib
+from lab.study import spec as study_spec
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 STEPS = 20
@@ -121,11 +121,11 @@ def test_learning_curves_are_plotted_against_the_step(ran):
 def test_rerun_skips_finished_cells(ran):
   _, out, path = ran
   before = {p: p.read_text() for p in pathlib.Path(out, 'mini').glob(f'*/{study_lib.CELL_FILE}')}
-  result = subprocess.run([sys.executable, '-m', 'tools.study', str(path), '--out', out], cwd=REPO,
+  result = subprocess.run([sys.executable, '-m', 'lab.study', str(path), '--out', out], cwd=REPO,
                           capture_output=True, text=True, check=True)
   assert 'running' not in result.stdout and 'results.csv' in result.stdout
   assert len(before) == 4 and all(p.read_text() == text for p, text in before.items())
-  listing = subprocess.run([sys.executable, '-m', 'tools.study', str(path), '--out', out, '--list'], cwd=REPO,
+  listing = subprocess.run([sys.executable, '-m', 'lab.study', str(path), '--out', out, '--list'], cwd=REPO,
                            capture_output=True, text=True, check=True).stdout
   assert listing.count('done') == 4
 
@@ -152,7 +152,7 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   assert not list(dest.rglob('checkpoints'))
   exported = json.loads((dest / 'provenance.json').read_text())
   assert exported['study_file']['sha256'] == hashlib.sha256(path.read_bytes()).hexdigest()
-  assert exported['command'].startswith('python -m tools.study ') and '--export' in exported['command']
+  assert exported['command'].startswith('python -m lab.study ') and '--export' in exported['command']
   assert 'cells' not in exported and sorted(p.name for p in dest.iterdir() if p.is_dir()) == []  # No cell folders.
   cells = cells_file.read(str(dest))
   assert sorted(cells) == sorted(c.cell_id for c in study_spec.cells(study_spec.load(path)))

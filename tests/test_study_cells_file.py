@@ -1,4 +1,4 @@
-"""An export's cells in one file (tools/study/cells_file.py): the conversion from a folder per cell loses nothing (every
+"""An export's cells in one file (lab/study/cells_file.py): the conversion from a folder per cell loses nothing (every
 file comes back byte for byte), refuses what it could not give back, refers to another study's export instead of
 copying its cell; and every export committed under results/ is in that layout."""
 
@@ -16,9 +16,9 @@ from internal.evaluation import evaluate
 from internal.evaluation import learning_curve
 from test_read_only import read_only
 from test_study import TINY_STUDY
-from tools.study import cells_file
-from tools.study import reuse
-from tools.study import runner as study_lib
+from lab.study import cells_file
+from lab.study import reuse
+from lab.study import runner as study_lib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PER_IMAGE = [{'id': 1, 'psnr': 10.251645574334333, 'ssim': 0.1712803298432899, 'lpips': None},
@@ -26,7 +26,7 @@ PER_IMAGE = [{'id': 1, 'psnr': 10.251645574334333, 'ssim': 0.1712803298432899, '
 
 
 def _cell(export: pathlib.Path, cell: str, study: str, psnr_shift: float = 0., curve: bool = True) -> dict:
-  """Writes an old-layout cell folder as tools.study --export wrote it (cell.json, metrics.json, metrics.csv,
+  """Writes an old-layout cell folder as lab.study --export wrote it (cell.json, metrics.json, metrics.csv,
   learning_curve.csv); returns its cell.json record."""
   folder = export / cell
   folder.mkdir(parents=True)
@@ -51,7 +51,7 @@ def _export(path: pathlib.Path, study: str, cells: dict) -> pathlib.Path:
   the per-cell copies the old exports kept."""
   records = {cell: _cell(path, cell, owner, shift, curve=i == 0)
              for i, (cell, (owner, shift)) in enumerate(cells.items())}
-  provenance = {'command': 'python -m tools.study x.toml --export x', 'study_file': {'path': 'x', 'sha256': 'ab'},
+  provenance = {'command': 'python -m lab.study x.toml --export x', 'study_file': {'path': 'x', 'sha256': 'ab'},
                 'cells': {c: {k: r.get(k) for k in ('commit', 'machine', 'train_seconds', 'step')}
                           for c, r in records.items()}}
   (path / 'provenance.json').write_text(json.dumps(provenance, indent=1))
@@ -132,7 +132,7 @@ def test_a_conflicted_line_or_a_dangling_reference_is_one_error_naming_the_line(
 
 
 def _exports():
-  """The folders under results/ that tools.study --export wrote (they hold provenance.json and a results.csv)."""
+  """The folders under results/ that lab.study --export wrote (they hold provenance.json and a results.csv)."""
   return sorted(p.parent for p in (ROOT / 'results').rglob('provenance.json') if (p.parent / 'results.csv').is_file())
 
 
@@ -151,7 +151,7 @@ def test_every_committed_export_holds_its_cells_in_one_file(export):
 
 
 def _convert_one_line(capsys, export) -> str:
-  """The stderr line of `python -m tools.study.cells_file export` as the module runs it; asserts status 2 and one
+  """The stderr line of `python -m lab.study.cells_file export` as the module runs it; asserts status 2 and one
   line."""
   status = cli.run(lambda: cells_file.main([str(export)]))
   err = capsys.readouterr().err

@@ -1,5 +1,5 @@
-"""What a GPU window brought back, into results/gpu/ledger/ (`python -m bench.ledger unpack FOLDER`), and a finished
-run's model as a run folder (`python -m bench.ledger model RUN --into DIR`).
+"""What a GPU window brought back, into results/gpu/ledger/ (`python -m lab.ledger unpack FOLDER`), and a finished
+run's model as a run folder (`python -m lab.ledger model RUN --into DIR`).
 
 Per run, results/gpu/ledger/<run>/ holds: state.json (its step, variant and windows), README.md (a line per window:
 card, jax, steps, seconds; once evaluated, its metrics beside the paper's), checkpoint.tar.gz (the folder the next
@@ -24,11 +24,11 @@ from typing import Optional
 import numpy as np
 from PIL import Image
 
-from bench import ledger as ledger_lib
 from internal import cli
 from internal.evaluation import learning_curve
 from internal.run import checkpoints
 from internal.evaluation import vis
+from lab.ledger import window as ledger_lib
 from tools import tables
 
 CURVE, MODEL, MONTAGE = learning_curve.CSV_FILE, 'model.npz', 'test_views.png'
@@ -39,11 +39,11 @@ def _window(folder: str, scratch: str) -> dict:
   """The window record that came back (window.tar.gz extracted into scratch/window)."""
   path = os.path.join(folder, 'window.tar.gz')
   if not os.path.isfile(path):
-    raise FileNotFoundError(f'{path!r} is missing; expected the folder a GPU window of bash bench/lease.sh filled')
+    raise FileNotFoundError(f'{path!r} is missing; expected the folder a GPU window of bash lab/lease.sh filled')
   ledger_lib.safe_extract(path, os.path.join(scratch, 'window'))
   window = ledger_lib.read_json(os.path.join(scratch, 'window', 'window.json'))
   if window is None:
-    raise ValueError(f'{path!r} holds no window.json; expected the window.tar.gz of bash bench/lease.sh')
+    raise ValueError(f'{path!r} holds no window.json; expected the window.tar.gz of bash lab/lease.sh')
   return window
 
 
@@ -178,7 +178,7 @@ def commit_run(ledger, run: ledger_lib.Run, folder: str, scratch: str, results: 
   committed, step = ledger_lib.state(results, run), newest or 0
   os.makedirs(os.path.join(here, 'logs'), exist_ok=True)
   stages = {'train': f'train_{run.name}', 'train_base': f'train_{run.name}_base', 'eval': f'eval_{run.name}'}
-  for kind, stage in stages.items():  # train_base: a new run retried with base (bench/lease.sh).
+  for kind, stage in stages.items():  # train_base: a new run retried with base (lab/lease.sh).
     log = os.path.join(scratch, 'window', 'logs', f'{stage}.log')
     if os.path.isfile(log):
       shutil.copy(log, os.path.join(here, 'logs', f"{window['id']}_{kind}.log"))
@@ -225,7 +225,7 @@ def write_readme(ledger, run: ledger_lib.Run, record: dict, path: str) -> None:
   follows = f' (the TF32 follow-up of {run.follow_up_of})' if run.follow_up_of else ''
   lines = [f'# {run.name}{follows}', '',
            f'`{run.gin}` as released ({run.steps:,} steps) on the pack `{run.pack}`, `Config.precision = '
-           f"'{run.precision}'`, step variant `{record['variant']}`; trained by `bash bench/lease.sh` in GPU windows "
+           f"'{run.precision}'`, step variant `{record['variant']}`; trained by `bash lab/lease.sh` in GPU windows "
            f'([../README.md](../README.md)). Progress: {record["step"]:,} of {run.steps:,} steps '
            f'({100 * record["step"] / run.steps:.0f}%)' + ('; evaluated.' if record['evaluated'] else '.'), '',
            '| window | card | jax | steps | train stage s | step s | compile s |', '|---|---|---|---|---|---|---|']
@@ -249,7 +249,7 @@ def write_readme(ledger, run: ledger_lib.Run, record: dict, path: str) -> None:
     lines += ['', f'{run.released} One scene is not a mean: this run places the implementation, it does not '
               'reproduce the table.', '',
               f'[{MONTAGE}]({MONTAGE}): the test views, colour above depth. [{MODEL}]({MODEL}): the final '
-              'parameters; `python -m bench.ledger model ' + run.name + ' --into DIR` makes a run folder of them '
+              'parameters; `python -m lab.ledger model ' + run.name + ' --into DIR` makes a run folder of them '
               'that eval.py and render.py read, and prints the command line that evaluates it.']
   with open(path, 'w') as f:
     f.write('\n'.join(lines) + '\n')
@@ -258,9 +258,9 @@ def write_readme(ledger, run: ledger_lib.Run, record: dict, path: str) -> None:
 def write_overview(ledger, results: str) -> None:
   """The ledger's README (results/gpu/ledger/README.md): every run's progress, in the ledger's order."""
   lines = ['# The ledger of paper-length runs', '',
-           'Each GPU window runs `bash bench/lease.sh` ([docs/benchmarks.md](../../../docs/benchmarks.md#gpu-windows'
-           '-the-ledger)); `python -m bench.ledger unpack` commits what came back here. Runs in the order of '
-           '[bench/ledger.toml](../../../bench/ledger.toml):', '',
+           'Each GPU window runs `bash lab/lease.sh` ([docs/benchmarks.md](../../../docs/benchmarks.md#gpu-windows'
+           '-the-ledger)); `python -m lab.ledger unpack` commits what came back here. Runs in the order of '
+           '[lab/ledger/ledger.toml](../../../lab/ledger/ledger.toml):', '',
            '| run | steps done | windows | state |', '|---|---|---|---|']
   for run in ledger.runs:
     record = ledger_lib.state(results, run)
@@ -324,11 +324,3 @@ def model_run_dir(ledger, name: str, results: str, data: str, into: str) -> None
   print(f'{into}: {name} at step {run.steps:,}, for evaluation and rendering (its optimizer moments are fresh: not '
         'for training on). Evaluate it with:\n' + cli.quoted(['python', 'eval.py', f'--gin_configs={run.gin}',
                                                               '--gin_bindings', *bindings]))
-
-
-def main(ledger, args) -> None:
-  """The CPU-side commands of bench.ledger: unpack, model."""
-  if args.command == 'unpack':
-    unpack(ledger, args.target, args.results)
-  else:
-    model_run_dir(ledger, args.target, args.results, args.data, args.into)

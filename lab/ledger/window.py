@@ -1,30 +1,12 @@
-"""The ledger of paper-length runs (bench/ledger.toml): what a GPU window trains next, and what it hands back.
-
-Usage, inside a GPU window (`bash bench/lease.sh` runs these; docs/benchmarks.md, "GPU windows: the ledger"):
-  python -m bench.ledger plan --work DIR [--budget S] [--allow_cpu]   the window's plan, printed; DIR/plan.env,
-      DIR/window.json (refused when jax sees no GPU, unless --allow_cpu: the tests' tiny ledger)
-  python -m bench.ledger next --work DIR                the next run's folder DIR/runs/RUN made ready from its
-      committed checkpoint, its train.py arguments in DIR/RUN.args, RUN and ACTION (train | evaluate) in
-      DIR/next.env; status 1 when the window has nothing left to do (every run evaluated, or one was cut)
-  python -m bench.ledger retry-base --work DIR          after a failed training: a run this window started at
-      step 0 with another variant and that saved no checkpoint goes again with base (status 1 for any other run:
-      no retry drops steps a window trained)
-  python -m bench.ledger pack RUN --work DIR --out OUT  the run's folder as OUT/run_RUN.tar.gz (newest intact
-      checkpoint with its SHA-256 sums, curve, clock, settings, tensorboard: what the next window resumes from)
-      and, once evaluated, OUT/eval_RUN.tar.gz (metrics and test-view renders)
-  python -m bench.ledger pack-window --work DIR --out OUT   the window's plan, logs and timings as OUT/window.tar.gz
-Afterwards, on the CPU machine (bench/ledger_commit.py):
-  python -m bench.ledger unpack FOLDER                  what came back, into results/gpu/ledger/ (then git commit)
-  python -m bench.ledger model RUN --into DIR           a finished run's model.npz as a run folder for eval / render
-Every command takes --ledger (default bench/ledger.toml), --results (results/gpu/ledger) and --data (.devdata,
-where `python -m bench.prepare_lease` put the packs).
+"""What a GPU window trains next and what it hands back: the ledger of paper-length runs (lab/ledger/ledger.toml),
+each run's committed record and step variant, the window's plan, a run's folder made ready, packed and retried.
 
 The committed record of a run is results/gpu/ledger/<run>/state.json: its step, variant and windows. A run keeps the
 step variant it started with (its settings are fingerprinted); the first window of a run takes the fastest correct
 variant bench.step_variants timed for this code on this GPU kind (results/gpu/ledger/timed.json), else base.
+The commands are lab/ledger/__main__.py's (`python -m lab.ledger`).
 """
 
-import argparse
 import dataclasses
 import datetime
 import glob
@@ -48,8 +30,8 @@ from typing import Optional, Tuple
 from internal import cli
 from tools import tables
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-LEDGER = os.path.join('bench', 'ledger.toml')
+ROOT = cli.REPOSITORY
+LEDGER = os.path.join('lab', 'ledger', 'ledger.toml')
 RESULTS = os.path.join('results', 'gpu', 'ledger')
 DATA = '.devdata'
 # The code a step variant's time depends on: the model, its kernels, the losses, the step, and the benchmark.
@@ -80,7 +62,7 @@ class Run:
 
 @dataclasses.dataclass(frozen=True)
 class Ledger:
-  """bench/ledger.toml: the runs in order, the packs they train on, and the window's settings."""
+  """lab/ledger/ledger.toml: the runs in order, the packs they train on, and the window's settings."""
   path: str
   runs: tuple
   packs: dict
@@ -120,7 +102,7 @@ def load(path: str = LEDGER) -> Ledger:
     with open(path, 'rb') as f:
       spec = tomllib.load(f)
   except (OSError, tomllib.TOMLDecodeError) as err:
-    raise ValueError(f'ledger {path!r}: {err}; expected a TOML file like bench/ledger.toml') from err
+    raise ValueError(f'ledger {path!r}: {err}; expected a TOML file like lab/ledger/ledger.toml') from err
   packs, runs = _packs(spec, path), {}
   for i, table in enumerate(spec.get('run', [])):
     where = f'ledger {path!r}, run {i + 1}'
@@ -168,7 +150,7 @@ def read_json(path: str, default=None):
     with open(path) as f:
       return json.load(f)
   except (UnicodeDecodeError, json.JSONDecodeError) as err:
-    raise ValueError(f'{path!r} is not JSON ({err}); expected what bench.ledger wrote (a merge conflict?)') from err
+    raise ValueError(f'{path!r} is not JSON ({err}); expected what lab.ledger wrote (a merge conflict?)') from err
 
 
 def write_json(path: str, value) -> None:
@@ -207,7 +189,7 @@ def paper_value(run: Run) -> float:
 
 
 def follow_up(ledger: Ledger, run: Run, results: str, work: str) -> Tuple[Optional[bool], str]:
-  """(whether a follow-up run goes now: None while undecided, why) by the rule of bench/ledger.toml."""
+  """(whether a follow-up run goes now: None while undecided, why) by the rule of lab/ledger/ledger.toml."""
   parent = next(r for r in ledger.runs if r.name == run.follow_up_of)
   record = evaluation(results, work, parent)
   if record is None:
@@ -284,14 +266,14 @@ def variant_for(run: Run, committed: dict, precision_measured: str) -> Tuple[str
 
 
 def safe_extract(tar_path: str, folder: str) -> None:
-  """Extracts a tar of bench.ledger into folder; ValueError naming the tar when it is cut short, damaged, or holds a
+  """Extracts a tar of lab.ledger into folder; ValueError naming the tar when it is cut short, damaged, or holds a
   member that would land outside folder."""
   try:
     with tarfile.open(tar_path) as tar:
       tar.extractall(folder, filter='data')
   except (tarfile.TarError, EOFError, zlib.error, gzip.BadGzipFile) as err:
     raise ValueError(f'{tar_path!r} is refused ({type(err).__name__}: {cli.one_line(err)}); expected a whole tar '
-                     'that bench.ledger or bench/lease.sh wrote') from err
+                     'that lab.ledger or lab/lease.sh wrote') from err
 
 
 def committed_checkpoint(results: str, run: Run, committed: dict) -> Optional[str]:
@@ -316,7 +298,7 @@ def ready_run(ledger: Ledger, results: str, work: str, data: str) -> Optional[Tu
   checkpoint, pack = committed_checkpoint(results, run, committed), pack_path(ledger, run, data)
   if not os.path.isfile(pack):
     raise FileNotFoundError(f'{pack!r} is missing: {run.name} trains on the pack {run.pack!r}; expected '
-                            '`python -m bench.prepare_lease` to have made it there (--data)')
+                            '`python -m lab.prepare_lease` to have made it there (--data)')
   if os.path.exists(run_dir):
     raise FileExistsError(f'{run_dir!r} exists already; expected a new --work folder for the window')
   plan = read_json(os.path.join(work, 'window.json'), {})
@@ -423,12 +405,12 @@ def timed_variants(ledger: Ledger) -> list:
 
 
 def plan(ledger: Ledger, results: str, work: str, budget: int, allow_cpu: bool = False) -> None:
-  """`plan`: prints the window's plan; writes DIR/window.json, DIR/plan.txt and DIR/plan.env for bench/lease.sh.
+  """`plan`: prints the window's plan; writes DIR/window.json, DIR/plan.txt and DIR/plan.env for lab/lease.sh.
   ValueError, writing nothing, when jax sees no GPU, unless allow_cpu."""
   window = window_record(budget, results)
   if window['platform'] != 'gpu' and not allow_cpu:
     raise ValueError(f"jax sees no GPU (its device: {window['device']}, platform {window['platform']}, jax "
-                     f"{window['jax']}); a window trains on a GPU, nothing done (LEASE_ON_CPU=1 bash bench/lease.sh "
+                     f"{window['jax']}); a window trains on a GPU, nothing done (LEASE_ON_CPU=1 bash lab/lease.sh "
                      'runs it on the CPU, for the tests\' tiny ledger)')
   os.makedirs(work, exist_ok=True)
   write_json(os.path.join(work, 'window.json'), window)
@@ -498,7 +480,7 @@ def pack(ledger: Ledger, name: str, work: str, out: str) -> None:
   run = next(r for r in ledger.runs if r.name == name)
   run_dir, done = os.path.join(work, 'runs', name), outcomes(work)
   if not os.path.isdir(run_dir):
-    raise FileNotFoundError(f'{run_dir!r} does not exist; expected the run folder `python -m bench.ledger next` '
+    raise FileNotFoundError(f'{run_dir!r} does not exist; expected the run folder `python -m lab.ledger next` '
                             f'made for {name} (nothing written to {out!r})')
   step = newest_step(run_dir)
   sums = {} if step is None else {SUMS: json.dumps({'step': step, 'sha256': checkpoint_sums(run_dir, step)},
@@ -541,48 +523,3 @@ def pack_window(work: str, out: str) -> None:
         tar.add(os.path.join(work, name), name)
   print(f'window.tar.gz {os.path.getsize(path) / 2**20:.1f} MiB')
   warn_limits(out)
-
-
-def main(argv=None) -> int:
-  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('command', choices=['plan', 'next', 'retry-base', 'pack', 'pack-window', 'unpack', 'model'])
-  parser.add_argument('target', nargs='?', default='', help='pack, model: the run; unpack: the folder that came back')
-  parser.add_argument('--ledger', default=LEDGER)
-  parser.add_argument('--results', default=RESULTS)
-  parser.add_argument('--data', default=DATA)
-  parser.add_argument('--work', default='', help='the window\'s working folder (run folders, logs)')
-  parser.add_argument('--out', default='', help='pack, pack-window: the folder that comes back ($OUT)')
-  parser.add_argument('--budget', type=int, default=0, help='plan: the window\'s budget in seconds')
-  parser.add_argument('--allow_cpu', action='store_true', help='plan: a window on the CPU (the tests\' tiny ledger)')
-  parser.add_argument('--into', default='', help='model: the run folder to write')
-  args = parser.parse_args(argv)
-  ledger = load(args.ledger)
-  needs = {'plan': ['work'], 'next': ['work'], 'retry-base': ['work'], 'pack': ['target', 'work', 'out'],
-           'pack-window': ['work', 'out'],
-           'unpack': ['target'], 'model': ['target', 'into']}[args.command]
-  missing = [name for name in needs if not getattr(args, name)]
-  if missing:
-    raise ValueError(f'{args.command} needs ' + ', '.join(('RUN/FOLDER' if n == 'target' else f'--{n}')
-                                                         for n in missing))
-  if args.command in ('pack', 'model') and args.target not in [r.name for r in ledger.runs]:
-    raise ValueError(f'{args.target!r} is no run of {args.ledger}; expected one of {[r.name for r in ledger.runs]}')
-  if args.command in ('pack', 'pack-window') and not os.path.isdir(args.out):
-    raise FileNotFoundError(f'--out {args.out!r} is no folder; expected the folder that comes back ($OUT)')
-  if args.command == 'plan':
-    plan(ledger, args.results, args.work, args.budget, args.allow_cpu)
-  elif args.command == 'next':
-    return 0 if ready_run(ledger, args.results, args.work, args.data) else 1
-  elif args.command == 'retry-base':
-    return 0 if retry_base(ledger, args.work, args.data) else 1
-  elif args.command == 'pack':
-    pack(ledger, args.target, args.work, args.out)
-  elif args.command == 'pack-window':
-    pack_window(args.work, args.out)
-  else:
-    from bench import ledger_commit  # pylint: disable=import-outside-toplevel
-    ledger_commit.main(ledger, args)
-  return 0
-
-
-if __name__ == '__main__':
-  sys.exit(cli.run(main))

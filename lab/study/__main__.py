@@ -1,4 +1,4 @@
-"""`python -m tools.study`: the study command (runner.py)."""
+"""`python -m lab.study`: the study command (runner.py)."""
 
 from internal import interrupt
 interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
@@ -6,6 +6,6 @@ interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while 
 import sys
 
 from internal import cli
-from tools.study import runner
+from lab.study import runner
 
 sys.exit(cli.run(runner.main))

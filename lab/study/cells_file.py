@@ -9,7 +9,7 @@ machine), "evaluation": its metrics.json (per view and means; metrics.csv is its
 Exports written before this file kept a folder per cell (<cell>/cell.json, metrics.json, metrics.csv,
 learning_curve.csv) and the cells' commits again in provenance.json. `read` takes either layout, and
 
-  python -m tools.study.cells_file DIR [DIR ...]
+  python -m lab.study.cells_file DIR [DIR ...]
 
 converts old ones in place (a folder already converted is left as it is): it writes cells.jsonl and removes the
 cell folders only once every file of every folder comes back byte for byte from its line (`files`), else it stops
@@ -58,10 +58,10 @@ def read_json(path: str) -> dict:
     with open(path) as f:
       record = json.load(f)
   except (UnicodeDecodeError, json.JSONDecodeError) as e:
-    raise ValueError(f'{path}: not valid JSON ({e}); expected the record tools.study wrote (a merge conflict? '
+    raise ValueError(f'{path}: not valid JSON ({e}); expected the record lab.study wrote (a merge conflict? '
                      'keep one side, or delete the cell\'s folder to run it again)') from None
   if not isinstance(record, dict):
-    raise ValueError(f'{path}: a JSON {type(record).__name__}; expected the record (an object) tools.study wrote')
+    raise ValueError(f'{path}: a JSON {type(record).__name__}; expected the record (an object) lab.study wrote')
   return record
 
 
@@ -174,14 +174,14 @@ def _parse_line(text: str, where: str) -> dict:
   try:
     entry = json.loads(text)
   except json.JSONDecodeError as e:
-    raise ValueError(f'{where}: not valid JSON ({e}); expected one cell\'s line as tools.study wrote it (a merge '
+    raise ValueError(f'{where}: not valid JSON ({e}); expected one cell\'s line as lab.study wrote it (a merge '
                      'conflict? keep one side of each conflicting line)') from None
   if not isinstance(entry, dict) or 'cell' not in entry or not ({'record', 'same_as'} & set(entry)):
-    raise ValueError(f'{where}: expected an object with "cell" and "record" (or "same_as"), as tools.study writes')
+    raise ValueError(f'{where}: expected an object with "cell" and "record" (or "same_as"), as lab.study writes')
   for key, kind in LINE_TYPES.items():
     if key in entry and not isinstance(entry[key], kind):
       raise ValueError(f'{where}: "{key}" is {JSON_NAMES[type(entry[key])]}; expected {JSON_NAMES[kind]}, as '
-                       'tools.study writes')
+                       'lab.study writes')
   return entry
 
 
@@ -233,7 +233,7 @@ def convert(export_dir: str, spec_of=None) -> Optional[dict]:
     return None
   provenance_path = os.path.join(export_dir, PROVENANCE_FILE)
   if not os.path.isfile(provenance_path):
-    raise ValueError(f'{export_dir}: no {PROVENANCE_FILE}; expected a folder that tools.study --export wrote')
+    raise ValueError(f'{export_dir}: no {PROVENANCE_FILE}; expected a folder that lab.study --export wrote')
   provenance = read_json(provenance_path)
   entries = read(export_dir)
   for cell_id, entry in entries.items():
@@ -293,18 +293,18 @@ def _check_round_trip(folder: str, entry: dict) -> None:
   give back byte for byte (a file, or a folder)."""
   if os.path.islink(folder):
     raise ValueError(f'{folder}: a symbolic link (to {os.readlink(folder)}); expected the cell folder that '
-                     'tools.study --export wrote: put a copy of that folder in its place (nothing was converted)')
+                     'lab.study --export wrote: put a copy of that folder in its place (nothing was converted)')
   texts = files(entry)
   for name in sorted(os.listdir(folder)):
     if os.path.isdir(os.path.join(folder, name)):
       raise ValueError(f'{os.path.join(folder, name)}: a folder, which {CELLS_FILE} cannot hold; expected only '
-                       'cell.json, metrics.json, metrics.csv and learning_curve.csv as tools.study wrote them: move '
+                       'cell.json, metrics.json, metrics.csv and learning_curve.csv as lab.study wrote them: move '
                        'it out of the export (nothing was converted)')
     with open(os.path.join(folder, name), newline='') as f:
       if texts.get(name) != f.read():
         raise ValueError(f'{os.path.join(folder, name)}: its line in {CELLS_FILE} would not give it back byte for '
                          'byte; expected only cell.json, metrics.json, metrics.csv and learning_curve.csv as '
-                         'tools.study wrote them (nothing was converted)')
+                         'lab.study wrote them (nothing was converted)')
 
 
 def _check_provenance(provenance: dict, path: str, entry: dict) -> None:
@@ -319,8 +319,8 @@ def _check_provenance(provenance: dict, path: str, entry: dict) -> None:
 def _spec_reader(export_dir: str):
   """spec_of(cell id) for an export: the cell's gin from the study file its provenance.json names (templates
   left in), or None for every cell when that file is not in this checkout or its git history."""
-  from tools.study import reuse  # pylint: disable=import-outside-toplevel  (reuse reads exports through this file)
-  from tools.study import spec as study_spec  # pylint: disable=import-outside-toplevel
+  from lab.study import reuse  # pylint: disable=import-outside-toplevel  (reuse reads exports through this file)
+  from lab.study import spec as study_spec  # pylint: disable=import-outside-toplevel
   try:
     study = reuse.exported_study(export_dir)
   except study_spec.StudyError:
@@ -331,15 +331,15 @@ def _spec_reader(export_dir: str):
 
 def spec(study, cell) -> dict:
   """A cell's gin configs and bindings with {out} and {data_root} left as templates (no machine's paths)."""
-  from tools.study import spec as study_spec  # pylint: disable=import-outside-toplevel
+  from lab.study import spec as study_spec  # pylint: disable=import-outside-toplevel
   run_dir = f'{{out}}/{study.name}/{cell.cell_id}/run'
   configs, bindings = study_spec.cell_gin(study, cell, '{out}', '{data_root}', run_dir)
   return {'gin_configs': configs, 'gin_bindings': bindings}
 
 
 def main(argv=None) -> int:
-  parser = argparse.ArgumentParser(prog='python -m tools.study.cells_file', description=__doc__.split('\n\n')[0])
-  parser.add_argument('exports', nargs='+', metavar='DIR', help='folders that tools.study --export wrote')
+  parser = argparse.ArgumentParser(prog='python -m lab.study.cells_file', description=__doc__.split('\n\n')[0])
+  parser.add_argument('exports', nargs='+', metavar='DIR', help='folders that lab.study --export wrote')
   for export_dir in parser.parse_args(argv).exports:
     done = convert(export_dir, _spec_reader(export_dir))
     if done is None:

@@ -1,9 +1,9 @@
 """Claims on a study's cells: one process at a time trains a cell, however many runners share the study folder.
 
-Every runner (a `tools.study` process, a `--shard` of it on another host, a Ray task) runs a cell through the
+Every runner (a `lab.study` process, a `--shard` of it on another host, a Ray task) runs a cell through the
 same cell process, which claims the cell before any work: <cell>/claim.json appears atomically (written beside it,
 then hard-linked into place, which fails when the file exists, on NFS too) holding the claimer's host, process id,
-job (the `tools.study` command that started it) and start time. The holder touches the file every
+job (the `lab.study` command that started it) and start time. The holder touches the file every
 HEARTBEAT_SECONDS while it works and removes it when it stops. With the claim taken it looks at the cell again: a
 cell with cell.json is finished and is neither trained nor written again.
 
@@ -61,7 +61,7 @@ def _read(path: str) -> Tuple[Optional[dict], float]:
   except FileNotFoundError:
     return None, 0.
   except OSError as e:
-    raise ValueError(f'{path!r} cannot be read ({e.strerror}); expected a claim file (tools/study/claim.py) that '
+    raise ValueError(f'{path!r} cannot be read ({e.strerror}); expected a claim file (lab/study/claim.py) that '
                      'this user can read') from None
   try:
     holder = json.loads(data)

@@ -1,8 +1,8 @@
-"""Runs a study's cells on an executor (this machine's processes, or Ray: tools/study/ray_executor.py), each cell once over
+"""Runs a study's cells on an executor (this machine's processes, or Ray: lab/study/ray_executor.py), each cell once over
 every runner that shares the study folder, with a progress bar over the cells.
 
-Each cell runs as its own process, `python -m tools.study --run-cell <cell dir> --job <job>`, whose output goes to
-<cell>/log.txt; it claims the cell first (tools/study/claim.py) and exits with CLAIMED_STATUS when a runner of another
+Each cell runs as its own process, `python -m lab.study --run-cell <cell dir> --job <job>`, whose output goes to
+<cell>/log.txt; it claims the cell first (lab/study/claim.py) and exits with CLAIMED_STATUS when a runner of another
 job holds it. Right before a cell is submitted the runner looks at it again: a finished cell (is_done) is counted,
 a cell another runner holds is left for later and looked at every POLL_SECONDS (taken over if its claim goes
 stale), so each command ends when every cell of its list has finished or failed.
@@ -23,8 +23,8 @@ from typing import Callable, Dict, List, Optional, Tuple
 import tqdm
 
 from internal import progress
-from tools.study import claim as study_claim
-from tools.study import spec as study_spec
+from lab.study import claim as study_claim
+from lab.study import spec as study_spec
 
 LOG_FILE = 'log.txt'
 CLAIMED_STATUS = 75  # EX_TEMPFAIL: the cell is claimed by a runner of another job; look at it again later.
@@ -35,12 +35,12 @@ REPO = study_spec.REPO
 
 
 def new_job() -> str:
-  """An id for one tools.study command: host, process id and a random part."""
+  """An id for one lab.study command: host, process id and a random part."""
   return f'{socket.gethostname()}-{os.getpid()}-{uuid.uuid4().hex[:8]}'
 
 
 def python_path() -> str:
-  """PYTHONPATH for a cell process: this repository first (tools.study is importable from any directory)."""
+  """PYTHONPATH for a cell process: this repository first (lab.study is importable from any directory)."""
   return os.pathsep.join([REPO] + [p for p in [os.environ.get('PYTHONPATH')] if p])
 
 
@@ -53,7 +53,7 @@ def run_cell_process(path: str, job: str, env: Dict[str, str], cwd: Optional[str
   """
   tic = time.perf_counter()
   with open(os.path.join(path, LOG_FILE), 'a') as log:
-    child = subprocess.Popen([sys.executable, '-m', 'tools.study', '--run-cell', path, '--job', job], stdout=log,
+    child = subprocess.Popen([sys.executable, '-m', 'lab.study', '--run-cell', path, '--job', job], stdout=log,
                              stderr=subprocess.STDOUT, cwd=cwd,
                              env={**os.environ, 'PYTHONPATH': python_path(), PARENT_ENV: str(os.getpid()), **env})
   if children is not None:

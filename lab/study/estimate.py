@@ -9,7 +9,7 @@ On a cluster (`--cluster-gpus N`): nothing is measured; each cell's steps are mu
 that bench.device measured on a GPU at the precision the cell runs at there (Config.precision 'auto' resolved for
 a GPU: bfloat16, whatever machine prints the estimate; results/gpu/bench_device_*.json), for the cell's method and
 scaled to its rays per step. RegNeRF, when that benchmark did not time it, costs mip-NeRF's step times RegNeRF's
-ratio to it: as a GPU window timed it (GPU_RATIO_GLOB, written by bench/lease.sh), else as
+ratio to it: as a GPU window timed it (GPU_RATIO_GLOB, written by lab/lease.sh), else as
 measured on a CPU (CPU_RATIO_FILE), and says which; another unmeasured method costs the mean of the measured ones.
 The benchmark ran the paper's model, so the estimate holds for cells of that model; it counts training steps only
 (no compilation, checkpoints, learning curves or evaluation), one GPU per cell, and packs the cells longest first
@@ -25,8 +25,8 @@ import time
 from typing import Dict, List, Optional, Tuple
 
 from tools import provenance
-from tools.study import cells_file
-from tools.study import spec as study_spec
+from lab.study import cells_file
+from lab.study import spec as study_spec
 
 PROBE_STEPS = 6  # Timed train steps after the first (compiling) one.
 BENCH_GLOB = os.path.join('results', 'gpu', 'bench_device_*.json')  # bench.device's GPU records, in the repository.

@@ -1,6 +1,6 @@
 """What running a cell through an executor costs beyond the cell's own process (docs/benchmarks.md).
 
-  python -m tools.study.executor_overhead [--cells 8] [--address ADDRESS] [--out results/cluster/overhead.json]
+  python -m lab.study.executor_overhead [--cells 8] [--address ADDRESS] [--out results/cluster/overhead.json]
 
 Makes a study of --cells finished cells (each with a cell.json, so that its cell process starts, imports, claims
 the cell, finds it done and exits: the cell's own start-up) and runs each one after another through the local
@@ -20,8 +20,8 @@ import time
 from internal import atomic
 from internal import cli
 from tools import provenance
-from tools.study import dispatch
-from tools.study import spec as study_spec
+from lab.study import dispatch
+from lab.study import spec as study_spec
 
 STUDY = 'name = "overhead"\n[methods.m]\n[scenes.s]\n[[axis]]\nname = "i"\nbinding = "Config.jax_rng_seed"\n'
 
@@ -54,14 +54,14 @@ def summary(times: list) -> dict:
 
 
 def main(argv=None) -> int:
-  parser = argparse.ArgumentParser(prog='python -m tools.study.executor_overhead', description=__doc__.split('\n')[0])
+  parser = argparse.ArgumentParser(prog='python -m lab.study.executor_overhead', description=__doc__.split('\n')[0])
   parser.add_argument('--cells', type=int, default=8, help='cells per executor')
   parser.add_argument('--address', help='a Ray cluster (default: a local one started here)')
   parser.add_argument('--out', default='results/cluster/overhead.json', help='the JSON to write')
   args = parser.parse_args(argv)
   if args.cells < 2:
     raise ValueError(f'--cells {args.cells}; expected >= 2 (the first Ray cell starts a worker)')
-  from tools.study import ray_executor as study_ray  # pylint: disable=import-outside-toplevel  (Ray is an optional extra)
+  from lab.study import ray_executor as study_ray  # pylint: disable=import-outside-toplevel  (Ray is an optional extra)
   job = dispatch.new_job()
   local = dispatch.LocalExecutor([{}], job)
   ray_executor = study_ray.RayExecutor(args.address, study_spec.Resources(), job)
@@ -72,7 +72,7 @@ def main(argv=None) -> int:
       times['ray'].append(timed(ray_executor, path))
   local.close()
   ray_executor.close()
-  record = {'command': cli.command_line('tools.study.executor_overhead', argv),
+  record = {'command': cli.command_line('lab.study.executor_overhead', argv),
             'commit': provenance.git_commit(dispatch.REPO), 'date': time.strftime('%Y-%m-%d %H:%M %z'),
             'machine': dict(provenance.machine(), ray=ray_executor.ray.__version__),
             'cluster': args.address or 'local (started by the command)',

@@ -1,10 +1,10 @@
 """Copies a study's results into a folder meant to be committed: what was run, on what, and what came out.
 
 <dest>/ gets results.csv, the statistics over seeds (summary.csv, comparisons.csv and .md, and looks.json: the seed
-counts at which the comparisons were read, tools/study/looks.py) and the plots, cells.jsonl (a line per finished
+counts at which the comparisons were read, lab/study/looks.py) and the plots, cells.jsonl (a line per finished
 cell: its gin, its cell.json, its evaluation's metrics.json, whose run folder is written as the spec writes it,
 {out}/<study>/<cell>/run, and its learning curve; a cell reused from another study's export a reference to that
-export's line: tools/study/cells_file.py), a side-by-side picture per scene (ground truth, then each method's render
+export's line: lab/study/cells_file.py), a side-by-side picture per scene (ground truth, then each method's render
 of the first evaluated test views, of the first seed; under each, its depth, the exact depth under the ground truth
 where the scene has one, each depth panel in its own colour range), table.md (per cell its metrics, wall times and
 commit) and provenance.json: the command (its paths relative to the repository: internal/cli.py's recorded_command),
@@ -23,9 +23,9 @@ from PIL import Image
 
 from internal.evaluation import vis
 from tools import provenance
-from tools.study import cells_file
-from tools.study import looks as study_looks
-from tools.study import spec as study_spec
+from lab.study import cells_file
+from lab.study import looks as study_looks
+from lab.study import spec as study_spec
 
 RUN_SUBDIR = 'run'    # A cell's run directory (Config.checkpoint_dir) inside its folder.
 # Written by --reuse into a cell it placed: {"export": the export's absolute path}, so that an export of this study

@@ -1,7 +1,7 @@
 """The looks of a study: the seed counts at which its comparisons were read, recorded in <study folder>/looks.json.
 
 A study whose comparisons were read at 3 seeds and again at 5 (seeds added because every interval held 0) had two
-chances to declare a difference by chance; its intervals are corrected for both (tools/study/stats.py, look_level).
+chances to declare a difference by chance; its intervals are corrected for both (lab/study/stats.py, look_level).
 The study file may say so (`looks = [3, 5]`); the runner also records a look itself each time it writes the
 comparisons of a finished study (every cell of the study file as it then was), so that seeds added in the same
 study folder count without anyone declaring them. An export copies the record, and --reuse of an export of the same
@@ -14,9 +14,9 @@ import os
 from typing import List
 
 from internal import atomic
-from tools.study import cells_file
-from tools.study import spec as study_spec
-from tools.study import stats as study_stats
+from lab.study import cells_file
+from lab.study import spec as study_spec
+from lab.study import stats as study_stats
 
 FILE = 'looks.json'  # {"seed_counts": [3, 5]}: the counts at which the study's comparisons were written.
 
@@ -30,7 +30,7 @@ def recorded(folder: str) -> List[int]:
   if not isinstance(counts, list) or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1
                                              for n in counts):
     raise ValueError(f'{path}: {counts!r}; expected {{"seed_counts": [n, ...]}}, the seed counts at which the '
-                     'comparisons were written (tools/study/looks.py)')
+                     'comparisons were written (lab/study/looks.py)')
   return counts
 
 

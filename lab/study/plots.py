@@ -8,8 +8,8 @@ import os
 from typing import List, Sequence, Tuple
 
 from internal.evaluation import vis
-from tools.study import spec as study_spec
-from tools.study import stats as study_stats
+from lab.study import spec as study_spec
+from lab.study import stats as study_stats
 
 # Learning-curve metrics (internal/evaluation/learning_curve.py) plotted against the training step.
 # Of the training cameras, where they move (after the similarity, and without it where the frames are shared).

@@ -1,4 +1,4 @@
-"""Cells as Ray tasks (`python -m tools.study STUDY --executor ray [--address ADDRESS]`, docs/cluster.md).
+"""Cells as Ray tasks (`python -m lab.study STUDY --executor ray [--address ADDRESS]`, docs/cluster.md).
 
 Each cell becomes a task asking for the cell's resources (study_spec.Resources: num_gpus, num_cpus, max_retries)
 that runs the cell process the local executor runs, in the driver's working directory: the study folder, the
@@ -16,9 +16,9 @@ import signal
 import socket
 import sys
 
-from tools.study import claim as study_claim
-from tools.study import dispatch
-from tools.study import spec as study_spec
+from lab.study import claim as study_claim
+from lab.study import dispatch
+from lab.study import spec as study_spec
 
 CANCEL_WAIT_SECONDS = 120.  # Ctrl-C: how long the cancelled cells get to save a checkpoint and stop.
 # --address: how long the cluster's port gets to answer. Ray itself retries a silent address, or one where another

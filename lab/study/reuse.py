@@ -1,7 +1,7 @@
-"""Finished cells taken from an earlier export (`tools.study --reuse DIR`), so that a study moved to another machine,
+"""Finished cells taken from an earlier export (`lab.study --reuse DIR`), so that a study moved to another machine,
 or whose run folders are gone, runs only the cells it lacks.
 
-A cell of the export (its cells.jsonl, or a folder per cell in exports written before it: tools/study/cells_file.py)
+A cell of the export (its cells.jsonl, or a folder per cell in exports written before it: lab/study/cells_file.py)
 is reused when the cell has not finished here and the study file the export ran (named in its provenance.json by
 path and SHA-256, found in this checkout or its git history) gives it the same settings as this study file does:
 the same gin configs and bindings, or ones that load to the same Config (T given in steps or as a fraction, say).
@@ -11,7 +11,7 @@ evaluation is not reused (it runs here). Its cell.json, the evaluation's metrics
 learning curve go where a run here would have written them, with a note of the export it came from (an export of
 this study then refers to that export's line); its checkpoints and renders are not in an export, so a reused cell
 cannot resume training and appears in no side-by-side picture. An export of the same study passes on its looks (the
-seed counts at which its comparisons were read, tools/study/looks.py), so that its intervals stay corrected for them.
+seed counts at which its comparisons were read, lab/study/looks.py), so that its intervals stay corrected for them.
 """
 
 import json
@@ -20,10 +20,10 @@ from typing import List, Optional
 
 from internal import atomic
 from tools import provenance
-from tools.study import cells_file
-from tools.study import export as study_export
-from tools.study import looks as study_looks
-from tools.study import spec as study_spec
+from lab.study import cells_file
+from lab.study import export as study_export
+from lab.study import looks as study_looks
+from lab.study import spec as study_spec
 
 
 def exported_study(export_dir: str) -> study_spec.Study:
@@ -32,11 +32,11 @@ def exported_study(export_dir: str) -> study_spec.Study:
   provenance_path = os.path.join(export_dir, study_export.PROVENANCE_FILE)
   if not os.path.isfile(provenance_path):
     raise study_spec.StudyError(f'--reuse {export_dir}: no {study_export.PROVENANCE_FILE} there; give the folder '
-                                'that tools.study --export wrote')
+                                'that lab.study --export wrote')
   source = cells_file.read_json(provenance_path).get('study_file') or {}
   if not {'path', 'sha256'} <= source.keys():
     raise study_spec.StudyError(f'--reuse {export_dir}: its {study_export.PROVENANCE_FILE} names no study file '
-                                '(path and sha256); export it again with this version of tools.study')
+                                '(path and sha256); export it again with this version of lab.study')
   text = next(filter(None, (provenance.file_at(study_export.REPO, path, source['sha256'])
                             for path in _paths_here(source['path']))), None)
   if text is None:

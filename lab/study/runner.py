@@ -1,30 +1,30 @@
 """Runs a study or a paper table: every cell (method x scene x axis points) trained and evaluated in its own run.
 
-Usage: python -m tools.study STUDY.toml [--out out/studies] [--data_root data] [--jobs N] [--gpus 0,1,...]
+Usage: python -m lab.study STUDY.toml [--out out/studies] [--data_root data] [--jobs N] [--gpus 0,1,...]
                              [--shard K/N] [--executor local|ray [--address A] [--num-gpus G] [--num-cpus C]
                              [--max-retries R]] [--list [--estimate [--cluster-gpus N]]] [--plots-only]
                              [--gin_bindings B ...] [--export DIR] [--reuse DIR]
 
-Each cell runs `train(config)` then eval's `evaluate(config)` in a subprocess (`python -m tools.study
+Each cell runs `train(config)` then eval's `evaluate(config)` in a subprocess (`python -m lab.study
 --run-cell <cell dir>`: gin state stays per process and cells can run in parallel) in the run directory
 <out>/<study>/<cell id>/run/, and writes <out>/<study>/<cell id>/cell.json: the evaluation means, wall times (train, eval; they
 include data loading and compilation), steps/s, XLA's flop count of one train step, the process's peak RSS
 and, on accelerators, the device's peak bytes. Its output goes to <cell>/log.txt.
 Resumable: a cell with cell.json is skipped; a half-trained one resumes from its newest checkpoint. A cell process
-claims its cell first (tools/study/claim.py), so any number of runners may share a study folder. --reuse DIR
+claims its cell first (lab/study/claim.py), so any number of runners may share a study folder. --reuse DIR
 takes the finished cells of an earlier export (another machine's, say) instead of running them again; --export DIR
-writes one: results, plots, pictures and cells.jsonl, a line per cell (tools/study/export.py, cells_file.py).
+writes one: results, plots, pictures and cells.jsonl, a line per cell (lab/study/export.py, cells_file.py).
 --jobs N runs N cells at a time; --gpus gives one GPU per worker (CUDA_VISIBLE_DEVICES), --shard K/N takes
 every N-th cell from K (one command per host on a shared folder); --executor ray runs the cells as Ray tasks
-(tools/study/ray_executor.py, docs/cluster.md). At the end (also after failures) the
+(lab/study/ray_executor.py, docs/cluster.md). At the end (also after failures) the
 results of all finished cells are gathered into <out>/<study>/results.csv and <metric>_vs_<x>.png plots, and
 the cells' learning curves (Config.curve_every > 0) into psnr_vs_step.png (and psnr_masked_vs_step.png on DTU).
 `python -m tools.tables <out>/<study>` gathers the same runs into the paper's tables.
 With seeds (a `seeds` key or an axis named seed) results also give per cell the mean, spread and n over seeds and
 the paired comparisons with their 95% intervals, corrected for the seed counts at which they were read
-(tools/study/stats.py, looks.py). `--list --estimate` measures each distinct
+(lab/study/stats.py, looks.py). `--list --estimate` measures each distinct
 setting of the pending cells on this machine (about a minute each) and prints the expected wall time before any
-cell runs (tools/study/estimate.py); with --cluster-gpus N, the GPU-hours and the wall time on N GPUs from the step
+cell runs (lab/study/estimate.py); with --cluster-gpus N, the GPU-hours and the wall time on N GPUs from the step
 times measured on a GPU (results/gpu). Bad input is one line (exit status 2, internal/cli.py).
 """
 
@@ -45,17 +45,17 @@ from typing import Dict, List, Optional
 from internal import atomic
 from internal import cli
 from tools import provenance
-from tools.study import time_budgets
-from tools.study import cells_file
-from tools.study import claim
-from tools.study import estimate
-from tools.study import export
-from tools.study import looks
-from tools.study import plots
-from tools.study import reuse
-from tools.study import dispatch
-from tools.study import spec
-from tools.study import stats
+from lab.study import time_budgets
+from lab.study import cells_file
+from lab.study import claim
+from lab.study import estimate
+from lab.study import export
+from lab.study import looks
+from lab.study import plots
+from lab.study import reuse
+from lab.study import dispatch
+from lab.study import spec
+from lab.study import stats
 
 CELL_FILE = 'cell.json'
 SPEC_FILE = 'cell_spec.json'
@@ -238,7 +238,7 @@ def measured_estimates(paths: List[str]) -> List[tuple]:
       key = estimate.signature(json.load(f))
     if key not in known:
       print(f'measuring {path} ...', flush=True)
-      result = subprocess.run([sys.executable, '-m', 'tools.study', '--measure-cell', path], capture_output=True,
+      result = subprocess.run([sys.executable, '-m', 'lab.study', '--measure-cell', path], capture_output=True,
                               text=True, env={**os.environ, 'PYTHONPATH': dispatch.python_path()},
                               check=False)
       if result.returncode:
@@ -386,7 +386,7 @@ def write_results(study: spec.Study, out: str) -> List[str]:
   rows, curve_rows = gather(study, out), gather_curves(study, out)
   out_dir = study_dir(study, out)
   looks.record_if_finished(study, out_dir, rows)
-  study = looks.with_recorded(study, out_dir)  # Every interval corrected for the looks (tools/study/looks.py).
+  study = looks.with_recorded(study, out_dir)  # Every interval corrected for the looks (lab/study/looks.py).
   path = _write_csv(os.path.join(out_dir, RESULTS_FILE), rows)
   return ([path] + write_statistics(study, rows, out_dir) + plots.write_plots(study, rows, out_dir)
           + plots.write_curve_plots(study, curve_rows, out_dir)
@@ -414,7 +414,7 @@ def run_study(study: spec.Study, out: str, data_root: str = 'data', shard: Optio
 
 
 def _parser() -> argparse.ArgumentParser:
-  parser = cli.FlagParser(prog='python -m tools.study', description=__doc__.split('\n')[0])
+  parser = cli.FlagParser(prog='python -m lab.study', description=__doc__.split('\n')[0])
   parser.add_argument('study', nargs='?', help='study file (TOML)')
   parser.add_argument('--out', default='out/studies', help='root of the study folders')
   parser.add_argument('--data_root', default='data', help='fills {data_root} in the study file')
@@ -442,7 +442,7 @@ def _parser() -> argparse.ArgumentParser:
   parser.add_argument('--export', metavar='DIR', help='after the run, copy results, plots, cells.jsonl (a line per '
                       'cell), side-by-side pictures and provenance (no checkpoints) into DIR, to be committed')
   parser.add_argument('--reuse', metavar='DIR', help='first take the finished cells of an earlier --export DIR '
-                      'that this study lacks and runs with the same settings (tools/study/reuse.py)')
+                      'that this study lacks and runs with the same settings (lab/study/reuse.py)')
   parser.add_argument('--run-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
   parser.add_argument('--job', help=argparse.SUPPRESS)
   parser.add_argument('--measure-cell', metavar='CELL_DIR', help=argparse.SUPPRESS)
@@ -486,7 +486,7 @@ def _resources(study: spec.Study, args) -> spec.Resources:
 def _executor(study: spec.Study, args, job: str):
   """The executor of --executor: processes here (--jobs / --gpus), or Ray tasks with the cells' resources."""
   if args.executor == 'ray':
-    from tools.study import ray_executor  # pylint: disable=import-outside-toplevel  (Ray is an optional extra)
+    from lab.study import ray_executor  # pylint: disable=import-outside-toplevel  (Ray is an optional extra)
     return ray_executor.RayExecutor(args.address, _resources(study, args), job)
   return dispatch.LocalExecutor(_worker_envs(args.jobs, args.gpus), job)
 
@@ -566,7 +566,7 @@ def _run_on_executor(study: spec.Study, args) -> Dict[str, str]:
 def _export(study: spec.Study, args, argv) -> None:
   """--export: copies the study's results into args.export, recording this command."""
   if args.export:
-    command = cli.command_line('tools.study', argv)
+    command = cli.command_line('lab.study', argv)
     for path in export.export(study, args.study, study_dir(study, args.out), args.export, command):
       print(path)
 

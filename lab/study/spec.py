@@ -23,13 +23,13 @@ write {{ and }} for literal braces.
 
 Seeds: `seeds = N` (seeds 0 .. N-1) or a list adds the axis SEED_AXIS, whose point s binds Config.jax_rng_seed = s
 (initialization, sampling noise) and Config.np_rng_seed = s (the ray batches). An axis of that name written by hand
-is a seed axis too. Results over it are replicates: tools/study/stats.py gives per cell mean, spread and n, and each
+is a seed axis too. Results over it are replicates: lab/study/stats.py gives per cell mean, spread and n, and each
 [[compare]] entry (default: every other method against the first) the paired difference with its interval.
 
 Looks: a study whose seeds were added after its comparisons were read (3 seeds, every interval holding 0, then 2
 more) looked twice, and each look can declare a difference by chance: `looks = [3, 5]` lists the seed counts at which
 they were read, increasing, the last the study's count (default: [count], the seed count fixed in advance). The
-runner adds the looks it recorded itself (tools/study/looks.py) and corrects every interval for their number.
+runner adds the looks it recorded itself (lab/study/looks.py) and corrects every interval for their number.
 """
 
 import dataclasses

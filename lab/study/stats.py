@@ -17,7 +17,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 from scipy import stats as scipy_stats
 
-from tools.study import spec as study_spec
+from lab.study import spec as study_spec
 
 LEVEL = 0.95  # Confidence level of the paired intervals.
 UNDECIDED = 'UNDECIDED'

@@ -4,7 +4,7 @@ A run with learning curves gives its whole trade between time and accuracy: at a
 that of the last curve point recorded within b (what stopping there would have kept). Per budget of the study's
 `[plot] budgets` and per setting (every label but the seed) this gives the mean, spread and n over seeds; the best
 setting; and its paired difference to the runner-up over the seeds both reached, with the interval and verdict of
-tools/study/stats.py, so a budget where the choice is not decided says so. The best is chosen on these same seeds,
+lab/study/stats.py, so a budget where the choice is not decided says so. The best is chosen on these same seeds,
 so a plain 95% interval for its lead would be too narrow; the interval holds 95% simultaneously for all k(k - 1)/2
 pairs of the k settings (Bonferroni), so it stays valid for whichever pair the choice picked; and for every look of a
 study read at several seed counts (stats.looks), as its comparisons are.
@@ -16,9 +16,9 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from internal.evaluation import vis
-from tools.study import plots as study_plots
-from tools.study import spec as study_spec
-from tools.study import stats as study_stats
+from lab.study import plots as study_plots
+from lab.study import spec as study_spec
+from lab.study import stats as study_stats
 
 Curve = List[Tuple[float, float]]  # (training seconds, value), by seconds.
 
