@@ -26,14 +26,11 @@ import re
 import statistics
 import sys
 
-import gin
 import numpy as np
 
 from internal import atomic
 from internal import cli
-from internal import config_loader
-from internal.datasets import load_dataset, loader
-from internal.evaluation import depth_metrics
+from internal import runs
 from tools import provenance
 from lab.study import looks as study_looks
 from lab.study import runner
@@ -57,25 +54,20 @@ def cell_rows(folder: str, labels: dict) -> list:
   """Rows (labels, view, METRICS) of one cell folder's newest evaluation; [] when it has no renders or no settings
   (a cell reused from an export keeps neither)."""
   evaluations = glob.glob(os.path.join(folder, runner.RUN_SUBDIR, 'test_preds_step_*'))
-  spec_path = os.path.join(folder, runner.SPEC_FILE)
-  if not evaluations or not os.path.isfile(spec_path):
+  if not evaluations or not study_spec.has_cell_spec(folder):
     return []
   newest = max(evaluations, key=lambda d: int(re.search(r'(\d+)$', d).group(1)))
-  with open(spec_path) as f:
-    spec = json.load(f)
-  gin.clear_config()
-  config = config_loader.load_config(spec['gin_configs'], spec['gin_bindings'])
-  test = load_dataset('test', config, ground_truth=True)
-  ndc = loader.REGISTRY[loader.filed_as(config)[0]].ndc(config)
+  with study_spec.cell_config(folder) as config:
+    test = runs.test_views(config)
   rows = []
   for i, view in enumerate(test.ids):
-    path = depth_metrics.depth_file(newest, int(view))
+    path = runs.depth_file(newest, view)
     if os.path.isfile(path):  # Config.eval_test_ids: the evaluation rendered only some test views.
       with np.load(path) as f:
-        rendered = depth_metrics.world_depth(test, i, f['distance'], ndc)
-      rows.append({**labels, 'view': int(view), **view_shape(rendered, test.depths[i])})
+        rendered = test.world_depth(i, f['distance'])
+      rows.append({**labels, 'view': view, **view_shape(rendered, test.depths[i])})
   if not rows:
-    raise ValueError(f'{newest}: no depth_<id>.npz of the test views {[int(v) for v in test.ids]}; expected an '
+    raise ValueError(f'{newest}: no depth_<id>.npz of the test views {test.ids}; expected an '
                      'evaluation that kept its rendered depths (evaluate the cell again with this version)')
   return rows
 

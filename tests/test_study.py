@@ -14,7 +14,6 @@ import numpy as np
 from PIL import Image
 import pytest
 
-from internal import runs
 from internal.evaluation import vis
 from internal.pipeline import loop
 from tools import provenance
@@ -73,8 +72,8 @@ def fixture_ran(tmp_path_factory):
   path.write_text(TINY_STUDY)
   study = study_spec.load(path)
   half = study_lib.write_spec(study, study_spec.cells(study)[0], out, 'data')
-  spec = json.loads(pathlib.Path(half, study_lib.SPEC_FILE).read_text())
-  loop.train(runs.bind_fresh(spec['gin_configs'], spec['gin_bindings']), stop_at_step=10)
+  with study_spec.cell_config(half) as config:
+    loop.train(config, stop_at_step=10)
   assert study_lib.run_study(study, out) == {}  # No executor: in this process.
   return study, out, path
 

@@ -21,9 +21,9 @@ import heapq
 import json
 import os
 import statistics
-import time
 from typing import Dict, List, Optional, Tuple
 
+from internal import runs
 from tools import provenance
 from lab.study import cells_file
 from lab.study import spec as study_spec
@@ -43,45 +43,10 @@ def signature(spec: dict) -> str:
   return json.dumps([spec['gin_configs'], bindings])
 
 
-def _timed(fn):
-  """(fn()'s result with every array ready, seconds it took)."""
-  import jax  # pylint: disable=import-outside-toplevel
-  tic = time.perf_counter()
-  result = jax.block_until_ready(fn())
-  return result, time.perf_counter() - tic
-
-
 def measure(config) -> Dict[str, float]:
   """{'setup_seconds' (data, model, first step with compilation), 'step_seconds' (median of PROBE_STEPS),
   'view_seconds' (one test view at Config.eval_factor, compiled), 'eval_views', 'curve_views'} of a config."""
-  # pylint: disable=import-outside-toplevel  (jax and the model only in the measuring process)
-  import jax
-  from jax import random
-  from internal import datasets
-  from internal.evaluation import evaluate, inference
-  from internal.run import sharding
-  from internal.training import train_step
-  tic = time.perf_counter()
-  batcher = datasets.make_batcher(datasets.load_dataset('train', config), config)
-  mesh = sharding.data_mesh()
-  model, state = train_step.create_train_state(config, random.PRNGKey(config.jax_rng_seed),
-                                               jax.tree.map(lambda x: x[:8], batcher(0).rays))
-  state, step_fn, key = sharding.replicate(state, mesh), train_step.make_train_step(config, model), random.PRNGKey(0)
-  batch = lambda step: sharding.shard_batch(batcher(step), mesh)
-  state, _ = _timed(lambda: step_fn(state, batch(1), key))[0]
-  setup = time.perf_counter() - tic
-  times = []
-  for step in range(2, 2 + PROBE_STEPS):
-    (state, _), seconds = _timed(lambda s=step: step_fn(state, batch(s), key))
-    times.append(seconds)
-  test_set = datasets.load_dataset('test', config)
-  render_fn = inference.make_render_fn(config, model, sharding.local_copy(state.params), PROBE_STEPS + 1)
-  view = jax.tree.map(lambda x: x[0], test_set.rays)
-  render = lambda: inference.render_image(render_fn, view, config.render_chunk_size)
-  _timed(render)
-  curve_views = len(config.curve_test_ids) if config.curve_every else 0
-  return {'setup_seconds': setup, 'step_seconds': statistics.median(times), 'view_seconds': _timed(render)[1],
-          'eval_views': len(evaluate.select_positions(config, len(test_set.ids))), 'curve_views': curve_views}
+  return runs.measure(config, PROBE_STEPS)
 
 
 def cell_seconds(config, measured: Dict[str, float]) -> Dict[str, float]:

@@ -21,7 +21,7 @@ from typing import Callable, Dict, List, NamedTuple, Optional
 import numpy as np
 from PIL import Image
 
-from internal.evaluation import vis
+from internal import runs
 from tools import provenance
 from lab.study import cells_file
 from lab.study import looks as study_looks
@@ -43,16 +43,14 @@ TABLE_METRICS = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'psnr', 'ssim', '
 
 def eval_dir(cell_path: str, step: int) -> str:
   """The evaluation folder of a finished cell's run (<cell>/run/test_preds_step_<step>)."""
-  from internal.evaluation import evaluate  # pylint: disable=import-outside-toplevel  (jax: only when exporting)
-  return evaluate.output_dir(os.path.join(cell_path, RUN_SUBDIR), step)
+  return runs.eval_dir(os.path.join(cell_path, RUN_SUBDIR), step)
 
 
 def _cell_line(study: study_spec.Study, cell: study_spec.Cell, path: str, record: dict, dest: str) -> dict:
   """A finished cell's line of cells.jsonl: a reference when --reuse took it from another study's export that
   still holds the same run (its path relative to dest), else its spec, record, evaluation and learning curve."""
-  from internal.evaluation import learning_curve  # pylint: disable=import-outside-toplevel
   metrics = os.path.join(eval_dir(path, record['step']), cells_file.METRICS_FILE)
-  curve = learning_curve.csv_path(os.path.join(path, RUN_SUBDIR))
+  curve = runs.curve_path(os.path.join(path, RUN_SUBDIR))
   evaluation = _portable(cells_file.read_json(metrics), path) if os.path.isfile(metrics) else None
   entry = cells_file.line(cell.cell_id, record, evaluation, _text(curve), cells_file.spec(study, cell))
   source = _reused_from(path)
@@ -97,13 +95,12 @@ def _depth_row(folders: List[str], view_id: int, truth: Truth):
   """The depth row of one test view: the exact depth under the ground truth where the scene has one (else blank),
   then each evaluation's rendered depth, each panel in its own colour range (a shared range flattens a render
   whose depths span little, such as a prior's); None when an evaluation kept no depth."""
-  from internal.evaluation import depth_metrics  # pylint: disable=import-outside-toplevel
-  files = [depth_metrics.depth_file(folder, view_id) for folder in folders]
+  files = [runs.depth_file(folder, view_id) for folder in folders]
   if not all(os.path.isfile(f) for f in files):
     return None
   exact = truth.depths.get(view_id)
-  first = np.ones_like(truth.images[view_id]) if exact is None else vis.colorize_depth(exact)
-  return [first] + [vis.colorize_depth(truth.to_world(view_id, np.load(f)['distance'])) for f in files]
+  first = np.ones_like(truth.images[view_id]) if exact is None else runs.colorize_depth(exact)
+  return [first] + [runs.colorize_depth(truth.to_world(view_id, np.load(f)['distance'])) for f in files]
 
 
 def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Truth, path: str) -> None:
@@ -124,30 +121,19 @@ def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Truth, path:
   titles = [' '.join(([] if one_method and c['labels'] else [c['method']]) +
                      [f'{k}={v}' for k, v in c['labels'].items()]) for c in cells]
   scale = -(-MIN_TILE_WIDTH // rows[0][0].shape[1])
-  picture = vis.grid(rows, ['ground truth'] + titles, row_titles, scale=scale)
-  vis.save_picture(picture, path)
+  runs.save_picture(runs.grid(rows, ['ground truth'] + titles, row_titles, scale=scale), path)
 
 
 def _ground_truth(cell_path: str, cell: dict, count: int) -> Truth:
   """The first `count` test views the cell evaluated, loaded as its evaluation did (with exact depths where the
   scene has them)."""
-  import gin  # pylint: disable=import-outside-toplevel
-  from internal import config_loader, datasets  # pylint: disable=import-outside-toplevel
-  from internal.datasets import loader  # pylint: disable=import-outside-toplevel
-  from internal.evaluation import depth_metrics  # pylint: disable=import-outside-toplevel
-  with open(os.path.join(cell_path, 'cell_spec.json')) as f:
-    spec = json.load(f)
-  gin.clear_config()
-  config = config_loader.load_config(spec['gin_configs'], spec['gin_bindings'])
-  test_set = datasets.load_dataset('test', config, ground_truth=True)
-  ndc = loader.REGISTRY[loader.filed_as(config)[0]].ndc(config)
-  gin.clear_config()
-  with open(os.path.join(eval_dir(cell_path, cell['step']), 'metrics.json')) as f:
-    ids = [entry['id'] for entry in json.load(f)['per_image'][:count]]
-  at = {i: list(test_set.ids).index(i) for i in ids}
-  depths = {i: None if test_set.depths is None else np.asarray(test_set.depths[at[i]]) for i in ids}
-  return Truth({i: np.asarray(test_set.images[at[i]]) for i in ids}, depths,
-               lambda i, distance: depth_metrics.world_depth(test_set, at[i], distance, ndc))
+  with study_spec.cell_config(cell_path) as config:
+    views = runs.test_views(config)
+  metrics = cells_file.read_json(os.path.join(eval_dir(cell_path, cell['step']), cells_file.METRICS_FILE))
+  at = {i: views.ids.index(i) for i in [entry['id'] for entry in metrics['per_image'][:count]]}
+  depths = {i: None if views.depths is None else np.asarray(views.depths[k]) for i, k in at.items()}
+  return Truth({i: np.asarray(views.images[k]) for i, k in at.items()}, depths,
+               lambda i, distance: views.world_depth(at[i], distance))
 
 
 def checkout_path(path: str) -> str:
@@ -183,7 +169,7 @@ def _has_renders(cell_path: str, cell: dict) -> bool:
   """Whether a finished cell kept what a picture is drawn from (its settings and its evaluation's images); a
   cell.json copied in from an export has neither."""
   images = glob.glob(os.path.join(eval_dir(cell_path, cell['step']), 'color_*.png'))
-  return bool(images) and os.path.isfile(os.path.join(cell_path, 'cell_spec.json'))
+  return bool(images) and study_spec.has_cell_spec(cell_path)
 
 
 def _picture_cells(cells: List[dict], paths: Dict[str, str], seeds: list) -> List[dict]:

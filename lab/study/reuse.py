@@ -19,6 +19,7 @@ import os
 from typing import List, Optional
 
 from internal import atomic
+from internal import runs
 from tools import provenance
 from lab.study import cells_file
 from lab.study import export as study_export
@@ -70,25 +71,19 @@ def _same_settings(study, exported, cell, out: str, data_root: str) -> bool:
 
 def _fingerprint(configs: list, bindings: list) -> Optional[dict]:
   """The fingerprint of the Config that gin loads to (internal/run/run_dir.py), None when it does not load."""
-  import gin  # pylint: disable=import-outside-toplevel  (jax: only when the texts differ)
-  from internal import config_loader  # pylint: disable=import-outside-toplevel
-  from internal.run import run_dir  # pylint: disable=import-outside-toplevel
-  gin.clear_config()
   try:
-    return run_dir.fingerprint(config_loader.load_config(configs, bindings))
+    with runs.fresh_config(configs, bindings) as config:
+      return runs.fingerprint(config)
   except (ValueError, OSError, KeyError, TypeError):
     return None
-  finally:
-    gin.clear_config()
 
 
 def _place(entry: cells_file.Entry, target: str) -> None:
   """Writes an exported cell's files into the cell folder target as a finished run would have left them."""
-  from internal.evaluation import learning_curve  # pylint: disable=import-outside-toplevel  (jax: only when used)
   texts = cells_file.files(entry.line)
   evaluated = study_export.eval_dir(target, entry.line['record']['step'])
   os.makedirs(evaluated, exist_ok=True)
-  curve_folder = os.path.dirname(learning_curve.csv_path(os.path.join(target, study_export.RUN_SUBDIR)))
+  curve_folder = os.path.dirname(runs.curve_path(os.path.join(target, study_export.RUN_SUBDIR)))
   places = {cells_file.METRICS_FILE: evaluated, cells_file.METRICS_TABLE: evaluated, cells_file.CURVE_FILE: curve_folder}
   for name, folder in places.items():
     if name in texts:

@@ -44,6 +44,7 @@ from typing import Dict, List, Optional
 
 from internal import atomic
 from internal import cli
+from internal import runs
 from tools import provenance
 from lab.study import time_budgets
 from lab.study import cells_file
@@ -58,7 +59,6 @@ from lab.study import spec
 from lab.study import stats
 
 CELL_FILE = 'cell.json'
-SPEC_FILE = 'cell_spec.json'
 LOG_FILE = dispatch.LOG_FILE
 RUN_SUBDIR = export.RUN_SUBDIR  # The cell's run directory (Config.checkpoint_dir) inside its folder.
 RESULTS_FILE = 'results.csv'
@@ -88,12 +88,10 @@ def write_spec(study: spec.Study, cell: spec.Cell, out: str, data_root: str, ext
   """Writes <cell>/cell_spec.json (the cell's gin configs and bindings, labels), atomically and never for a
   finished cell (its spec records what ran); returns the cell folder."""
   path = cell_dir(study, cell, out)
-  configs, bindings = spec.cell_gin(study, cell, out, data_root, os.path.join(path, RUN_SUBDIR), extra_bindings)
   os.makedirs(path, exist_ok=True)
-  written = {'study': study.name, 'cell': cell.cell_id, 'method': cell.method, 'scene': cell.scene,
-             'labels': cell.labels(), 'gin_configs': configs, 'gin_bindings': bindings}
   if not os.path.isfile(os.path.join(path, CELL_FILE)):
-    atomic.write_text(os.path.join(path, SPEC_FILE), json.dumps(written, indent=1))
+    spec.write_cell_spec(path, study, cell, spec.cell_gin(study, cell, out, data_root, os.path.join(path, RUN_SUBDIR),
+                                                          extra_bindings))
   return path
 
 
@@ -101,23 +99,16 @@ def stale_cells(study: spec.Study, done: list, out: str, data_root: str, extra_b
   """{cell folder: the settings that differ} of the finished (cell, folder) pairs in done whose run trained with other
   settings than the study gives the cell now (a study or gin file edited after it ran), the precision aside (each
   machine resolves 'default' to its own); a cell taken from an export (--reuse) has no run to compare."""
-  import gin  # pylint: disable=import-outside-toplevel  (jax: only when cells have finished)
-  from internal import config_loader  # pylint: disable=import-outside-toplevel
-  from internal.run import run_dir  # pylint: disable=import-outside-toplevel
   stale = {}
   for cell, path in done:
-    stored = run_dir.read_fingerprint(os.path.join(path, RUN_SUBDIR))
+    stored = runs.read_fingerprint(os.path.join(path, RUN_SUBDIR))
     if stored is None:
       continue
-    gin.clear_config()
-    try:  # The model's settings (MLP.*, MipNerfModel.*) are read from gin: compared before it is cleared.
-      with warnings.catch_warnings():  # A setting's warnings are the cell's to print when it runs, not once a cell.
-        warnings.simplefilter('ignore')
-        config = config_loader.load_config(*spec.cell_gin(study, cell, out, data_root,
-                                                           os.path.join(path, RUN_SUBDIR), extra_bindings))
-      differences = run_dir.differences({**stored, 'Config.precision': config.precision}, config)
-    finally:
-      gin.clear_config()
+    gin = spec.cell_gin(study, cell, out, data_root, os.path.join(path, RUN_SUBDIR), extra_bindings)
+    with warnings.catch_warnings():  # A setting's warnings are the cell's to print when it runs, not once a cell.
+      warnings.simplefilter('ignore')
+      with runs.fresh_config(*gin) as config:  # The model's settings (MLP.*, ...) are read from gin, bound here.
+        differences = runs.differences({**stored, 'Config.precision': config.precision}, config)
     if differences:
       stale[path] = differences
   return stale
@@ -172,7 +163,7 @@ def _peak_memory() -> dict:
 def run_cell(path: str, job: str, stop=None) -> Optional[dict]:
   """Claims the cell in folder path for job (claim.Held if another job holds it), then trains (resuming) and
   evaluates it from its cell_spec.json and writes cell.json; None when another runner had finished it. stop: the
-  loop.StopFlag that training records its signals in (default: its own)."""
+  runs.stop_flag() that training records its signals in (default: its own)."""
   with claim.claimed(path, job):
     return None if read_cell(path) else _train_and_evaluate(path, stop)
 
@@ -180,26 +171,19 @@ def run_cell(path: str, job: str, stop=None) -> Optional[dict]:
 def _train_and_evaluate(path: str, stop) -> dict:
   """Trains (resuming; signals recorded in stop) and evaluates the cell in folder path from its cell_spec.json;
   writes cell.json."""
-  import gin  # pylint: disable=import-outside-toplevel
-  # pylint: disable=import-outside-toplevel
-  from internal.evaluation import evaluate
-  from internal.pipeline import loop
-  from internal.run import checkpoints
-  from internal.training import flops
   commit, changed = provenance.code_state(REPO)  # The code it starts with.
-  cell_spec, config = _cell_config(path)
-  try:
-    start_step = checkpoints.latest_step(config.checkpoint_dir)
-  except checkpoints.NoCheckpointError:
-    start_step = None
-  tic = time.perf_counter()
-  result = loop.train(config, stop=stop)
-  train_seconds = time.perf_counter() - tic
-  if result.signum is not None:
-    raise CellStopped(result.signum, int(result.state.step))
-  tic = time.perf_counter()
-  record = evaluate.existing_record(config) or evaluate.evaluate(config)
-  eval_seconds = time.perf_counter() - tic
+  cell_spec = spec.read_cell_spec(path)
+  with spec.cell_config(path) as config:
+    start_step = runs.latest_step(config.checkpoint_dir)
+    tic = time.perf_counter()
+    result = runs.train(config, stop)
+    train_seconds = time.perf_counter() - tic
+    if result.signum is not None:
+      raise CellStopped(result.signum, int(result.state.step))
+    tic = time.perf_counter()
+    record = runs.evaluate(config)
+    eval_seconds = time.perf_counter() - tic
+    gflops = runs.step_flops(config) / 1e9
   steps = config.max_steps - (start_step or 0)
   cell = {**{k: cell_spec[k] for k in ('study', 'cell', 'method', 'scene', 'labels')},
           'dataset': record['dataset'], 'record_scene': record['scene'], 'n_input_views': record['n_input_views'],
@@ -207,35 +191,23 @@ def _train_and_evaluate(path: str, stop) -> dict:
           'means': record['means'], 'resumed_from_step': start_step, 'steps_trained': steps,
           'train_seconds': train_seconds, 'eval_seconds': eval_seconds,
           'steps_per_sec': steps / train_seconds if steps else None,
-          'gflops_per_step': flops.train_step_flops(config) / 1e9, **_peak_memory(),
+          'gflops_per_step': gflops, **_peak_memory(),
           'commit': commit, 'changed_files': changed, 'machine': provenance.machine()}
   _publish(path, cell)
-  gin.clear_config()
   return cell
 
 
 def measure_cell(path: str) -> dict:
   """The estimated {'train', 'eval'} seconds of the cell in folder path, measured on this machine."""
-  config = _cell_config(path)[1]
-  return estimate.cell_seconds(config, estimate.measure(config))
-
-
-def _cell_config(path: str) -> tuple:
-  """(cell_spec.json's contents, the Config its gin files and bindings give) of the cell in folder path."""
-  import gin  # pylint: disable=import-outside-toplevel
-  from internal import config_loader  # pylint: disable=import-outside-toplevel
-  with open(os.path.join(path, SPEC_FILE)) as f:
-    cell_spec = json.load(f)
-  gin.clear_config()
-  return cell_spec, config_loader.load_config(cell_spec['gin_configs'], cell_spec['gin_bindings'])
+  with spec.cell_config(path) as config:
+    return estimate.cell_seconds(config, estimate.measure(config))
 
 
 def measured_estimates(paths: List[str]) -> List[tuple]:
   """(path, {'train', 'eval'} seconds) of each cell folder; one measuring process per distinct setting."""
   known, estimates = {}, []
   for path in paths:
-    with open(os.path.join(path, SPEC_FILE)) as f:
-      key = estimate.signature(json.load(f))
+    key = estimate.signature(spec.read_cell_spec(path))
     if key not in known:
       print(f'measuring {path} ...', flush=True)
       result = subprocess.run([sys.executable, '-m', 'lab.study', '--measure-cell', path], capture_output=True,
@@ -273,12 +245,10 @@ def _list(study: spec.Study, args) -> None:
 def _gpu_config(study: spec.Study, cell: spec.Cell, args):
   """The validated Config of a cell as a GPU runs it (Config.precision 'auto' is bfloat16 there; nothing is
   written)."""
-  import gin  # pylint: disable=import-outside-toplevel
-  from internal import config_loader  # pylint: disable=import-outside-toplevel
   run_dir = os.path.join(cell_dir(study, cell, args.out), RUN_SUBDIR)
-  gin.clear_config()
-  return config_loader.load_config(*spec.cell_gin(study, cell, args.out, args.data_root, run_dir,
-                                                  tuple(args.gin_bindings)), backend='gpu')
+  gin = spec.cell_gin(study, cell, args.out, args.data_root, run_dir, tuple(args.gin_bindings))
+  with runs.fresh_config(*gin, backend='gpu') as config:
+    return config
 
 
 def _worker_envs(jobs: int, gpus: Optional[str]) -> List[Dict[str, str]]:
@@ -329,12 +299,10 @@ def gather(study: spec.Study, out: str) -> List[dict]:
 
 def gather_curves(study: spec.Study, out: str) -> List[dict]:
   """Rows of the cells' learning curves (where recorded): per cell and curve step, its labels and values."""
-  from internal.evaluation import learning_curve  # pylint: disable=import-outside-toplevel  (imports jax)
   rows = []
   for cell in spec.cells(study):
-    path = learning_curve.csv_path(os.path.join(cell_dir(study, cell, out), RUN_SUBDIR))
-    rows += [{'method': cell.method, 'scene': cell.scene, **cell.labels(), **row}
-             for row in learning_curve.read_rows(path)]
+    path = runs.curve_path(os.path.join(cell_dir(study, cell, out), RUN_SUBDIR))
+    rows += [{'method': cell.method, 'scene': cell.scene, **cell.labels(), **row} for row in runs.read_curve(path)]
   return rows
 
 
@@ -499,8 +467,7 @@ def _run_one_cell(path: str, job: Optional[str]) -> int:
   the claim's stop request, the runner and the user may all ask) are ignored while the cell saves, releases its
   claim and exits.
   """
-  from internal.pipeline import loop  # pylint: disable=import-outside-toplevel  (jax: the cell process only)
-  stop = loop.StopFlag()
+  stop = runs.stop_flag()
   for signum in (signal.SIGINT, signal.SIGTERM):
     signal.signal(signum, stop.raise_unless_stopped)
   dispatch.stop_with_runner()

@@ -32,14 +32,18 @@ they were read, increasing, the last the study's count (default: [count], the se
 runner adds the looks it recorded itself (lab/study/looks.py) and corrects every interval for their number.
 """
 
+import contextlib
 import dataclasses
 import itertools
+import json
+import os
 import pathlib
 import string
 import tomllib
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, Iterator, List, Optional, Tuple
 
-from internal.evaluation import metric_registry
+from internal import atomic
+from internal import runs
 
 # Axis named VIEWS_AXIS is the tables' view count: it stays out of Config.expname (the tables' method column).
 REPO = str(pathlib.Path(__file__).resolve().parents[2])  # The repository: studies/, configs/, results/.
@@ -50,7 +54,10 @@ SEED_BINDINGS = ('Config.jax_rng_seed', 'Config.np_rng_seed')
 # Recorded per-cell numbers that can serve as a plot's x besides the axes.
 RECORDED_X = ('train_seconds', 'eval_seconds', 'steps_per_sec', 'gflops_per_step', 'peak_rss_mb')
 # Metrics where lower is better (the Pareto front keeps the low ones).
-LOWER_IS_BETTER = metric_registry.lower_is_better()
+LOWER_IS_BETTER = runs.lower_is_better()
+# In a cell's folder: the cell's gin configs and bindings and its labels, written before it runs (this module
+# writes and reads it, the one place that knows its form).
+CELL_SPEC_FILE = 'cell_spec.json'
 
 
 class StudyError(ValueError):
@@ -449,3 +456,39 @@ def cell_gin(study: Study, cell: Cell, out: str, data_root: str, run_dir: str,
   bindings = fill(study.bindings + method.bindings + scene + tuple(b for p in points for b in p.bindings))
   return configs, bindings + list(extra_bindings) + [f'Config.expname = {cell.expname!r}', f'Config.checkpoint_dir = {run_dir!r}']
 
+
+def write_cell_spec(folder: str, study: Study, cell: Cell, gin: Tuple[List[str], List[str]]) -> None:
+  """Writes <folder>/cell_spec.json, atomically: the study, cell, method, scene and labels, and its gin (configs,
+  bindings)."""
+  written = {'study': study.name, 'cell': cell.cell_id, 'method': cell.method, 'scene': cell.scene,
+             'labels': cell.labels(), 'gin_configs': gin[0], 'gin_bindings': gin[1]}
+  atomic.write_text(os.path.join(folder, CELL_SPEC_FILE), json.dumps(written, indent=1))
+
+
+def has_cell_spec(folder: str) -> bool:
+  """Whether a cell's folder holds its cell_spec.json (a cell taken from an export has none)."""
+  return os.path.isfile(os.path.join(folder, CELL_SPEC_FILE))
+
+
+def read_cell_spec(folder: str) -> dict:
+  """The cell_spec.json of a cell's folder; ValueError naming the file when it is missing or not one."""
+  path = os.path.join(folder, CELL_SPEC_FILE)
+  try:
+    with open(path) as f:
+      found = json.load(f)
+  except FileNotFoundError:
+    raise ValueError(f'{path}: does not exist; expected the cell_spec.json that lab.study writes into a cell\'s '
+                     'folder before it runs (a cell taken from an export has none)') from None
+  except (UnicodeDecodeError, json.JSONDecodeError) as e:
+    raise ValueError(f'{path}: not valid JSON ({e}); expected the cell_spec.json that lab.study writes') from None
+  if not isinstance(found, dict) or not {'gin_configs', 'gin_bindings'} <= set(found):
+    raise ValueError(f'{path}: expected an object with "gin_configs" and "gin_bindings", as lab.study writes')
+  return found
+
+
+@contextlib.contextmanager
+def cell_config(folder: str) -> Iterator[runs.Config]:
+  """runs.fresh_config of the gin a cell's folder records (its cell_spec.json)."""
+  found = read_cell_spec(folder)
+  with runs.fresh_config(found['gin_configs'], found['gin_bindings']) as config:
+    yield config
