@@ -26,16 +26,11 @@ import json
 import os
 import sys
 
-import gin
 import matplotlib.figure
 import numpy as np
 
 from internal import cli
-from internal import config_loader
-from internal import datasets
-from internal.cameras import alignment
-from internal.evaluation import camera_evaluation
-from internal.run import camera_export
+from internal import runs
 from tools import provenance
 from tools.capture import picture
 
@@ -53,21 +48,20 @@ def run_name(run_dir: str) -> str:
 def run_cameras(run_dir: str) -> dict:
   """{'reference', 'given', 'refined'}: [N,3,4] cameras of a run's training views, the given and refined ones
   carried onto the reference by their best similarity; 'distance': the reference's camera distance; 'forward'."""
-  path = os.path.join(run_dir, camera_export.FOLDER, 'cameras.json')
+  path = runs.cameras_file(run_dir)
   if not os.path.isfile(path):
     raise ValueError(f'{path!r} does not exist: {run_dir!r} is not a run that refined its cameras '
                      '(Config.optimize_cameras) or has not finished training')
   with open(path) as f:
     record = json.load(f)
-  gin.clear_config()  # Each run's own settings, not the previous run's.
-  config = config_loader.load_config([os.path.join(run_dir, 'config.gin')], [])
-  train_set = datasets.load_dataset('train', config)
-  reference, distance, _ = camera_evaluation.reference_cameras(config, train_set)
+  with runs.run_config(run_dir) as config:  # Each run's own settings, not the previous run's.
+    train_set = runs.training_views(config)
+    reference, distance, _ = runs.reference_cameras(config, train_set)
   cameras = {'reference': reference, 'distance': distance, 'opengl': record['axes'] == 'OpenGL',
              'forward': bool(train_set.space.ndc_focal)}
   for name in ('given', 'refined'):
     c2w = np.array(record[name])
-    cameras[name] = alignment.fit(c2w, reference).cameras(c2w)
+    cameras[name] = runs.similarity(c2w, reference).cameras(c2w)
   return cameras
 
 
@@ -91,7 +85,7 @@ def draw(path: str, cameras: dict, title: str) -> None:
   axes[0].legend(loc='upper right', fontsize=8)
   views = np.arange(len(reference))
   for offset, (name, colour, _, legend) in zip((-.2, .2), SETS[1:]):
-    values = alignment.errors(cameras[name], reference, cameras['distance'])['rotation_deg']
+    values = runs.camera_errors(cameras[name], reference, cameras['distance'])['rotation_deg']
     axes[2].bar(views + offset, values, width=.4, color=colour, label=legend)
   axes[2].set_xlabel('training view')
   axes[2].set_ylabel('rotation error (degrees)')
@@ -104,7 +98,7 @@ def errors_title(name: str, cameras: dict) -> str:
   """The picture's title: the run and the median rotation and translation errors before and after."""
   parts = []
   for label in ('given', 'refined'):
-    values = alignment.errors(cameras[label], cameras['reference'], cameras['distance'])
+    values = runs.camera_errors(cameras[label], cameras['reference'], cameras['distance'])
     parts.append(f'{label} {np.median(values["rotation_deg"]):.2f} deg, {np.median(values["translation"]):.3f}')
   return f'{name}: median errors against the reference, ' + '; '.join(parts) + ' (of the camera distance)'
 
@@ -148,10 +142,10 @@ def targets(rows: list, axis: str, clean: str, noisy: str, baseline: str) -> lis
   return sorted(out)
 
 
-def check_runs(runs: list) -> None:
+def check_runs(run_dirs: list) -> None:
   """ValueError naming two --runs whose pictures would have the same name (the second would replace the first)."""
   seen = {}
-  for run_dir in runs:
+  for run_dir in run_dirs:
     name = run_name(run_dir)
     if name in seen:
       raise ValueError(f'--runs {seen[name]!r} and {run_dir!r} are both named {name!r} (a study cell\'s folder, or '

@@ -21,9 +21,7 @@ from PIL import Image
 
 from bench import step_variants
 from internal import cli
-from internal.datasets import image_io
-from internal.datasets import packed
-from internal.evaluation import vis
+from internal import runs
 
 PAPER_DTU_STEPS = 43945
 VIEWS_IN_PICTURE = 3
@@ -95,14 +93,13 @@ def write_truth(packed_scene: str, out_dir: str) -> int:
   """Writes the ground truth of the test views that the runs' renders show (test_preds_<run>/color_<id>.png), read
   from the packed scene they were evaluated on (downsampled to the renders' size, as an eval_factor does), as
   out_dir/test_truth/color_<id>.png; returns how many."""
-  meta, arrays = packed.read_pack(packed_scene)
-  ids, images = meta['splits']['test']['ids'], packed.decode(arrays, 'test/images')
+  ids, images = runs.pack_test_views(packed_scene)
   renders = {os.path.basename(p): p for p in glob.glob(os.path.join(out_dir, 'test_preds_*', 'color_*.png'))}
   os.makedirs(os.path.join(out_dir, TRUTH_FOLDER), exist_ok=True)
   for name, render in sorted(renders.items()):
     truth = images[ids.index(_view_id(name))]
     factor = truth.shape[0] // _image(render).shape[0]
-    vis.save_png(image_io.downsample(truth, factor, 'released'), os.path.join(out_dir, TRUTH_FOLDER, name))
+    runs.save_png(runs.downsample(truth, factor), os.path.join(out_dir, TRUTH_FOLDER, name))
   return len(renders)
 
 
@@ -117,24 +114,24 @@ def _image(path: str) -> np.ndarray:
     return np.asarray(image.convert('RGB'), np.float32) / 255.
 
 
-def picture(out_dir: str, runs) -> str:
+def picture(out_dir: str, run_names) -> str:
   """test_views.png: a column per pictured test view (the first run's first views, by id), a row of their ground
   truth (test_truth/, write_truth) and per run a colour and a depth row, every row and column labelled; '' when no
   run has views."""
-  rendered = [sorted(glob.glob(os.path.join(out_dir, f'test_preds_{run}', 'color_*.png'))) for run in runs]
+  rendered = [sorted(glob.glob(os.path.join(out_dir, f'test_preds_{run}', 'color_*.png'))) for run in run_names]
   names = [os.path.basename(p) for p in next((r for r in rendered if r), [])][:VIEWS_IN_PICTURE]
   if not names:
     return ''
   truth = [os.path.join(out_dir, TRUTH_FOLDER, n) for n in names]
   tiles, rows = ([[_image(p) for p in truth]], ['ground truth']) if all(map(os.path.isfile, truth)) else ([], [])
-  for run in runs:
+  for run in run_names:
     folder = os.path.join(out_dir, f'test_preds_{run}')
     if all(os.path.isfile(os.path.join(folder, n)) for n in names):
       tiles += [[_image(os.path.join(folder, n.replace('color_', kind))) for n in names] for kind in KINDS]
       rows += [f'{run} {label}' for label in KINDS.values()]
   path = os.path.join(out_dir, 'test_views.png')
   columns = [f'test view {_view_id(n)}' for n in names]
-  vis.save_picture(vis.grid(tiles, columns, rows, scale=1), path)
+  runs.save_picture(runs.grid(tiles, columns, rows, scale=1), path)
   return path
 
 

@@ -7,7 +7,7 @@ import math
 import os
 from typing import List, Sequence, Tuple
 
-from internal.evaluation import vis
+from internal import runs
 from lab.study import spec as study_spec
 from lab.study import stats as study_stats
 
@@ -64,7 +64,7 @@ def plot(study: study_spec.Study, rows: List[dict], x: str, metric: str, path: s
   if study.has_seeds and x != study_spec.SEED_AXIS:
     fig, ax = _seed_figure(lines, joined=positions is not None)
   else:
-    fig, ax = vis.line_figure(lines, joined=positions is not None and x != study_spec.SEED_AXIS)
+    fig, ax = runs.line_figure(lines, joined=positions is not None and x != study_spec.SEED_AXIS)
   for curve in study.paper:
     if curve.metric == metric and curve.x == x:
       ax.plot(*zip(*curve.points), marker='x', linestyle='--', color='black',
@@ -75,13 +75,13 @@ def plot(study: study_spec.Study, rows: List[dict], x: str, metric: str, path: s
     ax.scatter(*zip(*front), s=120, facecolors='none', edgecolors='red')
   if ticks:
     ax.set_xticks(range(len(ticks)), ticks, rotation=20)
-  vis.save_figure(fig, ax, x, metric, f'{study.name}: {metric} vs {x}', path)
+  runs.save_figure(fig, ax, x, metric, f'{study.name}: {metric} vs {x}', path)
   return True
 
 
 def _seed_figure(lines: dict, joined: bool) -> tuple:
   """(figure, axes): per line the mean over seeds at each x with +-1 std error bars, and every seed as a dot."""
-  fig, ax = vis.line_figure({})
+  fig, ax = runs.line_figure({})
   for name, points in lines.items():
     xs = sorted({px for px, _ in points})
     groups = [study_stats.spread([py for px, py in points if px == x]) for x in xs]
@@ -97,7 +97,7 @@ def comparison_plot(study: study_spec.Study, comparisons, metric: str, path: str
   red: undecided); False when none."""
   if not comparisons:
     return False
-  fig, ax = vis.line_figure({})
+  fig, ax = runs.line_figure({})
   for i, c in enumerate(comparisons):
     undecided = c.verdict.startswith(study_stats.UNDECIDED)
     color = 'red' if undecided else 'black'
@@ -111,7 +111,7 @@ def comparison_plot(study: study_spec.Study, comparisons, metric: str, path: str
   ax.set_ylim(-.6, len(comparisons) - .2)
   if any(c.verdict.startswith(study_stats.UNDECIDED) for c in comparisons):
     ax.plot([], [], color='red', label=f'{study_stats.UNDECIDED}: no difference shown')
-  vis.save_figure(fig, ax, f'a - b: paired mean, {study_stats.level_text(comparisons[0].level)} interval', '',
+  runs.save_figure(fig, ax, f'a - b: paired mean, {study_stats.level_text(comparisons[0].level)} interval', '',
                   f'{study.name}: {metric}, paired', path)
   return True
 
@@ -144,7 +144,7 @@ def write_curve_plots(study: study_spec.Study, curve_rows: List[dict], out_dir: 
       path = os.path.join(out_dir, f'{metric}_vs_step.png')
       fig, ax = curve_figure(study, lines)
       scored = 'training cameras' if metric in CAMERA_CURVE_METRICS else 'learning-curve views'
-      vis.save_figure(fig, ax, 'training step', f'{metric} ({scored})',
+      runs.save_figure(fig, ax, 'training step', f'{metric} ({scored})',
                       f'{study.name}: {metric} vs step', path)
       written.append(path)
   return written
@@ -153,4 +153,4 @@ def write_curve_plots(study: study_spec.Study, curve_rows: List[dict], out_dir: 
 def curve_figure(study: study_spec.Study, lines: dict) -> tuple:
   """(figure, axes) of learning curves {line: [(step, value)]}: with seeds a line's mean over them, each seed a
   dot (one line through every seed's points would zigzag at each step)."""
-  return _seed_figure(lines, joined=True) if study.has_seeds else vis.line_figure(lines)
+  return _seed_figure(lines, joined=True) if study.has_seeds else runs.line_figure(lines)

@@ -15,7 +15,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from internal.evaluation import vis
+from internal import runs
 from lab.study import plots as study_plots
 from lab.study import spec as study_spec
 from lab.study import stats as study_stats
@@ -121,7 +121,7 @@ def curve_plot(study: study_spec.Study, curve_rows: List[dict], metric: str, pat
   end = max(s for seeds in curves.values() for c in seeds.values() for s, _ in c)
   grid = np.linspace(0., end, 200)
   means = {setting: mean_curve(seeds, grid) for setting, seeds in curves.items()}
-  fig, ax = vis.line_figure({f'{s} (mean of {len(curves[s])})': m for s, m in means.items() if m})
+  fig, ax = runs.line_figure({f'{s} (mean of {len(curves[s])})': m for s, m in means.items() if m})
   for line, setting in zip(ax.get_lines(), [s for s, m in means.items() if m]):
     line.set_marker('')
     for curve in curves[setting].values():
@@ -130,7 +130,7 @@ def curve_plot(study: study_spec.Study, curve_rows: List[dict], metric: str, pat
   if front:
     ax.plot(*zip(*front), color='black', linestyle='--', linewidth=1., label='front of the means',
             drawstyle='steps-post')
-  vis.save_figure(fig, ax, 'training seconds', f'{metric} (learning-curve views)',
+  runs.save_figure(fig, ax, 'training seconds', f'{metric} (learning-curve views)',
                   f'{study.name}: {metric} against training time', path)
   return True
 
