@@ -25,13 +25,11 @@ import numpy as np
 from PIL import Image
 
 from internal import cli
-from internal.evaluation import learning_curve
-from internal.run import checkpoints
-from internal.evaluation import vis
+from internal import runs
 from lab.ledger import window as ledger_lib
 from tools import tables
 
-CURVE, MODEL, MONTAGE = learning_curve.CSV_FILE, 'model.npz', 'test_views.png'
+CURVE, MODEL, MONTAGE = runs.CURVE_FILE, 'model.npz', 'test_views.png'
 VARIANT_LOGS = ('step_variants.log', 'regnerf_step.log', 'fused_tests.log')
 
 
@@ -68,7 +66,7 @@ def commit_variants(results: str, scratch: str, window: dict) -> None:
 def _clock(run_dir: str) -> dict:
   """The learning curve's clock at the newest checkpoint ({'seconds', 'compile_seconds'}, zeros without one)."""
   zero = {'seconds': 0., 'compile_seconds': 0.}
-  return ledger_lib.read_json(os.path.join(run_dir, learning_curve.CLOCK_FILE), zero)
+  return ledger_lib.read_json(os.path.join(run_dir, runs.CLOCK_FILE), zero)
 
 
 def _stage_seconds(scratch: str, names):
@@ -77,13 +75,6 @@ def _stage_seconds(scratch: str, names):
   rows = [line.split('\t') for line in open(path).read().splitlines()] if os.path.isfile(path) else []
   ran = [int(row[2]) for row in rows if row[0] in names and row[1] != 'skipped']
   return sum(ran) if ran else None
-
-
-def _restored(run_dir: str, step: int) -> dict:
-  """The tree of a run folder's checkpoint at step, as saved (no template needed)."""
-  import orbax.checkpoint as ocp  # pylint: disable=import-outside-toplevel
-  return ocp.StandardCheckpointer().restore(os.path.abspath(os.path.join(run_dir, checkpoints.CHECKPOINT_SUBDIR,
-                                                                         str(step), checkpoints.ITEM)))
 
 
 def verify_checkpoint(run_dir: str, step: Optional[int], tar: str) -> None:
@@ -103,7 +94,7 @@ def verify_checkpoint(run_dir: str, step: Optional[int], tar: str) -> None:
   if step is None:
     return
   try:
-    bad = checkpoints.nonfinite_leaves(_restored(run_dir, step))
+    bad = runs.nonfinite_leaves(runs.saved_tree(run_dir, step))
   except Exception as err:  # pylint: disable=broad-except  (orbax and tensorstore raise bare Exceptions)
     raise ValueError(f'{refused} checkpoint step {step} does not restore ({cli.one_line(err)[:300]})') from err
   if bad:
@@ -119,7 +110,7 @@ def extract_run(run: ledger_lib.Run, folder: str, scratch: str, results: str) ->
   tar = os.path.join(folder, f'run_{run.name}.tar.gz')
   run_dir = os.path.join(scratch, run.name)
   ledger_lib.safe_extract(tar, run_dir)
-  committed, newest = ledger_lib.state(results, run), ledger_lib.newest_step(run_dir)
+  committed, newest = ledger_lib.state(results, run), runs.latest_step(run_dir)
   verify_checkpoint(run_dir, newest, tar)
   if (newest or 0) < committed['step']:
     raise ValueError(f'{tar!r} holds {run.name} at step {newest or 0}, older than the committed step '
@@ -133,7 +124,7 @@ def extract_run(run: ledger_lib.Run, folder: str, scratch: str, results: str) ->
 
 def save_model(run_dir: str, step: int, path: str) -> None:
   """The parameters of a run folder's checkpoint at step as an .npz, keys '/'-joined (e.g. 'mlp/Dense_0/kernel')."""
-  tree = _restored(run_dir, step)
+  tree = runs.saved_tree(run_dir, step)
   flat = {}
   def visit(prefix, node):
     for key, value in node.items():
@@ -161,11 +152,11 @@ def plot_curve(run: ledger_lib.Run, rows: list, windows: list, path: str) -> Non
   minutes = lambda seconds, compile_seconds: (seconds - (compile_seconds or 0.)) / 60
   lines = {name: [(minutes(r['seconds'], r.get('compile_seconds')), r[name]) for r in rows if r.get(name) is not None]
            for name in ('psnr', 'psnr_masked')}
-  fig, ax = vis.line_figure({k: v for k, v in lines.items() if v})
+  fig, ax = runs.line_figure({k: v for k, v in lines.items() if v})
   ax.axhline(ledger_lib.paper_value(run), color='grey', linestyle='--', label=f"paper's mean {run.metric}")
   for window in windows:
     ax.axvline(minutes(window['seconds_total'], window['compile_seconds_total']), color='grey', linestyle=':')
-  vis.save_figure(fig, ax, f'minutes of steps on one {windows[-1]["device"]} (windows dotted)', 'test PSNR (dB)',
+  runs.save_figure(fig, ax, f'minutes of steps on one {windows[-1]["device"]} (windows dotted)', 'test PSNR (dB)',
                   f'{run.name}: {run.steps:,} steps', path)
 
 
@@ -207,7 +198,7 @@ def commit_run(ledger, run: ledger_lib.Run, folder: str, scratch: str, results: 
   elif newest is not None:  # A folder without a checkpoint (cut before its first) would pin its settings: left out.
     shutil.copy(tar, os.path.join(here, ledger_lib.CHECKPOINT))
   ledger_lib.write_json(os.path.join(here, ledger_lib.STATE), new)
-  rows = learning_curve.read_rows(os.path.join(here, CURVE))
+  rows = runs.read_curve(os.path.join(here, CURVE))
   if rows:
     plot_curve(run, rows, new['windows'], os.path.join(here, 'learning_curve.png'))
   write_readme(ledger, run, new, os.path.join(here, 'README.md'))
@@ -279,48 +270,30 @@ def unpack(ledger, folder: str, results: str) -> None:
   with tempfile.TemporaryDirectory() as scratch:
     window = _window(folder, scratch)
     done = ledger_lib.read_json(os.path.join(scratch, 'window', 'outcomes.json'), {})
-    runs = {run.name: run for run in ledger.runs}
+    by_name = {run.name: run for run in ledger.runs}
     steps = {}
     for name in done:  # Every tar extracted and verified before anything is committed.
       if not os.path.isfile(os.path.join(folder, f'run_{name}.tar.gz')):
         print(f'{name}: no run_{name}.tar.gz came back; its committed checkpoint stays')
         continue
-      steps[name] = extract_run(runs[name], folder, scratch, results)
+      steps[name] = extract_run(by_name[name], folder, scratch, results)
     commit_variants(results, scratch, window)
     for name, newest in steps.items():
-      commit_run(ledger, runs[name], folder, scratch, results, window, done[name], newest)
+      commit_run(ledger, by_name[name], folder, scratch, results, window, done[name], newest)
   write_overview(ledger, results)
   print(f'Now: git add {results} && git commit')
 
 
 def model_run_dir(ledger, name: str, results: str, data: str, into: str) -> None:
   """`model`: a finished run's model.npz as a run folder (checkpoint at its last step, fresh optimizer moments)."""
-  import gin  # pylint: disable=import-outside-toplevel
-  import jax  # pylint: disable=import-outside-toplevel
-  from jax import random  # pylint: disable=import-outside-toplevel
-  from internal import config_loader, datasets  # pylint: disable=import-outside-toplevel
-  from internal.run import checkpoints, run_dir  # pylint: disable=import-outside-toplevel
-  from internal.training import train_step  # pylint: disable=import-outside-toplevel
   run = next(r for r in ledger.runs if r.name == name)
   record = ledger_lib.state(results, run)
   path = os.path.join(results, name, MODEL)
   if not os.path.isfile(path):
     raise FileNotFoundError(f'{path!r} does not exist: {name} is not evaluated yet (step {record["step"]:,})')
-  gin.clear_config()
-  config = config_loader.load_config([run.gin], ledger_lib.train_bindings(ledger, run, data, into,
-                                                                          record.get('variant_bindings', [])))
-  rays = jax.tree.map(lambda x: x[0, 0, :8], datasets.load_dataset('train', config).rays)  # As eval's template.
-  _, state = train_step.create_train_state(config, random.PRNGKey(config.jax_rng_seed), rays)
-  with np.load(path) as stored:
-    flat = dict(stored)
-  params = jax.tree_util.tree_map_with_path(lambda p, x: flat.pop('/'.join(k.key for k in p)).astype(x.dtype),
-                                            state.params)
-  run_dir.record_settings(run_dir.prepare_run_dir(config), config)
-  mngr = checkpoints.manager(into, 1)
-  checkpoints.save(mngr, state.replace(params=params, step=np.asarray(run.steps, np.asarray(state.step).dtype)))
-  mngr.wait_until_finished()
-  mngr.close()
   bindings = ledger_lib.train_bindings(ledger, run, data, into, record.get('variant_bindings', []))
+  with np.load(path) as stored, runs.fresh_config([run.gin], bindings) as config:
+    runs.write_model_run(config, dict(stored), run.steps)
   print(f'{into}: {name} at step {run.steps:,}, for evaluation and rendering (its optimizer moments are fresh: not '
         'for training on). Evaluate it with:\n' + cli.quoted(['python', 'eval.py', f'--gin_configs={run.gin}',
                                                               '--gin_bindings', *bindings]))

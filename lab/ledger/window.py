@@ -28,6 +28,7 @@ import zlib
 from typing import Optional, Tuple
 
 from internal import cli
+from internal import runs
 from tools import tables
 
 ROOT = cli.REPOSITORY
@@ -103,11 +104,11 @@ def load(path: str = LEDGER) -> Ledger:
       spec = tomllib.load(f)
   except (OSError, tomllib.TOMLDecodeError) as err:
     raise ValueError(f'ledger {path!r}: {err}; expected a TOML file like lab/ledger/ledger.toml') from err
-  packs, runs = _packs(spec, path), {}
+  packs, named = _packs(spec, path), {}
   for i, table in enumerate(spec.get('run', [])):
     where = f'ledger {path!r}, run {i + 1}'
     name = _require(table, 'name', str, where)
-    parent = runs.get(table.get('follow_up_of'))
+    parent = named.get(table.get('follow_up_of'))
     base = {**dataclasses.asdict(parent), 'paper': list(parent.paper)} if parent else {}
     if table.get('follow_up_of') and not parent:
       raise ValueError(f"{where}: follow_up_of = {table['follow_up_of']!r}; expected a run named before it")
@@ -116,13 +117,13 @@ def load(path: str = LEDGER) -> Ledger:
       _require(fields, field, kind, where)
     if fields['pack'] not in packs:
       raise ValueError(f"{where}: pack = {fields['pack']!r}; expected one of the [pack.*] tables {sorted(packs)}")
-    if name in runs:
+    if name in named:
       raise ValueError(f'{where}: a second run named {name!r}')
-    runs[name] = Run(**{**fields, 'paper': tuple(fields['paper']), 'bindings': tuple(fields.get('bindings', ()))})
-  if not runs:
+    named[name] = Run(**{**fields, 'paper': tuple(fields['paper']), 'bindings': tuple(fields.get('bindings', ()))})
+  if not named:
     raise ValueError(f'ledger {path!r}: no [[run]]; expected the runs in order')
   where = f'ledger {path!r}'
-  return Ledger(path, tuple(runs.values()), packs, _require(spec, 'curve_every', int, where),
+  return Ledger(path, tuple(named.values()), packs, _require(spec, 'curve_every', int, where),
                 _require(spec, 'checkpoint_every', int, where), float(_require(spec, 'seed_spread_db', float, where)),
                 _require(spec, 'variants_seconds', int, where), tuple(_require(spec, 'variants', list, where)))
 
@@ -228,8 +229,7 @@ def pack_path(ledger: Ledger, run: Run, data: str) -> str:
 
 def test_views(pack: str) -> int:
   """How many test views a pack holds."""
-  from internal.datasets import packed  # pylint: disable=import-outside-toplevel
-  return len(packed.read_pack(pack)[0]['splits']['test']['ids'])
+  return len(runs.pack_test_views(pack)[0])
 
 
 def train_bindings(ledger: Ledger, run: Run, data: str, run_dir: str, variant_bindings) -> list:
@@ -338,7 +338,7 @@ def retry_base(ledger: Ledger, work: str, data: str) -> bool:
   name = next((n for n, o in done.items() if not o['packed']), None)
   if name is None or done[name]['from_step'] or done[name]['variant'] == 'base':
     return False
-  trained = newest_step(os.path.join(work, 'runs', name))
+  trained = runs.latest_step(os.path.join(work, 'runs', name))
   if trained is not None:
     print(f"{name}: training with variant {done[name]['variant']} failed after its checkpoint at step {trained:,}; "
           'no retry with base, which would drop those steps: they are packed as they are')
@@ -433,15 +433,6 @@ def _keep(member: tarfile.TarInfo, step: Optional[int]) -> bool:
   return not (parts[0] == 'checkpoints' and len(parts) > 1 and parts[1] != str(step))
 
 
-def newest_step(run_dir: str) -> Optional[int]:
-  """The newest intact checkpoint step of a run folder, None without one."""
-  from internal.run import checkpoints  # pylint: disable=import-outside-toplevel
-  try:
-    return checkpoints.latest_step(run_dir)
-  except checkpoints.NoCheckpointError:
-    return None
-
-
 def _sha256(path: str) -> str:
   """The SHA-256 of a file's bytes, in hex."""
   digest = hashlib.sha256()
@@ -482,7 +473,7 @@ def pack(ledger: Ledger, name: str, work: str, out: str) -> None:
   if not os.path.isdir(run_dir):
     raise FileNotFoundError(f'{run_dir!r} does not exist; expected the run folder `python -m lab.ledger next` '
                             f'made for {name} (nothing written to {out!r})')
-  step = newest_step(run_dir)
+  step = runs.latest_step(run_dir)
   sums = {} if step is None else {SUMS: json.dumps({'step': step, 'sha256': checkpoint_sums(run_dir, step)},
                                                    indent=1).encode()}
   sizes = {f'run_{name}.tar.gz': _tar(os.path.join(out, f'run_{name}.tar.gz'), run_dir, lambda m: _keep(m, step),
