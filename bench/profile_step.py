@@ -3,7 +3,7 @@
 Usage: python -m bench.profile_step [--scales demo,mini,paper] [--repeats 7] [--profile_steps 5] [--out FILE]
 
 Each scale is a gin setting of this project with random rays of its batch size (no data needed):
-  demo   the demo's FreeNeRF (configs/demo.gin + demo_forward.gin: NeRF 4 x 64, 32 + 32 samples, 512 rays);
+  demo   the demo's FreeNeRF (configs/demo.gin + demo_forward.gin: NeRF 4 x 64, 16 + 32 samples, 512 rays);
   mini   the CPU mini protocol's DTU FreeNeRF (configs/mini/dtu3_freenerf.gin: mip-NeRF 4 x 128, 2 x 32, 512 rays);
   paper  the paper's DTU FreeNeRF (configs/freenerf/dtu3_freenerf.gin: 8 x 256, 2 x 128 samples; batch 256).
 Per scale, interleaved with two matmuls in the same run: the median step time, XLA's flop count of the compiled

@@ -10,8 +10,8 @@ A machine kind is the instruction set XLA compiles for (environment.cpu_isa: AVX
 agree to the last digit only within a kind, so each kind has its own folder <out>/<kind>/ (XLA_FLAGS=
 --xla_cpu_max_isa=AVX2 records the AVX2 kind's digits on an AVX-512 machine, its times then being this machine's).
 Writes <out>/<kind>/seed_<seed>.json (the metrics, each method's learning curve (test PSNR of the curve views against
-the step, as demo_curves.png draws it), the commands and their seconds, provenance: commit, machine, date and this
-command), then <out>/<kind>/summary.json and README.md over every seed_*.json there: per seed and over the seeds
+the step, as demo_curves.png draws it), the commands and their seconds, the load average before and after the demo
+(other jobs on the machine slow it), provenance: commit, machine, date and this command), then <out>/<kind>/summary.json and README.md over every seed_*.json there: per seed and over the seeds
 (mean, standard deviation, range) each method's PSNR, SSIM, LPIPS and depth error, FreeNeRF's lead, the all-views
 PSNR and the wall times; and <out>/README.md, one line per kind. Before any work, the seeds are checked (whole
 numbers, each once, seeds jax and numpy take), and a seed already recorded for this kind is refused, as is a work
@@ -98,13 +98,15 @@ def run_seed(seed: int, work: str, extra=()) -> dict:
   cwd = os.path.join(work, f'seed_{seed}')
   os.makedirs(cwd)
   cmds, log = commands(seed, extra), os.path.join(cwd, 'log.txt')
+  load_before = os.getloadavg()[0]  # Other jobs on the machine: the wall times say little beside a high load.
   demo_seconds = run_timed([cmds['demo']], cwd, log)
+  load = [round(load_before, 2), round(os.getloadavg()[0], 2)]
   all_views_seconds = run_timed(cmds['all_views'], cwd, log)
   cfgs = demo.method_configs(extra)
   step = cfgs['FreeNeRF'].max_steps
   runs = {name: os.path.join(cwd, cfg.checkpoint_dir) for name, cfg in cfgs.items()}
   return {'seed': seed, 'step': step,
-          'demo': {'command': shown(cmds['demo']), 'seconds': demo_seconds,
+          'demo': {'command': shown(cmds['demo']), 'seconds': demo_seconds, 'load_average': load,
                    'means': {name: means(run, step) for name, run in runs.items()},
                    'learning_curves': {name: learning_curve.read_rows(learning_curve.csv_path(run))
                                        for name, run in runs.items()}},
@@ -166,8 +168,14 @@ def readme(records: list, table: dict, kind: str) -> str:
   for stat in ('mean', 'std', 'min', 'max'):
     lines.append(f'| {stat} | ' + ' | '.join(_cell(table['over_seeds'][n][stat], n) for n in names) + ' |')
   lines += ['', 'Measured on:', '']
-  lines += [f'- seed {r["seed"]}: {where(r)}; `{r["provenance"]["command"]}`' for r in records]
+  lines += [f'- seed {r["seed"]}: {where(r)}{_load(r)}; `{r["provenance"]["command"]}`' for r in records]
   return '\n'.join(lines) + '\n'
+
+
+def _load(record: dict) -> str:
+  """The 1-minute load average before and after the demo ran, in words ('' where not recorded)."""
+  load = record['demo'].get('load_average')
+  return f', load average {load[0]} before and {load[1]} after the demo' if load else ''
 
 
 def where(record: dict) -> str:

@@ -30,7 +30,7 @@ def test_a_scale_reports_consistent_figures(tmp_path):
   report = json.loads(out.read_text())['scales']['demo']
   assert report['achieved_gflops'] == pytest.approx(report['step_gflop'] / report['step_ms'] * 1e3)
   assert report['of_matmul_bench'] == pytest.approx(report['achieved_gflops'] / report['matmul_bench_gflops'])
-  assert report['mlp_matmul_shape'] == [512 * 64, 64, 64]  # 512 rays x (32 + 32) fine samples, a 4 x 64 MLP.
+  assert report['mlp_matmul_shape'] == [512 * 48, 64, 64]  # 512 rays x (16 + 32) fine samples, a 4 x 64 MLP.
   assert set(report['stage_ms']) <= STAGES and report['stage_ms']['MLP matmuls'] > 0
   assert report['traced_ms'] == pytest.approx(np.sum(list(report['stage_ms'].values())))
   assert report['dots_alone_of_step'] == pytest.approx(report['dots_alone_ms'] / report['step_ms'])

@@ -18,8 +18,8 @@ from lab import demo_seeds
 def _record(seed: int, nerf: float, free: float, all_views: float, seconds: float) -> dict:
   means = lambda psnr: {'psnr': psnr, 'ssim': psnr / 100, 'lpips': None, 'depth_mae': 1.}
   return {'seed': seed, 'step': 700,
-          'demo': {'command': 'python train.py', 'seconds': seconds, 'means': {'NeRF': means(nerf),
-                                                                             'FreeNeRF': means(free)}},
+          'demo': {'command': 'python train.py', 'seconds': seconds, 'load_average': [0.5, 1.25],
+                   'means': {'NeRF': means(nerf), 'FreeNeRF': means(free)}},
           'all_views': {'commands': [], 'seconds': 100., 'means': means(all_views)},
           'provenance': {'command': 'python -m tools.demo_seeds --seeds 1', 'commit': 'abc', 'date': 'today',
                          'machine': {'cpu_count': 2, 'cpu': 'X', 'jax': '0.1', 'isa': 'AVX2'}}}
@@ -54,7 +54,8 @@ def test_summary_and_readme_over_the_seeds(tmp_path):
   assert readme.startswith('# The demo over seeds: AVX2 machines')
   assert '| 1 | 18.00 | 21.00 | 0.180 | 0.210 | 1.000 | 1.000 | 3.00 | 26.00 | 320 | 100 |' in readme
   assert '| std | 1.41 | 1.06 |' in readme
-  assert '- seed 2: commit abc, today, 2 CPUs (X), XLA for AVX2, jax 0.1;' in readme
+  assert ('- seed 2: commit abc, today, 2 CPUs (X), XLA for AVX2, jax 0.1, load average 0.5 before and 1.25 after '
+          'the demo;') in readme
   assert json.loads((kind / demo_seeds.SUMMARY).read_text()) == json.loads(json.dumps(table))
   (tmp_path / 'notes').mkdir()  # A folder without a summary is no kind.
   index = demo_seeds.index(str(tmp_path))
@@ -113,5 +114,6 @@ def test_a_seed_records_each_methods_learning_curve(tmp_path, monkeypatch):
   monkeypatch.setattr(demo_seeds, 'run_timed', trained)
   monkeypatch.setattr(demo_seeds, 'means', lambda run, step: {'psnr': 17.})
   record = demo_seeds.run_seed(7, str(tmp_path))
+  assert len(record['demo']['load_average']) == 2 and min(record['demo']['load_average']) >= 0
   assert record['demo']['learning_curves'] == {name: [{'step': 50, 'psnr': 19.4 + i, 'seconds': 1.5}]
                                                for i, name in enumerate(demo.METHODS)}

@@ -11,8 +11,8 @@ DEMO = ['configs/demo.gin']
 FORWARD = DEMO + ['configs/demo_forward.gin']
 # (gin files) -> (max_steps, T) as they resolved when the files gave T in steps.
 CONFIGS = {
-    ('configs/demo.gin',): (700, 350), tuple(FORWARD): (700, 630),
-    tuple(FORWARD + ['configs/demo_nerf.gin']): (700, 0),
+    ('configs/demo.gin',): (700, 350), tuple(FORWARD): (500, 450),
+    tuple(FORWARD + ['configs/demo_nerf.gin']): (500, 0),
     ('configs/mini/blender.gin',): (2000, 1000), ('configs/mini/dtu3_freenerf.gin',): (2000, 1800),
     ('configs/mini/llff3_freenerf.gin',): (2000, 1800), ('configs/mini/capture3_freenerf.gin',): (2000, 1800),
     ('configs/mini/capture6_freenerf.gin',): (2000, 1400), ('configs/mini/capture9_freenerf.gin',): (2000, 1000),
