@@ -32,6 +32,7 @@ from internal.evaluation import evaluate as evaluate_lib
 from internal.evaluation import inference
 from internal.evaluation import learning_curve
 from internal.evaluation import metric_registry
+from internal.evaluation import results
 from internal.evaluation import vis
 from internal.pipeline import loop
 from internal.run import camera_export
@@ -159,6 +160,11 @@ CLOCK_FILE = learning_curve.CLOCK_FILE  # In the run folder: the curve's clock a
 def eval_dir(run_dir: str, step: int) -> str:
   """The folder a run's evaluation at step writes (<run_dir>/test_preds_step_<step>)."""
   return evaluate_lib.output_dir(run_dir, step)
+
+
+def metrics_record(run_dir: str, step: int) -> dict:
+  """The metrics record ({'means', 'per_image', ...}) that a run's evaluation at step wrote (its metrics.json)."""
+  return results.read_record(os.path.join(eval_dir(run_dir, step), results.METRICS_FILENAME))
 
 
 def curve_path(run_dir: str) -> str:

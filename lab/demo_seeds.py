@@ -35,15 +35,12 @@ from internal import atomic
 from internal import cli
 from internal import demo
 from internal import environment
-from internal.configs import Config
-from internal.evaluation import evaluate
-from internal.evaluation import learning_curve
-from internal.evaluation import results
+from internal import runs
 from tools import provenance
 from lab.study import stats as study_stats
 
 ROOT = provenance.ROOT
-DEFAULT_SEED = next(f.default for f in dataclasses.fields(Config) if f.name == 'jax_rng_seed')
+DEFAULT_SEED = next(f.default for f in dataclasses.fields(runs.Config) if f.name == 'jax_rng_seed')
 ALL_VIEWS = ['Config.n_input_views = 0', 'Config.compute_lpips = False', "Config.checkpoint_dir = 'out/all_views'"]
 METRICS = ('psnr', 'ssim', 'lpips', 'depth_mae')  # The columns of each method's metrics.json means in the table.
 SUMMARY, README = 'summary.json', 'README.md'
@@ -90,7 +87,7 @@ def run_timed(argv_list: list, cwd: str, log: str) -> float:
 
 def means(run_dir: str, step: int) -> dict:
   """The metric means of a run's evaluation at step."""
-  return results.read_record(os.path.join(evaluate.output_dir(run_dir, step), results.METRICS_FILENAME))['means']
+  return runs.metrics_record(run_dir, step)['means']
 
 
 def run_seed(seed: int, work: str, extra=()) -> dict:
@@ -104,12 +101,11 @@ def run_seed(seed: int, work: str, extra=()) -> dict:
   all_views_seconds = run_timed(cmds['all_views'], cwd, log)
   cfgs = demo.method_configs(extra)
   step = cfgs['FreeNeRF'].max_steps
-  runs = {name: os.path.join(cwd, cfg.checkpoint_dir) for name, cfg in cfgs.items()}
+  run_dirs = {name: os.path.join(cwd, cfg.checkpoint_dir) for name, cfg in cfgs.items()}
   return {'seed': seed, 'step': step,
           'demo': {'command': shown(cmds['demo']), 'seconds': demo_seconds, 'load_average': load,
-                   'means': {name: means(run, step) for name, run in runs.items()},
-                   'learning_curves': {name: learning_curve.read_rows(learning_curve.csv_path(run))
-                                       for name, run in runs.items()}},
+                   'means': {name: means(run, step) for name, run in run_dirs.items()},
+                   'learning_curves': {name: runs.read_curve(runs.curve_path(run)) for name, run in run_dirs.items()}},
           'all_views': {'commands': [shown(argv) for argv in cmds['all_views']], 'seconds': all_views_seconds,
                         'means': means(os.path.join(cwd, 'out', 'all_views'), step)}}
 
