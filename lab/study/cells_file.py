@@ -5,31 +5,15 @@ A line is {"cell": id, "spec": {"gin_configs", "gin_bindings"} (templates {out} 
 "record": the cell's cell.json (means, wall times, steps/s, GFLOP per step, peak memory, commit, changed files,
 machine), "evaluation": its metrics.json (per view and means; metrics.csv is its per_image as a table),
 "learning_curve": {"columns", "rows"} where the run recorded one}; or {"cell": id, "same_as": "../other_export"}.
-
-Exports written before this file kept a folder per cell (<cell>/cell.json, metrics.json, metrics.csv,
-learning_curve.csv) and the cells' commits again in provenance.json. `read` takes either layout, and
-
-  python -m lab.study.cells_file DIR [DIR ...]
-
-converts old ones in place (a folder already converted is left as it is): it writes cells.jsonl and removes the
-cell folders only once every file of every folder comes back byte for byte from its line (`files`), else it stops
-with one line naming the first file that would not, having changed nothing. A cell folder that is a link or holds a
-folder, and an export it cannot change (a read-only file system, an immutable folder), are one line each too, the
-export left as it was.
 """
 
-import argparse
 import csv
-import errno
 import io
 import json
 import os
-import shutil
-import sys
 from typing import Dict, List, NamedTuple, Optional
 
 from internal import atomic
-from internal import cli
 
 CELLS_FILE = 'cells.jsonl'
 CELL_FILE = 'cell.json'
@@ -37,7 +21,6 @@ METRICS_FILE = 'metrics.json'
 METRICS_TABLE = 'metrics.csv'
 CURVE_FILE = 'learning_curve.csv'  # internal/evaluation/learning_curve.py's CSV_FILE (jax-free here).
 PROVENANCE_FILE = 'provenance.json'
-CONVERTING = '.cells_file.converting'  # The old cell folders during a conversion (deleted at its end).
 # The parts of a line and the JSON type each must have.
 LINE_TYPES = {'cell': str, 'same_as': str, 'spec': dict, 'record': dict, 'evaluation': dict, 'learning_curve': dict}
 JSON_NAMES = {str: 'a string', dict: 'an object', list: 'an array', int: 'a number', float: 'a number',
@@ -120,11 +103,10 @@ def files(entry: dict) -> Dict[str, str]:
 
 
 def read(export_dir: str) -> Dict[str, Entry]:
-  """{cell id: Entry} of an export in either layout (cells.jsonl, or a folder per cell), references resolved."""
+  """{cell id: Entry} of an export's cells.jsonl, references resolved; ValueError naming the folder without one."""
   path = os.path.join(export_dir, CELLS_FILE)
   if not os.path.isfile(path):
-    folders = [n for n in sorted(os.listdir(export_dir)) if os.path.isfile(os.path.join(export_dir, n, CELL_FILE))]
-    return {n: _folder_entry(export_dir, n) for n in folders}
+    raise ValueError(f'{export_dir}: no {CELLS_FILE}; expected a folder that lab.study --export wrote')
   return {entry['cell']: _entry(export_dir, entry, where, ()) for entry, where in _lines(path)}
 
 
@@ -134,13 +116,6 @@ def _lines(path: str):
     for number, text in enumerate(f, 1):
       where = f'{path} line {number}'
       yield _parse_line(text, where), where
-
-
-def _folder_entry(export_dir: str, cell_id: str) -> Entry:
-  """The Entry of an old-layout export's cell folder."""
-  folder = os.path.join(export_dir, cell_id)
-  return Entry(_folder_line(folder), {'record': os.path.join(folder, CELL_FILE),
-                                      'evaluation': os.path.join(folder, METRICS_FILE)}, export_dir)
 
 
 def _entry(export_dir: str, entry: dict, where: str, referrers: tuple) -> Entry:
@@ -164,7 +139,7 @@ def _cell_entry(export_dir: str, cell_id: str, referrers: tuple) -> Optional[Ent
   """The Entry of one cell of an export (its reference followed), None when the export does not hold it."""
   path = os.path.join(export_dir, CELLS_FILE)
   if not os.path.isfile(path):
-    return _folder_entry(export_dir, cell_id) if os.path.isfile(os.path.join(export_dir, cell_id, CELL_FILE)) else None
+    return None
   return next((_entry(export_dir, entry, where, referrers) for entry, where in _lines(path)
                if entry['cell'] == cell_id), None)
 
@@ -185,18 +160,6 @@ def _parse_line(text: str, where: str) -> dict:
   return entry
 
 
-def _folder_line(folder: str) -> dict:
-  """A cell's line from an old-layout export's folder (cell.json, metrics.json, learning_curve.csv)."""
-  record = read_json(os.path.join(folder, CELL_FILE))
-  metrics = os.path.join(folder, METRICS_FILE)
-  curve = os.path.join(folder, CURVE_FILE)
-  curve_csv = None
-  if os.path.isfile(curve):
-    with open(curve, newline='') as f:
-      curve_csv = f.read()
-  return line(os.path.basename(folder), record, read_json(metrics) if os.path.isfile(metrics) else None, curve_csv)
-
-
 def write(export_dir: str, lines: List[dict]) -> str:
   """Writes export_dir/cells.jsonl, a line per cell; returns its path."""
   path = os.path.join(export_dir, CELLS_FILE)
@@ -212,121 +175,10 @@ def same_cell(a: dict, b: dict) -> bool:
 
 def reference(export_dir: str, entry: dict, other_export: str) -> Optional[dict]:
   """A reference line to other_export (relative to export_dir) when it holds the same run of the cell, else None."""
-  found = read(other_export).get(entry['cell']) if os.path.isdir(other_export) else None
+  found = _cell_entry(other_export, entry['cell'], ())
   if found is None or not same_cell(found.line, entry):
     return None
   return {'cell': entry['cell'], 'same_as': os.path.relpath(found.export, export_dir)}
-
-
-# ------------------------------------------------------------------ converting an old layout
-
-
-def convert(export_dir: str, spec_of=None) -> Optional[dict]:
-  """Converts an old-layout export in place; returns {'cells', 'references', 'removed'} (None: converted before).
-
-  spec_of(cell id) gives a cell's spec (None where unknown). A cell whose record names another study is a reference
-  when the export of that study beside this one holds the same run. ValueError naming the first file that its
-  line would not give back byte for byte, a cell folder that is a link or holds a folder, a provenance.json entry
-  that disagrees with its cell's record, or what could not be written; nothing is changed then.
-  """
-  if os.path.isfile(os.path.join(export_dir, CELLS_FILE)):
-    return None
-  provenance_path = os.path.join(export_dir, PROVENANCE_FILE)
-  if not os.path.isfile(provenance_path):
-    raise ValueError(f'{export_dir}: no {PROVENANCE_FILE}; expected a folder that lab.study --export wrote')
-  provenance = read_json(provenance_path)
-  entries = read(export_dir)
-  for cell_id, entry in entries.items():
-    _check_round_trip(os.path.join(export_dir, cell_id), entry.line)
-    _check_provenance(provenance, provenance_path, entry.line)
-  lines = [_converted_line(export_dir, entry.line, spec_of) for entry in entries.values()]
-  provenance.pop('cells', None)
-  removed = sum(len(os.listdir(os.path.join(export_dir, cell_id))) for cell_id in entries)
-  _replace_folders(export_dir, lines, provenance, list(entries))
-  return {'cells': len(lines), 'references': sum('same_as' in l for l in lines), 'removed': removed}
-
-
-def _replace_folders(export_dir: str, lines: List[dict], provenance: dict, cell_ids: List[str]) -> None:
-  """Writes cells.jsonl, moves the cell folders into a hidden folder, writes provenance.json, then deletes the
-  hidden folder. A step that fails (a read-only file system, an immutable folder) undoes the ones before it: a
-  ValueError naming what could not be written, the export as it was (a full disk stays an OSError, undone too)."""
-  aside = os.path.join(export_dir, CONVERTING)
-  done = []  # Undo steps, newest last.
-  try:
-    write(export_dir, lines)
-    done.append(lambda: os.remove(os.path.join(export_dir, CELLS_FILE)))
-    os.mkdir(aside)
-    done.append(lambda: os.rmdir(aside))
-    for cell_id in cell_ids:
-      os.rename(os.path.join(export_dir, cell_id), os.path.join(aside, cell_id))
-      done.append(lambda c=cell_id: os.rename(os.path.join(aside, c), os.path.join(export_dir, c)))
-    atomic.write_text(os.path.join(export_dir, PROVENANCE_FILE), json.dumps(provenance, indent=1))
-  except OSError as err:
-    for undo in reversed(done):
-      undo()
-    if err.errno == errno.ENOSPC:
-      raise
-    raise ValueError(f'{export_dir}: cannot be converted: {err.strerror} ({err.filename!r}); expected an export '
-                     'whose folder and cell folders can be changed (nothing was converted)') from None
-  try:
-    shutil.rmtree(aside)
-  except OSError as err:
-    raise ValueError(f'{export_dir}: converted, but {aside}, its old cell folders (each file in {CELLS_FILE} byte '
-                     f'for byte), could not be deleted: {err.strerror} ({err.filename!r}); delete it by hand') from None
-
-
-def _converted_line(export_dir: str, entry: dict, spec_of) -> dict:
-  """The line an old-layout cell becomes: a reference to the export of the study its record names, when that
-  export (a folder of that name beside this one) holds the same run; else the whole line with its spec."""
-  study = entry['record'].get('study')
-  if study and study != os.path.basename(os.path.normpath(export_dir)):
-    found = reference(export_dir, entry, os.path.join(os.path.dirname(os.path.normpath(export_dir)), study))
-    if found is not None:
-      return found
-  spec = spec_of(entry['cell']) if spec_of else None
-  return line(entry['cell'], entry['record'], entry.get('evaluation'),
-              files(entry).get(CURVE_FILE), spec)
-
-
-def _check_round_trip(folder: str, entry: dict) -> None:
-  """ValueError naming an old cell folder that is a link, or the first thing in it that the cell's line does not
-  give back byte for byte (a file, or a folder)."""
-  if os.path.islink(folder):
-    raise ValueError(f'{folder}: a symbolic link (to {os.readlink(folder)}); expected the cell folder that '
-                     'lab.study --export wrote: put a copy of that folder in its place (nothing was converted)')
-  texts = files(entry)
-  for name in sorted(os.listdir(folder)):
-    if os.path.isdir(os.path.join(folder, name)):
-      raise ValueError(f'{os.path.join(folder, name)}: a folder, which {CELLS_FILE} cannot hold; expected only '
-                       'cell.json, metrics.json, metrics.csv and learning_curve.csv as lab.study wrote them: move '
-                       'it out of the export (nothing was converted)')
-    with open(os.path.join(folder, name), newline='') as f:
-      if texts.get(name) != f.read():
-        raise ValueError(f'{os.path.join(folder, name)}: its line in {CELLS_FILE} would not give it back byte for '
-                         'byte; expected only cell.json, metrics.json, metrics.csv and learning_curve.csv as '
-                         'lab.study wrote them (nothing was converted)')
-
-
-def _check_provenance(provenance: dict, path: str, entry: dict) -> None:
-  """ValueError when provenance.json's entry for the cell (commit, changed files, machine, seconds, step: a copy
-  of fields of its cell.json, dropped in the conversion) says other than the cell's record."""
-  kept = (provenance.get('cells') or {}).get(entry['cell'])
-  if kept is not None and kept != {k: entry['record'].get(k) for k in kept}:
-    raise ValueError(f'{path}: its entry for {entry["cell"]} differs from that cell\'s {CELL_FILE}; expected the '
-                     'copy the export wrote (nothing was converted)')
-
-
-def _spec_reader(export_dir: str):
-  """spec_of(cell id) for an export: the cell's gin from the study file its provenance.json names (templates
-  left in), or None for every cell when that file is not in this checkout or its git history."""
-  from lab.study import reuse  # pylint: disable=import-outside-toplevel  (reuse reads exports through this file)
-  from lab.study import spec as study_spec  # pylint: disable=import-outside-toplevel
-  try:
-    study = reuse.exported_study(export_dir)
-  except study_spec.StudyError:
-    return None
-  cells = {c.cell_id: c for c in study_spec.cells(study)}
-  return lambda cell_id: spec(study, cells[cell_id]) if cell_id in cells else None
 
 
 def spec(study, cell) -> dict:
@@ -335,20 +187,3 @@ def spec(study, cell) -> dict:
   run_dir = f'{{out}}/{study.name}/{cell.cell_id}/run'
   configs, bindings = study_spec.cell_gin(study, cell, '{out}', '{data_root}', run_dir)
   return {'gin_configs': configs, 'gin_bindings': bindings}
-
-
-def main(argv=None) -> int:
-  parser = argparse.ArgumentParser(prog='python -m lab.study.cells_file', description=__doc__.split('\n\n')[0])
-  parser.add_argument('exports', nargs='+', metavar='DIR', help='folders that lab.study --export wrote')
-  for export_dir in parser.parse_args(argv).exports:
-    done = convert(export_dir, _spec_reader(export_dir))
-    if done is None:
-      print(f'{export_dir}: has {CELLS_FILE} already; left as it is')
-    else:
-      print(f'{export_dir}: {done["cells"]} cells into {CELLS_FILE} ({done["references"]} references to other '
-            f'exports), {done["removed"]} files of cell folders removed')
-  return 0
-
-
-if __name__ == '__main__':
-  sys.exit(cli.run(main))

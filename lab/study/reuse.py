@@ -1,9 +1,9 @@
 """Finished cells taken from an earlier export (`lab.study --reuse DIR`), so that a study moved to another machine,
 or whose run folders are gone, runs only the cells it lacks.
 
-A cell of the export (its cells.jsonl, or a folder per cell in exports written before it: lab/study/cells_file.py)
-is reused when the cell has not finished here and the study file the export ran (named in its provenance.json by
-path and SHA-256, found in this checkout or its git history) gives it the same settings as this study file does:
+A cell of the export (its line of cells.jsonl: lab/study/cells_file.py) is reused when the cell has not finished
+here and the study file the export ran (named in its provenance.json by path and SHA-256, found in this checkout or
+its git history) gives it the same settings as this study file does:
 the same gin configs and bindings, or ones that load to the same Config (T given in steps or as a fraction, say).
 Its numbers are the evaluation's: the cell's record must agree with its evaluation's metrics.json (step,
 completeness and every mean), else the command stops with one line naming both; a cell exported without its
