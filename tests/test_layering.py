@@ -1,5 +1,7 @@
 """Layering: the scripts are thin shells over internal/; internal/ and tools/ never import the scripts or bench/,
-internal/ never imports tools/, and inside internal/ each stage of the pipeline imports only earlier stages."""
+internal/ never imports tools/, inside internal/ each stage of the pipeline imports only earlier stages, the lab
+(lab/) reaches internal/ only through the door to runs (internal/runs.py) and the small shared helpers, and no
+module of the house imports itself through others."""
 
 import ast
 import pathlib
@@ -113,9 +115,9 @@ def test_stages_import_only_earlier_stages(path):
   assert not later, f'{name} ({STAGES[own]}) imports later stages: {sorted(later)}'
 
 
-def module_name(path: pathlib.Path) -> str:
+def module_name(path: pathlib.Path, root: pathlib.Path = ROOT) -> str:
   """The dotted name of a file of the repository ('internal/datasets/__init__.py' -> 'internal.datasets')."""
-  return path.relative_to(ROOT).as_posix().removesuffix('.py').removesuffix('/__init__').replace('/', '.')
+  return path.relative_to(root).as_posix().removesuffix('.py').removesuffix('/__init__').replace('/', '.')
 
 
 def import_cycle(graph: dict) -> list:
@@ -153,12 +155,48 @@ def imported_files(path: pathlib.Path, modules: set) -> set:
   return names & modules
 
 
-def test_internal_has_no_import_cycles():
-  """No module of internal/ imports itself through others (a package's __init__.py importing its own modules is no
-  cycle: they import its modules, not the package)."""
-  modules = {module_name(p): p for p in _modules('internal')}
-  graph = {name: imported_files(path, set(modules)) for name, path in modules.items()}
+# The house: the scripts at the top, the library, the tools a user runs on a scene, the benchmarks, the laboratory.
+HOUSE = ('internal', 'tools', 'bench', 'lab')
+
+
+def import_graph(root: pathlib.Path, folders=HOUSE) -> dict:
+  """{module: the modules of the house it imports} of the .py files under root's folders and at its top (a
+  package's __init__.py importing its own modules is no cycle: they import its modules, not the package)."""
+  paths = [p for folder in folders for p in sorted((root / folder).rglob('*.py'))] + sorted(root.glob('*.py'))
+  modules = {module_name(p, root): p for p in paths}
+  return {name: imported_files(path, set(modules)) for name, path in modules.items()}
+
+
+def test_the_import_graph_catches_a_cycle_through_a_function_body(tmp_path):
+  (tmp_path / 'lab' / 'study').mkdir(parents=True)
+  (tmp_path / 'tools').mkdir()
+  (tmp_path / 'lab' / 'study' / 'a.py').write_text('from lab.study import b\n')
+  (tmp_path / 'lab' / 'study' / 'b.py').write_text('def f():\n  from tools import c\n')
+  (tmp_path / 'tools' / 'c.py').write_text('import lab.study.a\n')
+  (tmp_path / 'train.py').write_text('from lab.study import a\n')
+  graph = import_graph(tmp_path)
+  assert import_cycle(graph) == ['lab.study.a', 'lab.study.b', 'tools.c', 'lab.study.a']
+  (tmp_path / 'tools' / 'c.py').write_text('import os\n')
+  assert not import_cycle(import_graph(tmp_path))
+
+
+def test_the_house_has_no_import_cycles():
+  """No module anywhere in the house imports itself through others (farm-studio draws 0 circles)."""
+  graph = import_graph(ROOT)
+  assert {'train', 'internal.runs', 'lab.study.runner', 'bench.common', 'tools.points'} <= set(graph)
   assert not import_cycle(graph), ' -> '.join(import_cycle(graph))
+
+
+# What the laboratory (lab/) may import of internal/: the door to runs and the small shared helpers (the command
+# line, atomic writes, progress, Ctrl-C as one line, the machine's kind, whether a lock's holder is gone), and the
+# demo, whose seeds it reports.
+LAB_MAY_IMPORT = {'internal.runs', 'internal.cli', 'internal.atomic', 'internal.progress', 'internal.interrupt',
+                  'internal.environment', 'internal.lock_holders', 'internal.demo'}
+
+
+@pytest.mark.parametrize('path', _modules('lab'), ids=lambda p: str(p.relative_to(ROOT)))
+def test_the_lab_imports_only_the_door_and_the_small_helpers(path):
+  assert not internal_imports(path) - LAB_MAY_IMPORT, sorted(internal_imports(path) - LAB_MAY_IMPORT)
 
 
 def test_every_module_is_checked():
