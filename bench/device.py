@@ -15,6 +15,9 @@ methods' steps and a matmul at that precision run interleaved (A, B, M, A, B, M,
 The JSON of --out also records the provenance (commit, machine, date: tools/provenance.py).
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import json
 import os

@@ -24,6 +24,9 @@ step's loss within 1e-3 of the plain step's, its gradients within gradient_toler
 L2 of all together, each parameter array within LEAF_FACTOR times that).
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import json
 import os

@@ -18,6 +18,9 @@ the models with each other rather than with another machine) and the rows that t
 picks at the measured speed.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import json
 import os

@@ -20,6 +20,9 @@ Bad input is one line (exit status 2), before anything is written: a study witho
 --noisy or --baseline that no finished row has, two --runs whose pictures would have one name.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import csv
 import json

@@ -16,6 +16,9 @@ DIR/depth_shape.json (provenance). --also: other studies' folders whose cells of
 cells without renders here (cells a study reused from an export have none).
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import csv
 import glob

@@ -9,6 +9,9 @@ trained with); its step time is the training's own rate once warm, its minutes t
 (start-up and compilation included), its paper-length minutes 43,945 steps at that rate.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import csv
 import glob
 import json

@@ -13,6 +13,9 @@ Usage: python -m lab.prepare_lease [--data_root ../shared/data] [--ledger lab/le
    lease's BUDGET and a minute to spare).
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import os
 import re

@@ -21,6 +21,9 @@ written, are checked before any work; nothing is replaced unless Config.overwrit
 distances to the scene's exact surfaces per solid (as tools.mesh --scores); --picture a PNG of the cloud.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import errno
 import json
 import os

@@ -9,6 +9,9 @@ submitting it to its result in the runner minus the seconds its cell process ran
 maxima and the first Ray cell (a worker starting) with the machine and versions to --out.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import json
 import os
