@@ -104,10 +104,10 @@ def stale_cells(study: spec.Study, done: list, out: str, data_root: str, extra_b
     stored = runs.read_fingerprint(os.path.join(path, RUN_SUBDIR))
     if stored is None:
       continue
-    gin = spec.cell_gin(study, cell, out, data_root, os.path.join(path, RUN_SUBDIR), extra_bindings)
+    files_and_bindings = spec.cell_gin(study, cell, out, data_root, os.path.join(path, RUN_SUBDIR), extra_bindings)
     with warnings.catch_warnings():  # A setting's warnings are the cell's to print when it runs, not once a cell.
       warnings.simplefilter('ignore')
-      with runs.fresh_config(*gin) as config:  # The model's settings (MLP.*, ...) are read from gin, bound here.
+      with runs.fresh_config(*files_and_bindings) as config:  # The model's settings (MLP.*, ...): gin, bound here.
         differences = runs.differences({**stored, 'Config.precision': config.precision}, config)
     if differences:
       stale[path] = differences
@@ -246,8 +246,8 @@ def _gpu_config(study: spec.Study, cell: spec.Cell, args):
   """The validated Config of a cell as a GPU runs it (Config.precision 'auto' is bfloat16 there; nothing is
   written)."""
   run_dir = os.path.join(cell_dir(study, cell, args.out), RUN_SUBDIR)
-  gin = spec.cell_gin(study, cell, args.out, args.data_root, run_dir, tuple(args.gin_bindings))
-  with runs.fresh_config(*gin, backend='gpu') as config:
+  files_and_bindings = spec.cell_gin(study, cell, args.out, args.data_root, run_dir, tuple(args.gin_bindings))
+  with runs.fresh_config(*files_and_bindings, backend='gpu') as config:
     return config
 
 
