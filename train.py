@@ -30,7 +30,8 @@ def run_demo(bindings, stop_at_step: int = 0) -> int:
     run_dir.check_trainable(config)
   out_dir = demo.output_dir(method_cfgs)
   for name in demo.METHODS:
-    status = train_and_report(demo.method_config(name, bindings), stop_at_step)
+    with demo.method_config(name, bindings) as config:
+      status = train_and_report(config, stop_at_step)
     if status:
       return status
   if jax.process_count() > 1:

@@ -5,7 +5,6 @@ import functools
 import statistics
 import time
 
-import gin
 import jax
 import jax.numpy as jnp
 from jax import random
@@ -14,6 +13,7 @@ import numpy as np
 from internal import config_loader
 from internal import configs
 from internal import rays as rays_lib
+from internal import runs
 from internal.datasets import batching, random_poses
 from internal.evaluation import inference
 from internal.training import flops
@@ -21,10 +21,9 @@ from internal.training import train_step as ts
 
 
 def gin_config(files, bindings, **overrides) -> configs.Config:
-  """The validated Config of gin files and bindings (parsed now, replacing any earlier bindings), with overrides."""
-  gin.clear_config()
-  config_loader.parse_gin(files, bindings)
-  config = dataclasses.replace(configs.Config(), **overrides)
+  """The validated Config of gin files and bindings with overrides; gin is bound to them (runs.bind_fresh) until the
+  next one, as the benchmarks build and trace their models after the call."""
+  config = dataclasses.replace(runs.bind_fresh(files, bindings), **overrides)
   config_loader.validate(config)
   return config
 

@@ -15,13 +15,15 @@ methods' steps and a matmul at that precision run interleaved (A, B, M, A, B, M,
 The JSON of --out also records the provenance (commit, machine, date: tools/provenance.py).
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import json
 import os
 import resource
 import sys
 
-import gin
 import jax
 import jax.numpy as jnp
 
@@ -134,7 +136,6 @@ def main(argv=None):
   for name in names:  # Rows printed as each precision finishes.
     report['results'][name] = measure_precision(name, methods, args, bindings)
     print(table_rows(name, report['results'][name]), flush=True)
-  gin.clear_config()
   if args.out:
     with open(args.out, 'w') as f:
       json.dump(report, f, indent=2)

@@ -15,6 +15,9 @@ stage by the source of the operation (the project file and function it was trace
 its root).
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import collections
 import json

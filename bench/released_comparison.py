@@ -15,6 +15,9 @@ Each step's settings are its gin file's (GIN_FILES), at --batch rays. Reports, s
   4. test-image rendering rays/s, ours vs the released-equivalent that materializes normals.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import functools
 import json

@@ -13,6 +13,9 @@ sum over layers and levels (everything outside the MLP taken as free). Rates are
 floor, with its matmul TFLOP/s by this hand count (which XLA's count of the traced step exceeds by under 1%).
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import dataclasses
 import json

@@ -17,12 +17,15 @@ its error (in step_variants.json and the log), and the others keep their measure
 plain step and the fastest variant of each precision are traced (bench.kernel_profile): kernels per kind and the
 longest kernels, trace files in --out_dir. The tables print (and step_variants.json is written, with provenance)
 after each precision.
---bindings prints a variant's name and then its gin bindings, one a line (bench/gpu_check.sh trains with them);
+--bindings prints a variant's name and then its gin bindings, one a line (lab/gpu_check.sh trains with them);
 `fastest` (the function fastest(report, precision)) names the fastest variant a run can take, measured at one
 precision in --measured, or base when none is faster or nothing was measured: gin bindings only, its first
 step's loss within 1e-3 of the plain step's, its gradients within gradient_tolerance of the plain step's (relative
 L2 of all together, each parameter array within LEAF_FACTOR times that).
 """
+
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
 
 import argparse
 import json

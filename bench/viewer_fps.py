@@ -18,6 +18,9 @@ the models with each other rather than with another machine) and the rows that t
 picks at the measured speed.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import json
 import os
@@ -25,13 +28,12 @@ import statistics
 import sys
 import time
 
-import gin
 import jax
 from jax import random
 
+from bench import common
 from internal import atomic
 from internal import cli
-from internal import config_loader
 from internal import datasets
 from internal.cameras import algebra
 from internal.training import train_step
@@ -47,8 +49,7 @@ DTU_ASPECT = 4 / 3  # A DTU image's width over height.
 
 def random_weights_run(bindings) -> runs.Run:
   """A Run of configs/demo.gin's scene (the generated object scene) with bindings' model at random weights."""
-  gin.clear_config()
-  config = config_loader.load_config([os.path.join(cli.CONFIG_DIR, 'demo.gin')], bindings)
+  config = common.gin_config([os.path.join(cli.CONFIG_DIR, 'demo.gin')], bindings)
   train_set, test_set = datasets.load_dataset('train', config), datasets.load_dataset('test', config)
   example = jax.tree.map(lambda x: x[0, 0, :8], train_set.rays)
   model, state = train_step.create_train_state(config, random.PRNGKey(0), example)

@@ -18,16 +18,17 @@ environment shows the traceback of user errors too. Warnings print as one line `
 import argparse
 import os
 import re
+import runpy
 import shlex
 import signal
 import sys
 import threading
 import warnings
 
-from internal import config_loader
 from internal import environment
 from internal import interrupt
 from internal import progress
+from internal import runs
 from internal.run import checkpoints
 from internal.run import disk_full
 from internal.run import distributed
@@ -191,6 +192,14 @@ def flag_parser(description: str, more_multi_value_flags=()) -> argparse.Argumen
   return parser
 
 
+def run_moved(old: str, new: str) -> None:
+  """Runs the command `python -m new` with this process's arguments, after one line on stderr saying that `python -m
+  old` is its name before it moved (a shim at the old name runs it for a turn)."""
+  print(f'note: {old} is now {new} (python -m {new}); the old name goes in a later version', file=sys.stderr)
+  runpy.run_module(new, run_name='__main__', alter_sys=True)
+
+
 def config_from_flags(args: argparse.Namespace):
-  """The validated Config of parsed flags; the demo's FreeNeRF configs when no --gin_configs was given."""
-  return config_loader.load_config(args.gin_configs or DEMO_CONFIGS, args.gin_bindings)
+  """The validated Config of parsed flags, gin bound to them afresh (runs.bind_fresh); the demo's FreeNeRF configs
+  when no --gin_configs was given."""
+  return runs.bind_fresh(args.gin_configs or DEMO_CONFIGS, args.gin_bindings)

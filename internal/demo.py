@@ -9,15 +9,11 @@ side, when imageio-ffmpeg is installed).
 """
 
 import os
-from typing import List
 
-import gin
 import numpy as np
-from matplotlib import font_manager
-from PIL import Image, ImageDraw, ImageFont
+from PIL import Image
 
 from internal.run import checkpoints
-from internal import config_loader
 from internal import datasets
 from internal.evaluation import depth_metrics
 from internal.evaluation import evaluate
@@ -25,6 +21,7 @@ from internal.evaluation import learning_curve
 from internal.evaluation import render_path
 from internal.evaluation import vis
 from internal import cli
+from internal import runs
 from internal.run import run_dir
 
 METHODS = {'NeRF': cli.DEMO_CONFIGS + [os.path.join(cli.CONFIG_DIR, 'demo_nerf.gin')],
@@ -32,19 +29,21 @@ METHODS = {'NeRF': cli.DEMO_CONFIGS + [os.path.join(cli.CONFIG_DIR, 'demo_nerf.g
 MAX_SHOWN_VIEWS = 4            # Test views in the picture, evenly spread over the evaluated ones.
 BLOCKS_PER_ROW = 2             # Test views side by side in the picture.
 SCALE = 2                      # Nearest-neighbour upscaling of the small renders.
-GAP, HEADER, LABEL_WIDTH, LINE = 4, 22, 56, 16  # LABEL_WIDTH: the row titles' column, at least.
 PICTURE, CURVES, ORBIT_VIDEO = 'demo.png', 'demo_curves.png', 'demo_orbit.mp4'
 
 
 def method_config(name: str, bindings=()):
-  """Parses gin afresh for one method (gin then holds its bindings, as its model needs) and returns its Config."""
-  gin.clear_config()
-  return config_loader.load_config(METHODS[name], bindings)
+  """`with method_config(name, bindings) as config:` one method's validated Config, gin holding its settings (which
+  its model reads) until the block ends (runs.fresh_config)."""
+  return runs.fresh_config(METHODS[name], bindings)
 
 
 def method_configs(bindings=()) -> dict:
   """{method name: validated Config} of both demo configs with the same extra bindings applied to each."""
-  out = {name: method_config(name, bindings) for name in METHODS}
+  out = {}
+  for name in METHODS:
+    with method_config(name, bindings) as config:
+      out[name] = config
   dirs = [c.checkpoint_dir for c in out.values()]
   if len(set(map(os.path.abspath, dirs))) != len(dirs):
     raise ValueError(f'the demo needs one run directory per method, but Config.checkpoint_dir = {dirs[0]!r} is '
@@ -88,65 +87,6 @@ def evaluated_views(config, record: dict, test_set, positions) -> list:
   return out
 
 
-def label_font(size: int = 11) -> ImageFont.FreeTypeFont:
-  """DejaVu Sans, the font matplotlib ships, for picture labels (PIL's default bitmap font draws spaces 2 px wide)."""
-  return ImageFont.truetype(font_manager.findfont('DejaVu Sans'), size)
-
-
-def label_width(row_titles) -> int:
-  """Pixels of the row titles' column: the widest title with a margin, at least LABEL_WIDTH."""
-  font = label_font()
-  return max([LABEL_WIDTH] + [int(np.ceil(font.getlength(text))) + 8 for text in row_titles])
-
-
-def wrap_label(text: str, width: float, font) -> List[str]:
-  """text broken at spaces into lines at most width pixels wide in font (a longer word keeps a line of its own)."""
-  lines = []
-  for word in text.split(' '):
-    if lines and font.getlength(f'{lines[-1]} {word}') <= width:
-      lines[-1] = f'{lines[-1]} {word}'
-    else:
-      lines.append(word)
-  return lines
-
-
-def tiles_top(column_titles, tile_width: int, title: str = '') -> int:
-  """Pixels above grid's first row of tiles: the title's line, and the column titles wrapped to tile_width."""
-  lines = max((len(wrap_label(text, tile_width - 2, label_font())) for text in column_titles), default=1)
-  return HEADER + LINE * (lines - 1) + (LINE if title else 0)
-
-
-def grid(tiles, column_titles, row_titles, title: str = '', scale: int = SCALE) -> np.ndarray:
-  """Tiles (rows of float [h, w, 3] images in [0, 1]) -> labelled uint8 picture [H, W, 3].
-
-  Tile (r, c) is upscaled by `scale` (nearest) and placed at top = HEADER + LINE * (bool(title) + extra lines of the
-  longest column title, wrapped to its tile's width) + r * (h*scale + GAP), left = label_width(row_titles) +
-  c * (w*scale + GAP), on white.
-  """
-  h, w = np.shape(tiles[0][0])[:2]
-  th, tw, left0 = h * scale, w * scale, label_width(row_titles)
-  draw_font = label_font()
-  wrapped = [wrap_label(text, tw - 2, draw_font) for text in column_titles]
-  top0 = tiles_top(column_titles, tw, title)
-  extra = top0 - HEADER - (LINE if title else 0)
-  canvas = np.full((top0 + len(tiles) * (th + GAP), left0 + len(tiles[0]) * (tw + GAP), 3), 255, np.uint8)
-  for r, row in enumerate(tiles):
-    for c, tile in enumerate(row):
-      top, left = top0 + r * (th + GAP), left0 + c * (tw + GAP)
-      canvas[top:top + th, left:left + tw] = np.repeat(np.repeat(vis.to_uint8(tile), scale, 0), scale, 1)
-  image = Image.fromarray(canvas)
-  draw = ImageDraw.Draw(image)
-  if title:
-    draw.text((4, 2), title, fill=(0, 0, 0), font=draw_font)
-  for c, lines in enumerate(wrapped):
-    for k, text in enumerate(lines):
-      draw.text((left0 + c * (tw + GAP) + 2, top0 - HEADER - extra + 4 + k * LINE), text, fill=(0, 0, 0),
-                font=draw_font)
-  for r, text in enumerate(row_titles):
-    draw.text((4, top0 + r * (th + GAP) + th // 2 - 6), text, fill=(0, 0, 0), font=draw_font)
-  return np.asarray(image)
-
-
 def side_by_side(truth: list, renderings: dict, truth_depths: list, blocks_per_row: int = BLOCKS_PER_ROW) -> tuple:
   """(tiles, column titles, row titles): per view a colour row and a depth row, ground truth then each method.
 
@@ -178,7 +118,8 @@ def write_picture(truth, records: dict, renderings: dict, n_input_views: int, pa
   tiles, columns, rows = side_by_side(truth[0], renderings, truth[1])
   scores = ', '.join(f'{name} {record["means"]["psnr"]:.2f} dB' for name, record in records.items())
   evaluated = len(records['FreeNeRF']['per_image'])
-  picture = grid(tiles, columns, rows, f'{n_input_views} training views; test PSNR over {evaluated} views: {scores}')
+  title = f'{n_input_views} training views; test PSNR over {evaluated} views: {scores}'
+  picture = vis.grid(tiles, columns, rows, title, scale=SCALE)
   vis.save_picture(picture, path)
   return picture
 
@@ -208,7 +149,7 @@ def write_orbit_video(method_cfgs: dict, path: str) -> bool:
   def frame(f):
     tiles = [[np.asarray(Image.open(os.path.join(d, f'{kind}_{f:03d}.png'))) / 255. for d in folders.values()]
              for kind in ('color', 'depth')]
-    picture = grid(tiles, list(folders), ['colour', 'depth'])
+    picture = vis.grid(tiles, list(folders), ['colour', 'depth'], scale=SCALE)
     return picture[:picture.shape[0] // 2 * 2, :picture.shape[1] // 2 * 2]  # Even sizes for h264.
   render_path.write_video(np.stack([frame(f) for f in range(num_frames)]), path)
   return True
@@ -218,12 +159,13 @@ def finish(bindings=()) -> dict:
   """Evaluates and renders both trained runs, writes the picture and the orbit video; {method: test PSNR}."""
   method_cfgs, records, renderings = {}, {}, {}
   for name in METHODS:
-    method_cfgs[name] = config = method_config(name, bindings)
-    records[name] = record = evaluate_and_render(config)
-    test_set = datasets.load_dataset('test', config, ground_truth=True)
-    evaluated = record['test_positions']
-    positions = [evaluated[k] for k in shown_positions(len(evaluated))]
-    renderings[name] = evaluated_views(config, record, test_set, positions)
+    with method_config(name, bindings) as config:
+      method_cfgs[name] = config
+      records[name] = record = evaluate_and_render(config)
+      test_set = datasets.load_dataset('test', config, ground_truth=True)
+      evaluated = record['test_positions']
+      positions = [evaluated[k] for k in shown_positions(len(evaluated))]
+      renderings[name] = evaluated_views(config, record, test_set, positions)
   out_dir = output_dir(method_cfgs)
   truth = [test_set.images[p] for p in positions], [test_set.depths[p] for p in positions]
   write_picture(truth, records, renderings, config.n_input_views, os.path.join(out_dir, PICTURE))

@@ -155,8 +155,8 @@ def _exit_by_sigint(hook: _OneLineHook) -> None:
 def one_line_when_run(module_name: str) -> None:
   """In a script run as a command (module_name '__main__'), an exception that ends the process after Ctrl-C prints
   MESSAGE; the process exits as SIGINT stopped it (status 130 in a shell). Imported as a module: nothing."""
-  if module_name != '__main__':
-    return
+  if module_name != '__main__' or isinstance(sys.excepthook, _OneLineHook):  # Imported, or set up already (a
+    return                                                                  # shim that runs the moved command).
   recorder = Recorder()
   recorder.install()
   sys.excepthook = _OneLineHook(sys.excepthook, recorder)

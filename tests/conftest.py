@@ -28,7 +28,8 @@ ACCELERATOR_ULPS = 2
 
 @pytest.fixture(autouse=True)
 def clean_gin():
-  """Every test starts and ends with no gin bindings."""
+  """Every test starts and ends with no gin bindings (unlocked: a test may parse its own); a test loads its Configs
+  through the door, runs.bind_fresh, which clears gin first."""
   gin.clear_config()
   yield
   gin.clear_config()

@@ -1,12 +1,12 @@
 """relu_from_output: jax's relu and its gradient, bit for bit, with the backward pass read from the output."""
 
-import gin
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import random
 
 from conftest import assert_float32_exact, random_rays
+from internal import runs
 from internal.models import mip_nerf
 from internal.models.activations import relu_from_output
 
@@ -27,8 +27,7 @@ def test_values_and_gradients_equal_jax_relu_at_the_extremes():
 
 
 def _weight_gradients(activation_binding):
-  gin.clear_config()
-  gin.parse_config(TINY + [activation_binding])
+  runs.bind_fresh([], TINY + [activation_binding])
   rays = random_rays(3, 32)
   model, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False)
   loss = lambda p: jnp.sum(model.apply({'params': p}, None, rays)[0][-1]['rgb'] ** 2)

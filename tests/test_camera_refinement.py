@@ -24,7 +24,7 @@ from internal.run import camera_export
 from internal.run import checkpoints
 from internal.training import camera_refinement
 from internal.training import train_step as ts
-from tools import camera_report
+from lab import camera_report
 from test_checkpoints import ROOT, _leaves, tiny_config
 
 NOISE = ('Config.camera_noise_rotation_deg = 3.', 'Config.camera_noise_translation = 0.03')

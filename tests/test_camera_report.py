@@ -1,11 +1,11 @@
-"""tools.camera_report: the share of the noise cost a method recovers, from a study's results; bad input."""
+"""lab.camera_report: the share of the noise cost a method recovers, from a study's results; bad input."""
 
 import csv
 
 import pytest
 
 from internal import cli
-from tools import camera_report
+from lab import camera_report
 
 
 def _write(path, rows):

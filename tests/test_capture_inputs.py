@@ -12,14 +12,13 @@ import subprocess
 import sys
 import warnings
 
-import gin
 import numpy as np
 import pytest
 from PIL import Image
 
 from conftest import JAX_CACHE
 from internal import cli
-from internal import config_loader
+from internal import runs
 from internal.datasets import load_dataset
 from internal.evaluation import learning_curve
 from test_capture import CUP, REPO, _photos, needs_cup, needs_pycolmap
@@ -51,9 +50,8 @@ def test_a_few_photos_chosen_from_a_folder_make_a_capture_of_those_alone(tmp_pat
   assert report['flags'][0]['check'] == 'few_photos' and 'Config.train_view_ids' in report['flags'][0]['message']
   words = _printed_command(printed.getvalue())
   assert words[:3] == ['python', 'train.py', f'--gin_configs={pipeline.CONFIG}'] and words[3].startswith('--gin_')
-  gin.clear_config()
-  config = config_loader.load_config([os.path.join(REPO, pipeline.CONFIG)],
-                                     [words[3].split('=', 1)[1]] + words[4:])
+  config = runs.bind_fresh([os.path.join(REPO, pipeline.CONFIG)],
+                           [words[3].split('=', 1)[1]] + words[4:])
   assert config.data_dir == str(out)
   train = load_dataset('train', config)  # The capture loader reads the capture as training does.
   assert len(train.ids) == 3 and train.images.shape[1:] == (150, 200, 3)
@@ -89,9 +87,8 @@ def test_the_tools_960x540_copies_are_what_the_loader_makes_of_the_full_frames(v
     shutil.copytree(folder / name, only_colmap / name)
   curves = []
   for data_dir in (folder, only_colmap):  # At the learning curve's factor 8: images_8/, else images/ cropped.
-    gin.clear_config()
-    config = config_loader.load_config([os.path.join(REPO, pipeline.CONFIG)], [words[3].split('=', 1)[1]] + words[4:]
-                                       + [f'Config.data_dir = {str(data_dir)!r}'])
+    config = runs.bind_fresh([os.path.join(REPO, pipeline.CONFIG)], [words[3].split('=', 1)[1]] + words[4:]
+                             + [f'Config.data_dir = {str(data_dir)!r}'])
     with warnings.catch_warnings(record=True) as warned:
       warnings.simplefilter('always')
       curves.append(learning_curve.load_views(config, load_dataset('test', config)).images)

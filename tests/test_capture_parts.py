@@ -8,14 +8,13 @@ import shutil
 import sqlite3
 import subprocess
 
-import gin
 import numpy as np
 import pytest
 from PIL import Image, ImageFilter
 
 from conftest import SHARED_DATA
 from internal import cli
-from internal import config_loader
+from internal import runs
 from internal.cameras import algebra, alignment
 from internal.datasets import colmap_model
 from tools.capture import CaptureError, bench, model, output, photos, pipeline, poses, report, sfm
@@ -245,8 +244,7 @@ def test_the_printed_command_gives_its_words_back_from_bash_for_any_folder_name(
   words = _bash_words(line[len('python train.py '):])
   assert words[:2] == [f'--gin_configs={pipeline.CONFIG}', '--gin_bindings=' + words[1].split('=', 1)[1]]
   bindings = [words[1].split('=', 1)[1]] + words[2:]
-  gin.clear_config()
-  parsed = config_loader.load_config([os.path.join(pipeline.REPO, pipeline.CONFIG)], bindings)
+  parsed = runs.bind_fresh([os.path.join(pipeline.REPO, pipeline.CONFIG)], bindings)
   assert parsed.data_dir == out and parsed.checkpoint_dir == 'out/' + os.path.basename(out)
 
 

@@ -9,14 +9,13 @@ import sys
 import threading
 import time
 
-import gin
 import jax
 import numpy as np
 import pytest
 
 from conftest import JAX_CACHE
+from internal import runs
 from internal.run import checkpoints
-from internal import config_loader
 from internal import datasets
 from internal.run import run_dir as run_dir_lib
 from internal.training import train_step
@@ -32,9 +31,8 @@ TINY = ['MLP.net_depth = 2', 'MLP.net_width = 32', 'MLP.net_width_viewdirs = 16'
 
 def tiny_config(scene_dir, run_dir, *bindings):
   """The demo config shrunk by TINY, on scene_dir, training into run_dir, plus extra bindings."""
-  gin.clear_config()
-  return config_loader.load_config([DEMO], TINY + [f"Config.data_dir = '{scene_dir}'",
-                                             f"Config.checkpoint_dir = '{run_dir}'"] + list(bindings))
+  return runs.bind_fresh([DEMO], TINY + [f"Config.data_dir = '{scene_dir}'",
+                                        f"Config.checkpoint_dir = '{run_dir}'"] + list(bindings))
 
 
 def _leaves(state):

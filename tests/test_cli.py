@@ -45,10 +45,10 @@ def test_a_tools_own_multi_value_flags_take_every_form_too():
 def test_recorded_command_lines_give_the_shell_back_the_same_words():
   words = ['--gin_bindings', "Config.data_dir = 'my scans'", "--gin_bindings=Config.near='a'", 'a$HOME', 'say "hi"',
            '', 'plain/path-1.gin', "it's"]
-  line = cli.command_line('tools.study', words)
-  assert line.startswith('python -m tools.study --gin_bindings "Config.data_dir = \'my scans\'" ')
+  line = cli.command_line('lab.study', words)
+  assert line.startswith('python -m lab.study --gin_bindings "Config.data_dir = \'my scans\'" ')
   echoed = subprocess.run(['bash', '-c', f'printf "%s\\n" {line}'], capture_output=True, text=True, check=True)
-  assert echoed.stdout.split('\n')[:-1] == ['python', '-m', 'tools.study'] + words
+  assert echoed.stdout.split('\n')[:-1] == ['python', '-m', 'lab.study'] + words
 
 
 def test_other_flags_keep_their_equals_form():

@@ -3,11 +3,11 @@
 import dataclasses
 import pathlib
 
-import gin
 import numpy as np
 import pytest
 
 from conftest import SHARED_DATA
+from internal import runs
 from internal.models import freq_schedule
 from internal import config_loader
 from internal import configs
@@ -103,11 +103,9 @@ def test_released_llff9_regnerf_warmup_end_is_the_old_name_of_freq_reg_end(tmp_p
   config = config_loader.load_config([_released('regnerf/llff9_regnerf.gin')])
   assert (config.warmup_end, config.freq_reg_end, config.freq_reg) == (0, 0, False)
   path = _write(tmp_path, 'Config.freq_reg = True\nConfig.warmup_end = 500')
-  gin.clear_config()
-  assert config_loader.load_config([path]).freq_reg_end == 500
-  gin.clear_config()
+  assert runs.bind_fresh([path]).freq_reg_end == 500
   with pytest.raises(ValueError, match='warmup_end'):
-    config_loader.load_config([path], ['Config.freq_reg_end = 400'])
+    runs.bind_fresh([path], ['Config.freq_reg_end = 400'])
 
 
 def test_released_all_views_value_selects_every_training_view(capsys):
@@ -130,8 +128,7 @@ def test_flow_loss_is_a_clear_error():
 
 @pytest.mark.parametrize('path', CONFIG_FILES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_every_config_file_parses_and_validates(path):
-  gin.clear_config()
-  config = config_loader.load_config([str(path)])
+  config = runs.bind_fresh([str(path)])
   mip_nerf.MipNerfModel(), mip_nerf.MLP(), nerf.NerfModel(), nerf.NerfMLP()  # Applies (checks) every model binding.
   assert config.checkpoint_dir.startswith('out/')
 
@@ -254,8 +251,7 @@ def _effective(path) -> dict:
 
   The model's own MLP (MipNerfModel.mlp) is compared through the MLP.* settings.
   """
-  gin.clear_config()
-  values = {f'Config.{k}': v for k, v in dataclasses.asdict(config_loader.load_config([str(path)])).items()}
+  values = {f'Config.{k}': v for k, v in dataclasses.asdict(runs.bind_fresh([str(path)])).items()}
   for module in (mip_nerf.MLP(), mip_nerf.MipNerfModel()):
     values.update({f'{type(module).__name__}.{f.name}': getattr(module, f.name)
                    for f in dataclasses.fields(module) if f.name not in ('parent', 'name', 'mlp')})

@@ -6,19 +6,19 @@ import os
 import pathlib
 import statistics
 
-import gin
 
 import numpy as np
 from PIL import Image
 import pytest
 
 from internal import cli
-from internal import config_loader
 from internal import demo
+from internal import runs
 from internal.evaluation import evaluate
+from internal.evaluation import vis
 from internal.pipeline import loop
 from test_checkpoints import TINY
-from tools import demo_seeds
+from lab import demo_seeds
 from tools import provenance
 import train
 
@@ -101,40 +101,40 @@ def test_one_run_directory_for_both_methods_is_refused():
 
 def test_grid_places_upscaled_tiles_under_titles():
   tiles = [[np.full((2, 3, 3), .2 * (2 * r + c)) for c in range(2)] for r in range(3)]
-  picture = demo.grid(tiles, ['a', 'b'], ['x', 'y', 'z'], title='t', scale=2)
-  top0, th, tw = demo.HEADER + demo.LINE, 4, 6
-  assert picture.shape == (top0 + 3 * (th + demo.GAP), demo.LABEL_WIDTH + 2 * (tw + demo.GAP), 3)
+  picture = vis.grid(tiles, ['a', 'b'], ['x', 'y', 'z'], title='t', scale=2)
+  top0, th, tw = vis.HEADER + vis.LINE, 4, 6
+  assert picture.shape == (top0 + 3 * (th + vis.GAP), vis.LABEL_WIDTH + 2 * (tw + vis.GAP), 3)
   assert picture.dtype == np.uint8
   for r in range(3):
     for c in range(2):
-      top, left = top0 + r * (th + demo.GAP), demo.LABEL_WIDTH + c * (tw + demo.GAP)
+      top, left = top0 + r * (th + vis.GAP), vis.LABEL_WIDTH + c * (tw + vis.GAP)
       np.testing.assert_array_equal(picture[top:top + th, left:left + tw], int(.2 * (2 * r + c) * 255))
-      assert (picture[top + th:top + th + demo.GAP, left:left + tw] == 255).all()   # White gap below.
-  assert (picture[:demo.HEADER + demo.LINE] < 255).any()                            # Some title text drawn.
-  assert demo.grid(tiles, ['a', 'b'], ['x', 'y', 'z']).shape[0] == picture.shape[0] - demo.LINE
+      assert (picture[top + th:top + th + vis.GAP, left:left + tw] == 255).all()   # White gap below.
+  assert (picture[:vis.HEADER + vis.LINE] < 255).any()                            # Some title text drawn.
+  assert vis.grid(tiles, ['a', 'b'], ['x', 'y', 'z'], scale=2).shape[0] == picture.shape[0] - vis.LINE
 
 
 def test_a_long_row_title_widens_its_column_instead_of_covering_the_tiles():
   tiles = [[np.zeros((8, 8, 3))]]
-  picture = demo.grid(tiles, ['a'], ['test view 100 of many'], scale=1)
-  left0 = demo.label_width(['test view 100 of many'])
-  assert left0 > demo.LABEL_WIDTH and picture.shape[1] == left0 + 8 + demo.GAP
-  assert (picture[demo.HEADER:demo.HEADER + 8, left0:left0 + 8] == 0).all()        # The tile, untouched by text.
-  assert (picture[demo.HEADER:demo.HEADER + 8, demo.LABEL_WIDTH:left0] < 255).any()  # The title's end, beside it.
+  picture = vis.grid(tiles, ['a'], ['test view 100 of many'], scale=1)
+  left0 = vis.label_width(['test view 100 of many'])
+  assert left0 > vis.LABEL_WIDTH and picture.shape[1] == left0 + 8 + vis.GAP
+  assert (picture[vis.HEADER:vis.HEADER + 8, left0:left0 + 8] == 0).all()        # The tile, untouched by text.
+  assert (picture[vis.HEADER:vis.HEADER + 8, vis.LABEL_WIDTH:left0] < 255).any()  # The title's end, beside it.
 
 
 def test_long_column_titles_wrap_to_their_tiles_width_and_push_the_tiles_down():
   tiles = [[np.zeros((8, 120, 3)), np.zeros((8, 120, 3))]]
   long = 'freenerf_refine noise=exact seed=0 a_label_wider_than_its_tile'
-  font = demo.label_font()
-  lines = demo.wrap_label(long, 118, font)
+  font = vis.label_font()
+  lines = vis.wrap_label(long, 118, font)
   assert lines == ['freenerf_refine', 'noise=exact seed=0', 'a_label_wider_than_its_tile']
   assert all(font.getlength(t) <= 118 for t in lines[:2])
-  picture = demo.grid(tiles, [long, 'b'], ['x'], scale=1)
-  top0 = demo.HEADER + 2 * demo.LINE  # Two extra lines for the three of the longest title.
-  assert picture.shape[0] == top0 + 8 + demo.GAP
-  assert (picture[top0:top0 + 8, demo.LABEL_WIDTH:demo.LABEL_WIDTH + 120] == 0).all()  # The tile, under no text.
-  assert (picture[:top0 - demo.LINE, demo.LABEL_WIDTH + 120:demo.LABEL_WIDTH + 120 + demo.GAP] == 255).all()
+  picture = vis.grid(tiles, [long, 'b'], ['x'], scale=1)
+  top0 = vis.HEADER + 2 * vis.LINE  # Two extra lines for the three of the longest title.
+  assert picture.shape[0] == top0 + 8 + vis.GAP
+  assert (picture[top0:top0 + 8, vis.LABEL_WIDTH:vis.LABEL_WIDTH + 120] == 0).all()  # The tile, under no text.
+  assert (picture[:top0 - vis.LINE, vis.LABEL_WIDTH + 120:vis.LABEL_WIDTH + 120 + vis.GAP] == 255).all()
 
 
 def test_side_by_side_rows_columns_and_shared_depth_range():
@@ -184,8 +184,8 @@ def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch)
     assert (renders / f'generated_forward_{run}_color.mp4').stat().st_size > 0
   picture = np.asarray(Image.open(tmp_path / 'out' / 'demo' / demo.PICTURE))
   block_rows = -(-len(demo.shown_positions(2)) // demo.BLOCKS_PER_ROW)  # The 2 evaluated test views.
-  assert picture.shape == (demo.HEADER + demo.LINE + 2 * block_rows * (32 * demo.SCALE + demo.GAP),
-                           demo.LABEL_WIDTH + 3 * demo.BLOCKS_PER_ROW * (40 * demo.SCALE + demo.GAP), 3)
+  assert picture.shape == (vis.HEADER + vis.LINE + 2 * block_rows * (32 * demo.SCALE + vis.GAP),
+                           vis.LABEL_WIDTH + 3 * demo.BLOCKS_PER_ROW * (40 * demo.SCALE + vis.GAP), 3)
   assert (tmp_path / 'out' / 'demo' / demo.ORBIT_VIDEO).stat().st_size > 0
   with Image.open(tmp_path / 'out' / 'demo' / demo.CURVES) as curves:   # One point each: the last step.
     assert curves.format == 'PNG' and curves.size == (640, 440)
@@ -226,8 +226,7 @@ def test_the_recorded_results_are_the_demo_over_several_seeds(kind):
 
 @pytest.mark.slow
 def test_demo_settings_reconstruct_the_scene_from_all_views(tmp_path):
-  gin.clear_config()
-  config = config_loader.load_config(demo.METHODS['NeRF'], PIPELINE + [
+  config = runs.bind_fresh(demo.METHODS['NeRF'], PIPELINE + [
       f"Config.data_dir = '{tmp_path / 'scene'}'", f"Config.checkpoint_dir = '{tmp_path / 'run'}'"])
   assert config.n_input_views == 0 and not config.freq_reg and config.lr_final == demo.method_configs()[
       'FreeNeRF'].lr_final
@@ -241,15 +240,15 @@ def test_demo_settings_reconstruct_the_scene_from_all_views(tmp_path):
 @pytest.mark.slow
 def test_demo_settings_freenerf_from_few_views_as_recorded(tmp_path):
   """FreeNeRF of the demo (2 views) trained as the demo does; the NeRF it leads is in the recorded results."""
-  config = demo.method_config('FreeNeRF', ['Config.compute_lpips = False', f"Config.data_dir = '{tmp_path / 'scene'}'",
-                                           f"Config.checkpoint_dir = '{tmp_path / 'run'}'"])
-  loop.train(config)
-  record = evaluate.evaluate(config)
+  with demo.method_config('FreeNeRF', ['Config.compute_lpips = False', f"Config.data_dir = '{tmp_path / 'scene'}'",
+                                        f"Config.checkpoint_dir = '{tmp_path / 'run'}'"]) as config:
+    loop.train(config)
+    record = evaluate.evaluate(config)
   assert record['complete'], record
   check_against_recorded(record['means']['psnr'], lambda r: r['demo']['means']['FreeNeRF']['psnr'])
 
 
 def test_picture_labels_keep_their_spaces():
-  font = demo.label_font()
+  font = vis.label_font()
   # PIL's default bitmap font draws a space 2 px wide ('mipnerfseed=0'); a real font's is a third of a letter's.
   assert font.getlength('a b') - font.getlength('ab') >= font.getlength('a') / 3

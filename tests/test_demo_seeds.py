@@ -12,7 +12,7 @@ from internal import cli
 from internal import demo
 from internal import environment
 from internal.evaluation import learning_curve
-from tools import demo_seeds
+from lab import demo_seeds
 
 
 def _record(seed: int, nerf: float, free: float, all_views: float, seconds: float) -> dict:

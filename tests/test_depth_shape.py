@@ -1,4 +1,4 @@
-"""tools.depth_shape: the correlation, median ratio and the error left after the best scale and shift, by hand; a
+"""lab.depth_shape: the correlation, median ratio and the error left after the best scale and shift, by hand; a
 study whose cells evaluated some of the test views."""
 
 import csv
@@ -12,7 +12,7 @@ import pytest
 from internal.configs import Config
 from internal.datasets import load_dataset
 from internal.evaluation import depth_metrics
-from tools import depth_shape
+from lab import depth_shape
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 STUDY = '''

@@ -5,7 +5,6 @@ import dataclasses
 import json
 import os
 
-import gin
 import jax
 import matplotlib
 import numpy as np
@@ -14,8 +13,8 @@ import pytest
 from jax import random
 
 from conftest import SHARED_DATA
-from internal import config_loader
 from internal import datasets
+from internal import runs
 from internal.evaluation import evaluate
 from internal.evaluation import inference
 from internal.evaluation import metrics
@@ -111,8 +110,7 @@ def test_dtu_eval_reports_full_and_object_metrics(tmp_path):
   scan = SHARED_DATA / 'dtu' / 'dtu_scan24'
   if not scan.is_dir():
     pytest.skip(f'no DTU scan under {scan}')
-  gin.clear_config()
-  config = config_loader.load_config([str(ROOT / 'configs' / 'freenerf' / 'dtu3_freenerf.gin')], [
+  config = runs.bind_fresh([str(ROOT / 'configs' / 'freenerf' / 'dtu3_freenerf.gin')], [
       f"Config.data_dir = '{scan.parent}'", "Config.dtu_scan = 'dtu_scan24'", "Config.dtu_mask_path = ''",
       'Config.allow_missing_test_views = True', 'Config.factor = 16', 'Config.max_steps = 2',
       f"Config.checkpoint_dir = '{tmp_path / 'run'}'", 'Config.batch_size = 64', 'Config.eval_test_ids = [0, 1]',

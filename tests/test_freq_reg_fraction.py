@@ -2,11 +2,10 @@
 loads; the mini configs, the demo and the study files give T so, and every run they make keeps the T it had when they
 gave it in steps (the tables below are those step counts, resolved from the files before the change)."""
 
-import gin
 import pytest
 
-from internal import config_loader
-from tools.study import spec as study_spec
+from internal import runs
+from lab.study import spec as study_spec
 
 DEMO = ['configs/demo.gin']
 FORWARD = DEMO + ['configs/demo_forward.gin']
@@ -54,8 +53,7 @@ FRACTION_STUDIES = ('depth_prior_cup', 'cameras_cup', 'depth_prior_cup_9views')
 
 def resolved(configs, bindings=()) -> tuple:
   """(max_steps, freq_reg_end) of the config the files and bindings load to."""
-  gin.clear_config()
-  config = config_loader.load_config(list(configs), list(bindings))
+  config = runs.bind_fresh(list(configs), list(bindings))
   return config.max_steps, config.freq_reg_end
 
 
@@ -68,8 +66,7 @@ def test_a_fraction_gives_t_in_steps_when_the_config_loads():
 
 def test_a_step_count_in_the_bindings_wins_over_a_fraction_from_the_files():
   assert resolved(DEMO, ['Config.freq_reg_end = 123']) == (700, 123)
-  gin.clear_config()
-  assert config_loader.load_config(DEMO, ['Config.freq_reg_end = 123']).freq_reg_end_fraction is None
+  assert runs.bind_fresh(DEMO, ['Config.freq_reg_end = 123']).freq_reg_end_fraction is None
 
 
 def test_of_steps_and_fraction_the_later_binding_wins_across_files_includes_and_bindings(tmp_path):
@@ -124,7 +121,6 @@ def test_each_study_cell_keeps_the_t_it_had_in_steps(name):
 def test_these_studies_take_t_from_the_fraction_of_their_gin(name):
   study = study_spec.load(f'studies/{name}.toml')
   for cell in study_spec.cells(study):
-    gin.clear_config()
-    config = config_loader.load_config(*study_spec.cell_gin(study, cell, 'out', '../shared/data', 'out/cell'))
+    config = runs.bind_fresh(*study_spec.cell_gin(study, cell, 'out', '../shared/data', 'out/cell'))
     assert config.freq_reg_end_fraction is not None, f'{name}: {cell.cell_id} binds T in steps'
     assert config.freq_reg_end == round(config.freq_reg_end_fraction * config.max_steps)

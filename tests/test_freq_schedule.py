@@ -1,13 +1,12 @@
 """Tests of internal/models/freq_schedule.py against worked examples of the released mask and a literal reference."""
 
-import gin
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from conftest import assert_float32_exact
-from internal import config_loader
+from internal import runs
 from internal.models import freq_schedule
 
 LOW = np.float32(1e-8)
@@ -197,8 +196,7 @@ def test_too_large_end_is_refused_when_the_config_is_loaded():
   """A T the exact pointer cannot hold is a settings error at load time, before a run directory is written."""
   largest = (2**24 - 1) // 3  # Released layout: 3 features a group, den * T < 2**24.
   def load(end, *bindings):
-    gin.clear_config()
-    return config_loader.load_config([], [f'Config.freq_reg_end = {end}', f'Config.max_steps = {end}', *bindings])
+    return runs.bind_fresh([], [f'Config.freq_reg_end = {end}', f'Config.max_steps = {end}', *bindings])
   with pytest.raises(ValueError, match=rf'Config.freq_reg_end = {largest + 1} is too large .*at most {largest}'):
     load(largest + 1, 'Config.freq_reg = True')
   load(largest, 'Config.freq_reg = True')

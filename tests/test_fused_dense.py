@@ -17,6 +17,7 @@ from jax._src.lib.mlir import ir
 
 from bench import step_variants
 from conftest import random_rays
+from internal import runs
 from internal.models import fused_dense
 from internal.training import flops
 from internal.models import mip_nerf
@@ -155,11 +156,10 @@ def test_every_tile_setting_gives_the_same_layer():
 
 def _tiny_model(kernel, precision='float32', bindings=()):
   """(model, variables, rays) of the tiny model (4 hidden layers, the skip into the fourth) with MLP.dense_kernel."""
-  gin.clear_config()
-  gin.parse_config(['MLP.net_depth = 4', 'MLP.net_width = 32', 'MLP.skip_layer = 2', 'MLP.net_width_viewdirs = 16',
-                    'MipNerfModel.num_samples = 8', f"MLP.dense_kernel = '{kernel}'",
-                    'FusedDenseTiles.rows = 16', 'FusedDenseTiles.block = 32', 'FusedDenseTiles.chunk = 16',
-                    'FusedDenseTiles.splits = 2', *bindings])
+  runs.bind_fresh([], ['MLP.net_depth = 4', 'MLP.net_width = 32', 'MLP.skip_layer = 2', 'MLP.net_width_viewdirs = 16',
+                       'MipNerfModel.num_samples = 8', f"MLP.dense_kernel = '{kernel}'",
+                       'FusedDenseTiles.rows = 16', 'FusedDenseTiles.block = 32', 'FusedDenseTiles.chunk = 16',
+                       'FusedDenseTiles.splits = 2', *bindings])
   rays = random_rays(4, 16)
   return mip_nerf.construct_model(random.PRNGKey(0), rays, False, precision) + (rays,)
 
@@ -214,12 +214,8 @@ def test_unknown_kernel_and_non_relu_activation_are_named():
   with pytest.raises(ValueError, match=r"MLP.dense_kernel = 'triton'; expected one of \['xla', 'pallas', "
                                        r"'folded_bias'\]"):
     _model_outputs('triton')
-  gin.clear_config()
-  gin.parse_config(["MLP.dense_kernel = 'pallas'", 'MLP.net_activation = @flax.nn.softplus'])
-  rays = random_rays(4, 4)
-  with pytest.raises(ValueError, match='MLP.net_activation is softplus, expected relu'):
-    mip_nerf.construct_model(random.PRNGKey(0), rays, False)
-  gin.clear_config()
+  with pytest.raises(ValueError, match='MLP.net_activation is softplus, expected relu'):  # Checked as it loads.
+    runs.bind_fresh([], ["MLP.dense_kernel = 'pallas'", 'MLP.net_activation = @flax.nn.softplus'])
 
 
 def _for_an_h100():

@@ -1,4 +1,4 @@
-"""bench/gpu_check.sh, the checks for a lent GPU, run end to end on the CPU at a tiny size (so it does not rot)."""
+"""lab/gpu_check.sh, the checks for a lent GPU, run end to end on the CPU at a tiny size (so it does not rot)."""
 
 import json
 import os
@@ -28,7 +28,7 @@ def test_gpu_check_runs_every_stage_and_reports_the_three_tables(tmp_path):
              VARIANT_FLAGS='--tiny --batch_size 64 --repeats 1 --precisions bfloat16 '
                            '--variants relu_from_output,pallas --profile_steps 1')
   out = tmp_path / 'out'
-  result = subprocess.run(['bash', 'bench/gpu_check.sh', str(scene), str(out)], cwd=ROOT, env=env, text=True,
+  result = subprocess.run(['bash', 'lab/gpu_check.sh', str(scene), str(out)], cwd=ROOT, env=env, text=True,
                           capture_output=True, timeout=600)
   assert result.returncode == 0, result.stdout + result.stderr
   for stage in ('env', 'step_variants', 'train_freenerf_bfloat16_pallas', 'eval_freenerf_bfloat16_pallas', 'tests'):

@@ -1,4 +1,4 @@
-"""bench.gpu_report's picture: a labelled column per test view, the ground truth of those views (from the packed
+"""lab.gpu_report's picture: a labelled column per test view, the ground truth of those views (from the packed
 scene the runs were evaluated on), then each run's colour and depth rows, every row labelled."""
 
 import json
@@ -6,10 +6,9 @@ import json
 import numpy as np
 from PIL import Image
 
-from bench import gpu_report
-from internal import demo
 from internal.datasets import packed
 from internal.evaluation import vis
+from lab import gpu_report
 
 H, W = 6, 8
 IDS = [1, 9, 11]
@@ -45,9 +44,9 @@ COLUMNS = ['test view 9', 'test view 11']  # The pictured views' column titles, 
 
 
 def _tile(picture, rows, r: int, c: int) -> np.ndarray:
-  """The pixel at the centre of tile (r, c) of demo.grid's layout (scale 1, no title)."""
-  top = demo.tiles_top(COLUMNS, W) + r * (H + demo.GAP)
-  left = demo.label_width(rows) + c * (W + demo.GAP)
+  """The pixel at the centre of tile (r, c) of vis.grid's layout (scale 1, no title)."""
+  top = vis.tiles_top(COLUMNS, W) + r * (H + vis.GAP)
+  left = vis.label_width(rows) + c * (W + vis.GAP)
   return picture[top + H // 2, left + W // 2]
 
 
@@ -76,12 +75,12 @@ def test_the_picture_labels_rows_and_columns_and_shows_the_ground_truth_first(tm
   expected = [0.4, 0.8, 1., 0.1, 1.]                                     # View 9's column, top to bottom.
   assert [int(_tile(picture, rows, r, 0)[0]) for r in range(5)] == [_byte(v) for v in expected]
   assert int(_tile(picture, rows, 0, 1)[0]) == _byte(0.6)         # View 11's truth beside it.
-  top, left = demo.tiles_top(COLUMNS, W), demo.label_width(rows)
-  assert picture.shape[:2] == (top + 5 * (H + demo.GAP), left + 2 * (W + demo.GAP))
+  top, left = vis.tiles_top(COLUMNS, W), vis.label_width(rows)
+  assert picture.shape[:2] == (top + 5 * (H + vis.GAP), left + 2 * (W + vis.GAP))
   for r in range(5):                                                     # Each row's title is drawn.
-    assert (picture[top + r * (H + demo.GAP):top + (r + 1) * (H + demo.GAP), :left] < 128).any()
+    assert (picture[top + r * (H + vis.GAP):top + (r + 1) * (H + vis.GAP), :left] < 128).any()
   for c in range(2):                                                     # Each column's too.
-    assert (picture[:top, left + c * (W + demo.GAP):left + (c + 1) * (W + demo.GAP)] < 128).any()
+    assert (picture[:top, left + c * (W + vis.GAP):left + (c + 1) * (W + vis.GAP)] < 128).any()
 
 
 def test_without_the_ground_truth_the_runs_rows_come_first(tmp_path):

@@ -116,8 +116,8 @@ sys.meta_path.insert(0, SigintAtJax())
 '''
 
 
-@pytest.mark.parametrize('script', ['eval.py', 'train.py', 'render.py', 'tools.study', 'tools.mesh',
-                                    'tools.demo_seeds', 'tools.tables', 'tools.pack_scene'])
+@pytest.mark.parametrize('script', ['eval.py', 'train.py', 'render.py', 'lab.study', 'tools.mesh',
+                                    'lab.demo_seeds', 'tools.tables', 'tools.pack_scene'])
 def test_ctrl_c_while_a_script_or_tool_imports_is_one_line(script, tmp_path):
   (tmp_path / 'sitecustomize.py').write_text(SIGINT_AT_JAX_IMPORT)
   env = dict(os.environ, PYTHONPATH=str(tmp_path))

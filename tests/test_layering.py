@@ -1,5 +1,7 @@
 """Layering: the scripts are thin shells over internal/; internal/ and tools/ never import the scripts or bench/,
-internal/ never imports tools/, and inside internal/ each stage of the pipeline imports only earlier stages."""
+internal/ never imports tools/, inside internal/ each stage of the pipeline imports only earlier stages, the lab
+(lab/) reaches internal/ only through the door to runs (internal/runs.py) and the small shared helpers, and no
+module of the house imports itself through others."""
 
 import ast
 import pathlib
@@ -56,9 +58,10 @@ def test_internal_does_not_import_tools(path):
 STAGES = ('records', 'cameras', 'datasets', 'models', 'losses', 'training', 'run', 'evaluation', 'geometry', 'pipeline',
           'entry')
 # The modules directly under internal/: plain data and utilities that import nothing of internal/, and the entry
-# points of the scripts (the command line, the demo, config loading that validates every stage's settings).
+# points of the scripts and the lab (the command line, the demo, config loading that validates every stage's settings,
+# the door to runs).
 RECORDS = {'rays', 'configs', 'atomic', 'progress', 'environment', 'interrupt', 'lock_holders'}
-ENTRY_POINTS = {'cli', 'demo', 'config_loader'}
+ENTRY_POINTS = {'cli', 'demo', 'config_loader', 'runs'}
 
 
 def stage(module: str) -> str:
@@ -112,9 +115,9 @@ def test_stages_import_only_earlier_stages(path):
   assert not later, f'{name} ({STAGES[own]}) imports later stages: {sorted(later)}'
 
 
-def module_name(path: pathlib.Path) -> str:
+def module_name(path: pathlib.Path, root: pathlib.Path = ROOT) -> str:
   """The dotted name of a file of the repository ('internal/datasets/__init__.py' -> 'internal.datasets')."""
-  return path.relative_to(ROOT).as_posix().removesuffix('.py').removesuffix('/__init__').replace('/', '.')
+  return path.relative_to(root).as_posix().removesuffix('.py').removesuffix('/__init__').replace('/', '.')
 
 
 def import_cycle(graph: dict) -> list:
@@ -152,18 +155,64 @@ def imported_files(path: pathlib.Path, modules: set) -> set:
   return names & modules
 
 
-def test_internal_has_no_import_cycles():
-  """No module of internal/ imports itself through others (a package's __init__.py importing its own modules is no
-  cycle: they import its modules, not the package)."""
-  modules = {module_name(p): p for p in _modules('internal')}
-  graph = {name: imported_files(path, set(modules)) for name, path in modules.items()}
+# The house: the scripts at the top, the library, the tools a user runs on a scene, the benchmarks, the laboratory.
+HOUSE = ('internal', 'tools', 'bench', 'lab')
+
+
+def import_graph(root: pathlib.Path, folders=HOUSE) -> dict:
+  """{module: the modules of the house it imports} of the .py files under root's folders and at its top (a
+  package's __init__.py importing its own modules is no cycle: they import its modules, not the package)."""
+  paths = [p for folder in folders for p in sorted((root / folder).rglob('*.py'))] + sorted(root.glob('*.py'))
+  modules = {module_name(p, root): p for p in paths}
+  return {name: imported_files(path, set(modules)) for name, path in modules.items()}
+
+
+def test_the_import_graph_catches_a_cycle_through_a_function_body(tmp_path):
+  (tmp_path / 'lab' / 'study').mkdir(parents=True)
+  (tmp_path / 'tools').mkdir()
+  (tmp_path / 'lab' / 'study' / 'a.py').write_text('from lab.study import b\n')
+  (tmp_path / 'lab' / 'study' / 'b.py').write_text('def f():\n  from tools import c\n')
+  (tmp_path / 'tools' / 'c.py').write_text('import lab.study.a\n')
+  (tmp_path / 'train.py').write_text('from lab.study import a\n')
+  graph = import_graph(tmp_path)
+  assert import_cycle(graph) == ['lab.study.a', 'lab.study.b', 'tools.c', 'lab.study.a']
+  (tmp_path / 'tools' / 'c.py').write_text('import os\n')
+  assert not import_cycle(import_graph(tmp_path))
+
+
+def test_the_house_has_no_import_cycles():
+  """No module anywhere in the house imports itself through others (farm-studio draws 0 circles)."""
+  graph = import_graph(ROOT)
+  assert {'train', 'internal.runs', 'lab.study.runner', 'bench.common', 'tools.points'} <= set(graph)
   assert not import_cycle(graph), ' -> '.join(import_cycle(graph))
 
 
+# What the laboratory (lab/) may import of internal/: the door to runs and the small shared helpers (the command
+# line, atomic writes, progress, Ctrl-C as one line, the machine's kind, whether a lock's holder is gone), and the
+# demo, whose seeds it reports.
+LAB_MAY_IMPORT = {'internal.runs', 'internal.cli', 'internal.atomic', 'internal.progress', 'internal.interrupt',
+                  'internal.environment', 'internal.lock_holders', 'internal.demo'}
+
+
+BELOW_THE_LAB = _modules('internal') + _modules('tools') + _modules('bench') + sorted(ROOT.glob('*.py'))
+
+
+@pytest.mark.parametrize('path', BELOW_THE_LAB, ids=lambda p: str(p.relative_to(ROOT)))
+def test_the_lab_sits_on_top_nothing_imports_it(path):
+  """The library, the tools, the benchmarks and the scripts never import lab/ (an old command's shim names its new
+  one as text, cli.run_moved)."""
+  assert 'lab' not in imported_modules(path)
+
+
+@pytest.mark.parametrize('path', _modules('lab'), ids=lambda p: str(p.relative_to(ROOT)))
+def test_the_lab_imports_only_the_door_and_the_small_helpers(path):
+  assert not internal_imports(path) - LAB_MAY_IMPORT, sorted(internal_imports(path) - LAB_MAY_IMPORT)
+
+
 def test_every_module_is_checked():
-  checked = {p.relative_to(ROOT).as_posix() for p in _modules('internal') + _modules('tools')}
+  checked = {p.relative_to(ROOT).as_posix() for p in _modules('internal') + _modules('tools') + _modules('lab')}
   assert {'internal/pipeline/loop.py', 'internal/evaluation/evaluate.py', 'internal/evaluation/render_path.py',
-          'internal/demo.py', 'internal/models/mip_nerf.py', 'tools/study/runner.py', 'tools/tables.py'} <= checked
+          'internal/demo.py', 'internal/models/mip_nerf.py', 'lab/study/runner.py', 'tools/tables.py'} <= checked
 
 
 # The loader files and their registry: the modules every loader shares import none of them, so that a dataset is

@@ -7,11 +7,11 @@ import os
 import pathlib
 import signal
 
-import gin
 import numpy as np
 import pytest
 
 from internal import config_loader
+from internal import runs
 from internal.evaluation import evaluate
 from internal.evaluation import learning_curve
 from internal.pipeline import loop
@@ -160,8 +160,7 @@ def test_dtu_configs_spread_their_curve_views(name):
 def test_packed_scenes_need_the_packed_factor():
   with pytest.raises(ValueError, match='Config.curve_factor = 4: a packed scene .* set Config.curve_factor = 1'):
     config_loader.load_config([], ["Config.dataset_loader = 'packed'", 'Config.curve_every = 10'])
-  gin.clear_config()
-  config_loader.load_config([], ["Config.dataset_loader = 'packed'", 'Config.curve_every = 0'])
+  runs.bind_fresh([], ["Config.dataset_loader = 'packed'", 'Config.curve_every = 0'])
 
 
 @MASK_STILL_OPENING

@@ -1,4 +1,4 @@
-"""The ledger of paper-length runs: its file, the plan, the TF32 follow-up rule, and bench/lease.sh end to end on the
+"""The ledger of paper-length runs: its file, the plan, the TF32 follow-up rule, and lab/lease.sh end to end on the
 CPU at a tiny size (a generated scene's pack, 30 steps) through budget cuts, unpacked as a commit would be.
 
 On the CPU the lease skips what only a GPU does (timing the step variants and RegNeRF's step, the fused layer's
@@ -11,20 +11,19 @@ import subprocess
 import sys
 import tarfile
 
-import gin
 import jax
 import numpy as np
 import pytest
 
-from bench import ledger as ledger_lib
-from bench import ledger_commit
-from bench import prepare_lease
 from conftest import SHARED_DATA
-from internal import config_loader
+from internal import runs
 from internal.datasets import packed
 from internal.evaluation import evaluate
 from internal.evaluation import learning_curve
 from internal.pipeline import loop
+from lab import prepare_lease
+from lab.ledger import commit as ledger_commit
+from lab.ledger import window as ledger_lib
 from tools import tables
 
 ROOT = ledger_lib.ROOT
@@ -63,7 +62,7 @@ precision = 'default'
 
 @pytest.fixture(name='tiny')
 def tiny_fixture(tmp_path_factory):
-  """(ledger, data folder) of the tiny ledger, its pack made by tools.pack_scene as bench.prepare_lease makes them."""
+  """(ledger, data folder) of the tiny ledger, its pack made by tools.pack_scene as lab.prepare_lease makes them."""
   folder = tmp_path_factory.mktemp('tiny_ledger')
   (folder / 'ledger.toml').write_text(TINY_LEDGER)
   ledger = ledger_lib.load(str(folder / 'ledger.toml'))
@@ -76,8 +75,7 @@ def test_the_ledger_holds_the_released_runs_in_order():
   assert [r.name for r in ledger.runs] == ['freenerf_dtu3_scan24', 'freenerf_dtu3_scan24_tf32', 'mipnerf_dtu3_scan24',
                                            'freenerf_llff3_fern', 'mipnerf_llff3_fern']
   for run in ledger.runs:
-    gin.clear_config()
-    released = config_loader.load_config([os.path.join(ROOT, run.gin)], ["Config.data_dir = 'x'"])
+    released = runs.bind_fresh([os.path.join(ROOT, run.gin)], ["Config.data_dir = 'x'"])
     assert run.steps == released.max_steps and run.metric in tables.PAPER[run.paper]
     assert run.precision == ('default' if run.follow_up_of else 'bfloat16')
   assert [r.steps for r in ledger.runs] == [43945, 43945, 43945, 69768, 69768]
@@ -99,9 +97,8 @@ def test_every_run_trains_on_its_pack_and_scores_its_curve_on_every_test_view(tm
   ledger = ledger_lib.load()
   prepare_lease.make_packs(ledger, str(SHARED_DATA), str(tmp_path))
   for run in ledger.runs:
-    gin.clear_config()
     bindings = ledger_lib.train_bindings(ledger, run, str(tmp_path), str(tmp_path / run.name), [])
-    config = config_loader.load_config([os.path.join(ROOT, run.gin)], bindings)
+    config = runs.bind_fresh([os.path.join(ROOT, run.gin)], bindings)
     path = ledger_lib.pack_path(ledger, run, str(tmp_path))
     packed.check_settings(config, packed.read_pack(path)[0], path)  # The pack's data is this run's.
     assert config.curve_spread_views == (13 if run.pack == 'dtu_scan24' else 3) and config.curve_every == 4000
@@ -115,7 +112,7 @@ def _window(**overrides) -> dict:
 
 def test_the_plan_says_how_far_each_run_is_and_what_this_window_does(tmp_path):
   lines = ledger_lib.plan_lines(ledger_lib.load(), str(tmp_path / 'results'), str(tmp_path / 'work'), _window())
-  assert lines[0] == ('Ledger bench/ledger.toml: 5 runs; this window: NVIDIA H100 80GB HBM3 (gpu), jax 0.11.2, '
+  assert lines[0] == ('Ledger lab/ledger/ledger.toml: 5 runs; this window: NVIDIA H100 80GB HBM3 (gpu), jax 0.11.2, '
                       'budget 540 s')
   assert lines[1] == ('  1. freenerf_dtu3_scan24: 0 of 43,945 steps (0%), bfloat16, '
                       'configs/freenerf/dtu3_freenerf.gin')
@@ -153,7 +150,7 @@ def test_the_tf32_follow_up_goes_next_only_when_the_run_falls_short_by_more_than
     ("curve_every = 1\ncheckpoint_every = 1\nseed_spread_db = 0.5\nvariants_seconds = 1\n[[run]]\nname = 'a'\n",
      r"run 1: gin = None; expected a str"),
     ("[[run]]\nname = 'b'\nfollow_up_of = 'a'\n", r"run 1: follow_up_of = 'a'; expected a run named before it"),
-    ('x = ', 'expected a TOML file like bench/ledger.toml')])
+    ('x = ', 'expected a TOML file like lab/ledger/ledger.toml')])
 def test_a_bad_ledger_is_named(tmp_path, text, message):
   (tmp_path / 'l.toml').write_text(text)
   with pytest.raises(ValueError, match=message):
@@ -161,11 +158,11 @@ def test_a_bad_ledger_is_named(tmp_path, text, message):
 
 
 def _lease(tmp_path, name, ledger, data, results, **env):
-  """Runs bash bench/lease.sh into tmp_path/name; returns (OUT, the lease's output)."""
+  """Runs bash lab/lease.sh into tmp_path/name; returns (OUT, the lease's output)."""
   out = tmp_path / name
   env = {**os.environ, 'OUT': str(out), 'PYTHON': sys.executable, 'LEASE_WORK': str(tmp_path / f'{name}_work'),
          'LEDGER': ledger.path, 'RESULTS': str(results), 'DATA': data, 'LEASE_ON_CPU': '1', **env}
-  result = subprocess.run(['bash', 'bench/lease.sh'], cwd=ROOT, env=env, text=True, capture_output=True, timeout=900)
+  result = subprocess.run(['bash', 'lab/lease.sh'], cwd=ROOT, env=env, text=True, capture_output=True, timeout=900)
   assert result.returncode == 0, result.stdout + result.stderr
   assert (out / 'lease.log').read_text() == result.stdout  # Everything it printed comes back.
   return out, result.stdout
@@ -173,18 +170,16 @@ def _lease(tmp_path, name, ledger, data, results, **env):
 
 def _uninterrupted(ledger, run, data, run_dir):
   """The parameters of the run trained in one go, as the lease trains it."""
-  gin.clear_config()
-  config = config_loader.load_config([os.path.join(ROOT, run.gin)],
-                                     ledger_lib.train_bindings(ledger, run, data, str(run_dir), []))
+  config = runs.bind_fresh([os.path.join(ROOT, run.gin)],
+                           ledger_lib.train_bindings(ledger, run, data, str(run_dir), []))
   return loop.train(config).state.params
 
 
 def _committed_style(ledger, run, data, results, tmp_path, step):
   """<results>/<run>/ as a window's commit leaves it: the run trained to step, its folder as checkpoint.tar.gz."""
-  gin.clear_config()
   run_dir = tmp_path / 'first_window'
-  config = config_loader.load_config([os.path.join(ROOT, run.gin)],
-                                     ledger_lib.train_bindings(ledger, run, data, str(run_dir), []))
+  config = runs.bind_fresh([os.path.join(ROOT, run.gin)],
+                           ledger_lib.train_bindings(ledger, run, data, str(run_dir), []))
   loop.train(config, stop_at_step=step)
   os.makedirs(results / run.name)
   ledger_lib._tar(str(results / run.name / ledger_lib.CHECKPOINT), str(run_dir),  # pylint: disable=protected-access
@@ -266,8 +261,7 @@ def test_a_finished_runs_model_is_a_run_folder_eval_reads(tiny, tmp_path):
   ledger_commit.model_run_dir(ledger, run.name, str(tmp_path / 'results'), data, str(tmp_path / 'model'))
   psnrs = []
   for folder in ('model', 'run'):  # The model's run folder, and the run that trained it.
-    gin.clear_config()
-    psnrs.append(evaluate.evaluate(config_loader.load_config(
+    psnrs.append(evaluate.evaluate(runs.bind_fresh(
         [os.path.join(ROOT, run.gin)], ledger_lib.train_bindings(ledger, run, data, str(tmp_path / folder), [])))
                  ['means']['psnr'])
   assert psnrs[0] == psnrs[1]
@@ -275,7 +269,7 @@ def test_a_finished_runs_model_is_a_run_folder_eval_reads(tiny, tmp_path):
 
 def test_the_preparation_counts_what_travels_and_prints_the_one_call():
   call = prepare_lease.device_call()
-  assert call == "run(command=\"bash bench/lease.sh\", carry=['.whl', '.devdata'], timeout_s=590)" and len(call) < 2000
+  assert call == "run(command=\"bash lab/lease.sh\", carry=['.whl', '.devdata'], timeout_s=590)" and len(call) < 2000
   sizes = prepare_lease.travelling()
   assert sizes['tree'] > 10 * 2**20 and set(sizes) == {'tree', '.whl', '.devdata'}
   assert prepare_lease.pinned('tensorboardX') == 'tensorboardX==2.6.5'
@@ -309,7 +303,7 @@ WORST_CASE_PYTHON = """#!/usr/bin/env bash
 case " $* " in
   *" train.py "*folded_bias*) echo 'this variant fails'; exit 1;;
   *" train.py "*) "{python}" "$@" & trap '' TERM; wait $!; sleep 600;;
-  *" bench.ledger pack"*) trap '' TERM; sleep 600;;
+  *" lab.ledger pack"*) trap '' TERM; sleep 600;;
   *) exec "{python}" "$@";;
 esac
 """

@@ -15,11 +15,12 @@ import numpy as np
 import orbax.checkpoint as ocp
 import pytest
 
-from bench import ledger as ledger_lib
-from bench import ledger_commit
-from bench import prepare_lease
 from internal import cli
 from internal.run import checkpoints
+from lab import prepare_lease
+from lab.ledger import __main__ as ledger_main
+from lab.ledger import commit as ledger_commit
+from lab.ledger import window as ledger_lib
 from test_disk_full import small_disk  # pylint: disable=unused-import  (a fixture: a 32 MiB tmpfs)
 from test_ledger import TINY_LEDGER
 from test_read_only import read_only
@@ -49,8 +50,8 @@ def tiny_pack_fixture(tmp_path_factory):
 
 
 def _command(capsys, *argv) -> tuple:
-  """(exit status, stdout, stderr) of `python -m bench.ledger ARGV` run in this process."""
-  status = cli.run(lambda: ledger_lib.main(list(argv)))
+  """(exit status, stdout, stderr) of `python -m lab.ledger ARGV` run in this process."""
+  status = cli.run(lambda: ledger_main.main(list(argv)))
   printed = capsys.readouterr()
   return status, printed.out, printed.err
 
@@ -82,7 +83,7 @@ def _came_back(tmp_path, ledger, name: str, *steps, value: float = 1.):
 
 
 def _plain_tar(tmp_path, out, name: str) -> None:
-  """The run's tar in out as bench/lease.sh writes it when `pack` failed: the run folder as it is, no sums."""
+  """The run's tar in out as lab/lease.sh writes it when `pack` failed: the run folder as it is, no sums."""
   subprocess.run(['tar', 'czf', str(out / 'run_tiny.tar.gz'), '-C', str(tmp_path / f'{name}_work' / 'runs' / 'tiny'),
                   '--exclude', './train.lock', '.'], check=True)
 
@@ -105,9 +106,9 @@ def _committed(results) -> tuple:
 # A. A budget cut is never a failure; no retry drops steps a window trained.
 
 def _stage(command: str, limit: int = 2) -> str:
-  """What bench/stages.sh's stage prints for a command with a limit of `limit` s and 1 s of grace, then its status
+  """What lab/stages.sh's stage prints for a command with a limit of `limit` s and 1 s of grace, then its status
   and stage_cut."""
-  script = (f'budget=100 reserve=0 grace=1 stage_dir=$(mktemp -d); source bench/stages.sh; '
+  script = (f'budget=100 reserve=0 grace=1 stage_dir=$(mktemp -d); source lab/stages.sh; '
             f'stage s {limit} 1 bash -c {command!r}; echo "status=$? cut=$stage_cut"')
   return subprocess.run(['bash', '-c', script], cwd=ROOT, text=True, capture_output=True, timeout=60).stdout
 
@@ -121,16 +122,16 @@ def test_a_stage_the_budget_stops_is_a_cut_even_when_its_grace_runs_out():
 
 
 def test_a_skipped_stage_is_a_cut():
-  script = ('budget=10 reserve=0 grace=1 stage_dir=$(mktemp -d); source bench/stages.sh; '
+  script = ('budget=10 reserve=0 grace=1 stage_dir=$(mktemp -d); source lab/stages.sh; '
             'stage s 60 30 true; echo "status=$? cut=$stage_cut"')
   printed = subprocess.run(['bash', '-c', script], cwd=ROOT, text=True, capture_output=True, timeout=60).stdout
   assert '== s: skipped (9s of the budget left, it needs 30s)' in printed and 'status=1 cut=1' in printed
 
 
 def test_the_lease_retries_only_a_failure_never_a_cut():
-  with open(os.path.join(ROOT, 'bench', 'lease.sh')) as f:
+  with open(os.path.join(ROOT, 'lab', 'lease.sh')) as f:
     lease = f.read()
-  assert re.search(r'if \(\(status != 0 && !stage_cut\)\) &&.*\n\s+stage "retry_\$RUN" \d+ \d+ "\$py" -m bench\.ledger '
+  assert re.search(r'if \(\(status != 0 && !stage_cut\)\) &&.*\n\s+stage "retry_\$RUN" \d+ \d+ "\$py" -m lab\.ledger '
                    r'retry-base', lease)
 
 
@@ -147,7 +148,7 @@ def test_a_new_run_that_trained_steps_is_not_retried_over_them(tiny_pack, tmp_pa
 
 
 def test_the_lease_ends_within_its_budget_with_a_minute_to_spare_in_the_device_call():
-  with open(os.path.join(ROOT, 'bench', 'lease.sh')) as f:
+  with open(os.path.join(ROOT, 'lab', 'lease.sh')) as f:
     lease = f.read()
   budget = int(re.search(r'budget=\$\{BUDGET:-(\d+)\}', lease).group(1))
   grace = int(re.search(r'grace=\$\{GRACE:-(\d+)\}', lease).group(1))
@@ -158,8 +159,8 @@ def test_the_lease_ends_within_its_budget_with_a_minute_to_spare_in_the_device_c
   # What follows the last stage, each command with its limit: a run's pack and its SIGKILL, its plain tar, the
   # window's pack and its SIGKILL, its plain tar, 5 s for the script's lines.
   assert int(reserve) == sum(int(parts[k]) for k in ('pack_s', 'kill_s', 'tar_s', 'window_s', 'kill_s', 'tar_s')) + 5
-  assert f'timeout -k "$kill_s" "$pack_s" "$py" -m bench.ledger pack "$RUN"' in lease
-  assert f'timeout -k "$kill_s" "$window_s" "$py" -m bench.ledger pack-window' in lease
+  assert f'timeout -k "$kill_s" "$pack_s" "$py" -m lab.ledger pack "$RUN"' in lease
+  assert f'timeout -k "$kill_s" "$window_s" "$py" -m lab.ledger pack-window' in lease
   assert lease.count('timeout -s KILL "$tar_s" tar czf') == 2 and lease.count('timeout ') == 4
   assert budget - int(reserve) - grace > 300  # Training's SIGTERM by then: most of the window.
 
@@ -171,7 +172,7 @@ def test_the_lease_where_jax_sees_no_gpu_says_so_in_one_line_and_packs_nothing(t
   env = {**os.environ, 'OUT': str(out), 'PYTHON': sys.executable, 'LEASE_WORK': str(tmp_path / 'work'),
          'LEDGER': ledger.path, 'RESULTS': str(tmp_path / 'results'), 'DATA': data, 'STOP_AT_STEP': '1'}
   env.pop('LEASE_ON_CPU', None)
-  result = subprocess.run(['bash', 'bench/lease.sh'], cwd=ROOT, env=env, text=True, capture_output=True, timeout=300)
+  result = subprocess.run(['bash', 'lab/lease.sh'], cwd=ROOT, env=env, text=True, capture_output=True, timeout=300)
   assert result.returncode == cli.USAGE_ERROR_STATUS, result.stdout
   errors = [line for line in result.stdout.splitlines() if line.startswith('error: ')]
   assert len(errors) == 1 and errors[0].startswith('error: jax sees no GPU (its device: cpu'), result.stdout
@@ -269,11 +270,11 @@ def test_next_without_the_pack_says_the_same_line_twice_and_leaves_nothing(ledge
           '--results', str(tmp_path / 'results'))
   first, second = _command(capsys, *argv), _command(capsys, *argv)
   assert first == second and first[0] == cli.USAGE_ERROR_STATUS
-  _one_error_line(first[2], repr(str(tmp_path / 'empty' / 'tiny.npz')), 'is missing', 'bench.prepare_lease')
+  _one_error_line(first[2], repr(str(tmp_path / 'empty' / 'tiny.npz')), 'is missing', 'lab.prepare_lease')
   assert not (tmp_path / 'work' / 'runs').exists()
 
 
-# F, G. tools.pack_scene's one line, passed on by bench.prepare_lease.
+# F, G. tools.pack_scene's one line, passed on by lab.prepare_lease.
 
 @pytest.mark.parametrize('disk', ['read_only', 'full'])
 def test_prepare_lease_passes_on_the_packs_one_line_and_status(ledger, tmp_path, request, monkeypatch, capfd, disk):

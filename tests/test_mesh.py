@@ -8,7 +8,6 @@ import re
 import tracemalloc
 import types
 
-import gin
 import jax
 import numpy as np
 import pytest
@@ -171,7 +170,6 @@ def trained_mesh(trained, tmp_path_factory):
   """(vertices [V, 3], solids, the record of tools.mesh --scores) of the trained scene's mesh."""
   scene_dir, run = trained
   out = tmp_path_factory.mktemp('mesh_out')
-  gin.clear_config()  # Module-scoped: it runs before the per-test clean_gin fixture.
   status = mesh_tool.main(['--gin_configs', DEMO, '--gin_bindings', *_bindings(scene_dir, run), '--resolution', '64',
                            '--out', str(out / 'scene.ply'), '--scores', str(out / 'scores.json')])
   assert status == 0
@@ -219,8 +217,7 @@ def test_the_recorded_mesh_of_the_demo_finds_every_solid():
 
 
 def _mesh_cli(capsys, *argv) -> tuple:
-  """(exit status, stderr) of tools.mesh run as its command line runs it (in a fresh gin state, as a process)."""
-  gin.clear_config()
+  """(exit status, stderr) of tools.mesh run as its command line runs it (its flags bind gin afresh)."""
   status = cli.run(lambda: mesh_tool.main(list(argv)))
   return status, capsys.readouterr().err
 

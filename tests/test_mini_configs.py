@@ -2,11 +2,11 @@
 
 import os
 
-import gin
 import pytest
 
 from conftest import SHARED_DATA
 from internal import config_loader
+from internal import runs
 from internal.evaluation import evaluate
 from internal.models import mip_nerf
 from internal.models import nerf
@@ -76,8 +76,7 @@ def test_capture_mini_configs_scale_dtus_schedule_for_their_view_count(views, me
   paper = config_loader.load_config([os.path.join(REPO, 'configs', method, f'capture{views}_{method}.gin')])
   steps, end = CAPTURE_PAPER[views]
   assert (paper.max_steps, paper.freq_reg_end) == (steps, end if method == 'freenerf' else 0)
-  gin.clear_config()
-  config = config_loader.load_config([os.path.join(REPO, 'configs', 'mini', f'capture{views}_{method}.gin')])
+  config = runs.bind_fresh([os.path.join(REPO, 'configs', 'mini', f'capture{views}_{method}.gin')])
   assert config.max_steps == 2000 and config.n_input_views == views and config.dataset_loader == 'capture'
   assert config.lr_delay_steps == round(512 * 2000 / steps)                          # Warm-up scaled as the steps.
   assert config.freq_reg_end == (round(2000 * end / steps, -2) if method == 'freenerf' else 0)  # T: 0.9, 0.7, 0.5.

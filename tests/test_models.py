@@ -8,6 +8,7 @@ import pytest
 from jax import random
 
 from conftest import random_rays
+from internal import runs
 from internal.models import encoding
 from internal.models import freq_schedule
 from internal.models import mip_nerf
@@ -44,7 +45,7 @@ def test_outputs_per_level_and_ranges():
 
 def _noise_shift(bindings):
   """Pre-activation density with noise minus without, at fixed Gaussians [2, 16]."""
-  gin.parse_config(TINY + bindings)
+  runs.bind_fresh([], TINY + bindings)
   mlp = mip_nerf.MLP()
   means = random.normal(random.PRNGKey(0), (2, 16, 3))
   covs = jnp.full((2, 16, 3), 1e-3)
@@ -57,7 +58,6 @@ def _noise_shift(bindings):
 def test_density_noise_shared_by_default_as_released_and_per_sample_on_request():
   shared = _noise_shift(['MLP.density_noise = 1.0'])
   assert np.std(shared) < 1e-3 and abs(np.mean(shared)) > 1e-3  # One scalar for every sample.
-  gin.clear_config()
   per_sample = _noise_shift(['MLP.density_noise = 1.0', 'MLP.density_noise_shared = False'])
   assert 0.6 < np.std(per_sample) < 1.4  # Independent N(0, 1) draws.
 
@@ -196,13 +196,11 @@ def test_model_and_released_equivalent_mlp_take_the_mlp_bindings_and_their_degre
 
 def _rendered(kernel, precision, bindings=()):
   """Fine rgb, weight gradients and coarse normals of a model with 3 hidden layers, the skip into the third."""
-  gin.parse_config(TINY + ['MLP.net_depth = 3', 'MLP.skip_layer = 1', f"MLP.dense_kernel = '{kernel}'",
-                           *bindings])
+  runs.bind_fresh([], TINY + ['MLP.net_depth = 3', 'MLP.skip_layer = 1', f"MLP.dense_kernel = '{kernel}'", *bindings])
   rays = random_rays(6, 8)
   model, variables = mip_nerf.construct_model(random.PRNGKey(0), rays, False, precision)
   render = lambda p: model.apply({'params': p}, None, rays, compute_normals=True)[0]
   renderings, pullback = jax.vjp(lambda p: [r['rgb'] for r in render(p)], variables['params'])
-  gin.clear_config()
   return renderings[-1], pullback([jnp.ones_like(r) for r in renderings])[0], render(variables['params'])[0]
 
 

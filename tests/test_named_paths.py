@@ -7,7 +7,7 @@ import re
 import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-TOP = ('internal', 'tools', 'bench', 'docs', 'configs', 'tests', 'studies', 'results')
+TOP = ('internal', 'tools', 'bench', 'lab', 'docs', 'configs', 'tests', 'studies', 'results')
 PATH = re.compile(r'(?<![\w./-])((?:%s)/[\w./-]*\w)(.?)' % '|'.join(TOP))
 # Files docs/design.md tells a user to create when adding a regularizer: examples, not paths of this repository.
 EXAMPLES = {'configs/common/my_reg.gin', 'internal/losses/my_reg.py', 'tests/test_my_reg.py'}
@@ -99,7 +99,7 @@ def _map_block() -> str:
     return f.read().split('```text', 1)[1].split('```', 1)[0]
 
 
-@pytest.mark.parametrize('top', ['internal', 'tools', 'bench'])
+@pytest.mark.parametrize('top', ['internal', 'tools', 'bench', 'lab'])
 def test_the_design_map_names_every_module(top):
   block = _map_block()
   unnamed = [os.path.relpath(os.path.join(folder, name), ROOT) for folder, _, names in os.walk(os.path.join(ROOT, top))

@@ -10,6 +10,7 @@ from conftest import SHARED_DATA, random_rays
 from test_checkpoints import ROOT
 from test_datasets_core import encoded_dataset
 from internal import config_loader
+from internal import runs
 from internal.configs import Config
 from internal.datasets import batching
 from internal.datasets.batching import Batch
@@ -128,8 +129,7 @@ def test_default_init_stays_pytorch_linear_and_blender_configs_bind_xavier():
   bias = np.asarray(params['Dense_1']['bias'])
   assert np.abs(bias).max() <= 1. / 16. and np.abs(bias).min() > 0.  # uniform(+-1/sqrt(256)), not zero.
   for name in ('nerf/blender8_nerf.gin', 'freenerf/blender8_freenerf.gin'):
-    gin.clear_config()
-    config_loader.load_config([str(ROOT / 'configs' / name)])
+    runs.bind_fresh([str(ROOT / 'configs' / name)])
     assert nerf.NerfMLP().weight_init == 'xavier'
 
 
@@ -267,10 +267,9 @@ def test_batches_of_the_warm_up_steps_come_from_the_central_crop(mode):
 
 def test_unknown_model_and_bad_crop_are_errors_naming_the_setting():
   with pytest.raises(ValueError, match="Config.model = 'nerff'"):
-    config_loader.load_config([], ["Config.model = 'nerff'"])
-  gin.clear_config()  # Parsing locks gin's config.
+    runs.bind_fresh([], ["Config.model = 'nerff'"])
   with pytest.raises(ValueError, match='Config.precrop_frac'):
-    config_loader.load_config([], ['Config.precrop_frac = 0.'])
+    runs.bind_fresh([], ['Config.precrop_frac = 0.'])
   assert [name for name, _ in registry.gin_modules('nerf')] == ['NerfMLP', 'NerfModel']
 
 

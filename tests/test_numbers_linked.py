@@ -52,7 +52,7 @@ from typing import List, NamedTuple, Optional
 
 import pytest
 
-from tools.study import cells_file
+from lab.study import cells_file
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RESULTS = os.path.join(ROOT, 'results')

@@ -6,6 +6,7 @@ import pytest
 from jax import random
 
 from conftest import random_rays
+from internal import runs
 from internal.configs import Config
 from internal.models import freq_schedule
 from internal.models import mip_nerf
@@ -24,8 +25,7 @@ MODELS = {'mipnerf': (MIP_TINY, 'MLP', mip_nerf.construct_model, 2, 'after', 99)
 
 def _build(name, point_identity):
   tiny, mlp_name, construct, *_ = MODELS[name]
-  gin.clear_config()
-  gin.parse_config(tiny + [f'{mlp_name}.point_identity = {point_identity}'])
+  runs.bind_fresh([], tiny + [f'{mlp_name}.point_identity = {point_identity}'])
   return construct(random.PRNGKey(0), random_rays(0, 3), white_background=True)
 
 
@@ -87,8 +87,8 @@ def test_the_setting_is_fingerprinted_and_older_runs_read_as_with_xyz(name):
   gin.parse_config([f'{mlp_name}.point_identity = False'])
   off = run_dir.fingerprint(config)
   assert off[f'{mlp_name}.point_identity'] is False
-  gin.clear_config()
-  older = {k: v for k, v in run_dir.fingerprint(config).items() if k != f'{mlp_name}.point_identity'}
+  with runs.fresh_config():  # Nothing bound: the setting at its default.
+    older = {k: v for k, v in run_dir.fingerprint(config).items() if k != f'{mlp_name}.point_identity'}
   assert run_dir.differences(older, config) == ''  # A run from before the setting existed had xyz.
   gin.parse_config([f'{mlp_name}.point_identity = False'])
   assert f'{mlp_name}.point_identity: True -> False' in run_dir.differences(older, config)

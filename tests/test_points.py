@@ -5,7 +5,6 @@ the capture loader; the tool on a trained run, its memory check and its refusals
 import os
 import tracemalloc
 
-import gin
 import numpy as np
 import pytest
 
@@ -107,8 +106,7 @@ def test_the_colmap_model_loads_in_the_capture_loader_with_the_same_cameras(obje
 
 
 def _tool(*argv):
-  """tools.points' main on argv, gin cleared first (the flags parse the configs again)."""
-  gin.clear_config()
+  """tools.points' main on argv (its flags bind gin afresh)."""
   return points_tool.main(list(argv))
 
 

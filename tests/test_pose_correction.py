@@ -1,7 +1,6 @@
 """Rays of corrected cameras against the loaders' own ray builders, their gradients against finite differences,
 the seeded camera noise and the similarity alignment of cameras."""
 
-import gin
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -9,8 +8,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import SHARED_DATA
-from internal import config_loader
 from internal import configs
+from internal import runs
 from internal.cameras import algebra, alignment, caster, corrections
 from internal.cameras.records import Cameras, Pixels, RaySpace
 from internal.datasets import load_dataset
@@ -125,8 +124,7 @@ def test_so3_exp_is_rodrigues_and_exact_near_zero():
 # ------------------------------------------------------------------ noise on the training cameras
 
 def _generated(scene_dir, rig='object', *bindings):
-  gin.clear_config()
-  return config_loader.load_config(['configs/demo.gin'], [
+  return runs.bind_fresh(['configs/demo.gin'], [
       f"Config.data_dir = '{scene_dir}_{rig}'", f"Config.generated_rig = '{rig}'", 'Config.generated_size = (32, 40)',
       *bindings])
 
@@ -216,9 +214,8 @@ def test_noise_that_moves_the_cameras_beyond_float32_is_refused_naming_it(scene_
 
 @pytest.mark.skipif(not (SHARED_DATA / 'llff' / 'fern').is_dir(), reason='../shared/data/llff/fern is absent')
 def test_an_llff_scene_carries_the_ndc_focal_its_loader_cast_its_rays_with():
-  gin.clear_config()
-  config = config_loader.load_config(['configs/mini/llff3_freenerf.gin'],
-                                     [f"Config.data_dir = '{SHARED_DATA / 'llff'}'", "Config.llff_scan = 'fern'"])
+  config = runs.bind_fresh(['configs/mini/llff3_freenerf.gin'],
+                           [f"Config.data_dir = '{SHARED_DATA / 'llff'}'", "Config.llff_scan = 'fern'"])
   data = load_dataset('train', config)
   assert data.space.ndc_focal == pytest.approx(1. / data.pixtocams[0, 0, 0], rel=1e-6)
   rays = caster.image_rays(Cameras(data.camtoworlds[:1], data.pixtocams[:1]), data.space)

@@ -12,6 +12,7 @@ from jax import random
 from conftest import random_rays
 from internal import config_loader
 from internal import configs
+from internal import runs
 from internal.datasets.batching import Batch
 from internal.models import mip_nerf
 from internal.models import precision
@@ -128,11 +129,9 @@ def test_auto_is_float32_on_a_cpu_and_bfloat16_on_an_accelerator_and_runs_record
   assert precision.resolve('auto') == expected and precision.settings('auto') == precision.settings(expected)
   assert configs.Config().precision == 'auto'
   assert config_loader.load_config([], []).precision == expected
-  gin.clear_config()
-  assert config_loader.load_config([], ["Config.precision = 'default'"]).precision == 'default'
+  assert runs.bind_fresh([], ["Config.precision = 'default'"]).precision == 'default'
   # For another machine (a cluster estimate printed on a CPU for GPUs): resolved for its backend.
-  gin.clear_config()
-  assert config_loader.load_config([], [], backend='gpu').precision == precision.resolve('auto', 'gpu') == 'bfloat16'
+  assert runs.bind_fresh([], [], backend='gpu').precision == precision.resolve('auto', 'gpu') == 'bfloat16'
   assert precision.resolve('auto', 'cpu') == 'float32' and precision.resolve('default', 'gpu') == 'default'
 
 

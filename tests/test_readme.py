@@ -2,7 +2,7 @@
 
 Each block runs in bash in a copy of the repository, with one scene per loop (the README's scene-list variables)
 and a `python` on PATH that appends tiny model and data bindings to train.py / eval.py / render.py and to the
-tools that take them (tools.study, tools.pack_scene, tools.mesh, tools.points, tools.synthetic_depth, tools.view):
+tools that take them (lab.study, tools.pack_scene, tools.mesh, tools.points, tools.synthetic_depth, tools.view):
 the shared scenes instead of data/, 2 steps, a small model, low resolution (tools.mesh: a 16^3 grid at a level a
 2-step field crosses; tools.points: every pixel's point; a paper table's study: its first cell; tools.capture: 18 of
 the shared cup's photos as the `photos` folder, at half size; tools.view, a server: a free port, and Ctrl-C once it
@@ -64,12 +64,12 @@ SHIM = '''#!{python}
 """README test shim: runs the real interpreter with tiny bindings appended; logs each call and its status."""
 import json, subprocess, sys
 args = sys.argv[1:]
-TAKES_BINDINGS = (['-m', 'tools.study'], ['-m', 'tools.pack_scene'], ['-m', 'tools.mesh'],
+TAKES_BINDINGS = (['-m', 'lab.study'], ['-m', 'tools.pack_scene'], ['-m', 'tools.mesh'],
                   ['-m', 'tools.points'], ['-m', 'tools.synthetic_depth'], ['-m', 'tools.view'])
 if args[:1] in (['train.py'], ['eval.py'], ['render.py']) or args[:2] in (TAKES_BINDINGS):
   configs = ' '.join(a for a in args if 'configs/' in a or 'studies/' in a)
   args += ['--gin_bindings'] + {tiny!r} + [x for name, extra in {data!r}.items() if name in configs for x in extra]
-if args[:2] == ['-m', 'tools.study'] and any('studies/table_' in a for a in args):  # A table: its first cell.
+if args[:2] == ['-m', 'lab.study'] and any('studies/table_' in a for a in args):  # A table: its first cell.
   args += ['--shard', '0/1000']
 if args[:2] == ['-m', 'tools.mesh']:  # A 2-step field crosses softplus(-1), the density of a zero pre-activation.
   args += ['--resolution', '16', '--level', '0.3133']

@@ -15,8 +15,8 @@ from internal.configs import Config
 from internal.datasets import DatasetError, loader
 from internal.evaluation import camera_evaluation, depth_metrics, metric_registry, metrics, results
 from tools import tables
-from tools.study import export as study_export
-from tools.study import spec as study_spec
+from lab.study import export as study_export
+from lab.study import spec as study_spec
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 

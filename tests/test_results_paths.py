@@ -9,7 +9,7 @@ import pytest
 
 from internal import cli
 from tools import provenance
-from tools.study import export
+from lab.study import export
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RESULTS = os.path.join(ROOT, 'results')
@@ -44,12 +44,12 @@ def test_no_committed_result_names_a_folder_of_the_machine_that_wrote_it(name):
 
 def test_a_recorded_command_names_paths_relative_to_the_repository():
   outside = os.path.join(os.path.dirname(cli.REPOSITORY), 'elsewhere', 'out')
-  words = ['python', '-m', 'tools.study', 'x.toml', '--export', os.path.join(cli.REPOSITORY, 'out', 'x'),
+  words = ['python', '-m', 'lab.study', 'x.toml', '--export', os.path.join(cli.REPOSITORY, 'out', 'x'),
            f'--out={outside}', f"Config.data_dir = '{outside}/a'", '--shard', '0/2']
-  assert cli.recorded_command(words) == ("python -m tools.study x.toml --export out/x --out=../elsewhere/out "
+  assert cli.recorded_command(words) == ("python -m lab.study x.toml --export out/x --out=../elsewhere/out "
                                          "\"Config.data_dir = '../elsewhere/out/a'\" --shard 0/2")
   assert provenance.record(words)['command'] == cli.recorded_command(words)
-  assert cli.command_line('tools.study', words[3:]) == cli.recorded_command(words)
+  assert cli.command_line('lab.study', words[3:]) == cli.recorded_command(words)
 
 
 def test_an_export_names_a_cells_run_folder_by_its_template(tmp_path):

@@ -4,7 +4,6 @@ render refusing a model or data setting other than the run's."""
 import errno
 import types
 
-import gin
 import pytest
 
 import eval as eval_script
@@ -20,7 +19,6 @@ from test_checkpoints import DEMO, TINY, tiny_config
 def _cli(monkeypatch, capsys, main, *argv) -> tuple:
   """(exit status, stderr) of a script's main(argv) run as its command line runs it."""
   monkeypatch.delenv(cli.DEBUG_ENV, raising=False)
-  gin.clear_config()  # As in a new process.
   status = cli.run(lambda: main(['--gin_configs', DEMO, '--gin_bindings', *argv]))
   return status, capsys.readouterr().err
 

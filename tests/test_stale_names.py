@@ -1,5 +1,5 @@
 """Names left over from earlier layouts (issue 59): a loader called by the name it had before a rename, and the
-study_* aliases that tools/study/runner.py kept from when its siblings were tools/study_*.py."""
+study_* aliases that lab/study/runner.py kept from when its siblings were tools/study_*.py."""
 
 import ast
 import os
@@ -23,16 +23,16 @@ def test_no_text_calls_a_loader_by_its_earlier_name(old, new):
 
 
 def test_the_study_runner_imports_its_siblings_by_their_own_names():
-  path = os.path.join(ROOT, 'tools', 'study', 'runner.py')
+  path = os.path.join(ROOT, 'lab', 'study', 'runner.py')
   with open(path) as f:
     tree = ast.parse(f.read(), path)
   aliased = [f'{a.name} as {a.asname}' for node in ast.walk(tree)
-             if isinstance(node, ast.ImportFrom) and node.module == 'tools.study' for a in node.names if a.asname]
-  assert not aliased, f'tools/study/runner.py imports tools.study modules under other names: {aliased}'
+             if isinstance(node, ast.ImportFrom) and node.module == 'lab.study' for a in node.names if a.asname]
+  assert not aliased, f'lab/study/runner.py imports lab.study modules under other names: {aliased}'
 
 
 def test_no_text_calls_a_budgets_value_the_curves_best_point():
-  from tools.study import time_budgets  # pylint: disable=import-outside-toplevel
+  from lab.study import time_budgets  # pylint: disable=import-outside-toplevel
   assert time_budgets.value_at([(10., 12.), (50., 11.), (90., 13.)], 60.) == 11.  # The last point within, not the best.
   said = []
   for named_in in test_named_paths._texts():  # pylint: disable=protected-access

@@ -1,4 +1,4 @@
-"""tools.study end to end on the generated scene (2 methods x 2 scenes, tiny): cells, CSV, plots, resume, tables;
+"""lab.study end to end on the generated scene (2 methods x 2 scenes, tiny): cells, CSV, plots, resume, tables;
 and the study file's errors."""
 
 import csv
@@ -10,21 +10,19 @@ import shutil
 import subprocess
 import sys
 
-import gin
 import numpy as np
 from PIL import Image
 import pytest
 
-from internal import config_loader
-from internal import demo
+from internal.evaluation import vis
 from internal.pipeline import loop
 from tools import provenance
 from tools import tables
-from tools.study import cells_file
-from tools.study import export as study_export
-from tools.study import plots as study_plots
-from tools.study import runner as study_lib
-from tools.study import spec as study_spec
+from lab.study import cells_file
+from lab.study import export as study_export
+from lab.study import plots as study_plots
+from lab.study import runner as study_lib
+from lab.study import spec as study_spec
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 STEPS = 20
@@ -74,9 +72,8 @@ def fixture_ran(tmp_path_factory):
   path.write_text(TINY_STUDY)
   study = study_spec.load(path)
   half = study_lib.write_spec(study, study_spec.cells(study)[0], out, 'data')
-  spec = json.loads(pathlib.Path(half, study_lib.SPEC_FILE).read_text())
-  gin.clear_config()
-  loop.train(config_loader.load_config(spec['gin_configs'], spec['gin_bindings']), stop_at_step=10)
+  with study_spec.cell_config(half) as config:
+    loop.train(config, stop_at_step=10)
   assert study_lib.run_study(study, out) == {}  # No executor: in this process.
   return study, out, path
 
@@ -123,11 +120,11 @@ def test_learning_curves_are_plotted_against_the_step(ran):
 def test_rerun_skips_finished_cells(ran):
   _, out, path = ran
   before = {p: p.read_text() for p in pathlib.Path(out, 'mini').glob(f'*/{study_lib.CELL_FILE}')}
-  result = subprocess.run([sys.executable, '-m', 'tools.study', str(path), '--out', out], cwd=REPO,
+  result = subprocess.run([sys.executable, '-m', 'lab.study', str(path), '--out', out], cwd=REPO,
                           capture_output=True, text=True, check=True)
   assert 'running' not in result.stdout and 'results.csv' in result.stdout
   assert len(before) == 4 and all(p.read_text() == text for p, text in before.items())
-  listing = subprocess.run([sys.executable, '-m', 'tools.study', str(path), '--out', out, '--list'], cwd=REPO,
+  listing = subprocess.run([sys.executable, '-m', 'lab.study', str(path), '--out', out, '--list'], cwd=REPO,
                            capture_output=True, text=True, check=True).stdout
   assert listing.count('done') == 4
 
@@ -154,7 +151,7 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   assert not list(dest.rglob('checkpoints'))
   exported = json.loads((dest / 'provenance.json').read_text())
   assert exported['study_file']['sha256'] == hashlib.sha256(path.read_bytes()).hexdigest()
-  assert exported['command'].startswith('python -m tools.study ') and '--export' in exported['command']
+  assert exported['command'].startswith('python -m lab.study ') and '--export' in exported['command']
   assert 'cells' not in exported and sorted(p.name for p in dest.iterdir() if p.is_dir()) == []  # No cell folders.
   cells = cells_file.read(str(dest))
   assert sorted(cells) == sorted(c.cell_id for c in study_spec.cells(study_spec.load(path)))
@@ -184,13 +181,13 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
   h, w = 120, 160                                                         # 12 x 16 renders upscaled x10.
   for scene in ('object', 'forward'):
     with Image.open(dest / f'side_by_side_{scene}.png') as picture:    # Two views x (colour, depth) x (truth + 2).
-      left0 = picture.size[0] - 3 * (w + demo.GAP)                       # The row titles fit their column.
-      assert left0 == demo.label_width(['depth'] + [f'test view {i}' for i in range(10)])
-      assert picture.size[1] == demo.HEADER + 4 * (h + demo.GAP)
+      left0 = picture.size[0] - 3 * (w + vis.GAP)                       # The row titles fit their column.
+      assert left0 == vis.label_width(['depth'] + [f'test view {i}' for i in range(10)])
+      assert picture.size[1] == vis.HEADER + 4 * (h + vis.GAP)
       pixels = np.asarray(picture.convert('RGB'))
-    depth_row = pixels[demo.HEADER + h + demo.GAP + h // 2]                # The exact depth under the truth (the
+    depth_row = pixels[vis.HEADER + h + vis.GAP + h // 2]                # The exact depth under the truth (the
     truth_column = slice(left0, left0 + w)                                 # generated scene has one), the renders'
-    render_columns = slice(left0 + w + demo.GAP, None)                     # beside it.
+    render_columns = slice(left0 + w + vis.GAP, None)                     # beside it.
     assert (depth_row[truth_column] != 255).any(axis=-1).mean() > 0.5
     assert (depth_row[render_columns] != 255).any(axis=-1).mean() > 0.5
 

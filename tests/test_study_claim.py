@@ -1,4 +1,4 @@
-"""Cell claims (tools/study/claim.py): atomic, exclusive across processes, stale ones taken over by the documented rule,
+"""Cell claims (lab/study/claim.py): atomic, exclusive across processes, stale ones taken over by the documented rule,
 and a finished cell never trained or written again."""
 
 import json
@@ -12,8 +12,8 @@ import time
 
 import pytest
 
-from tools.study import runner as study_lib
-from tools.study import claim as study_claim
+from lab.study import runner as study_lib
+from lab.study import claim as study_claim
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -107,7 +107,7 @@ def test_a_claim_file_that_cannot_be_read_is_one_error_naming_it(tmp_path):
 # would let several through); a winner holds its claim until every racer has an outcome.
 RACER = """
 import os, sys, time
-from tools.study import claim as study_claim
+from lab.study import claim as study_claim
 cell, job, arrived, tried, racers = sys.argv[1:]
 racers, pending, deadline = int(racers), [True], time.time() + 60.
 WRITES = os.O_WRONLY | os.O_RDWR | os.O_CREAT

@@ -1,4 +1,4 @@
-"""dispatch.run (tools/study/dispatch.py) with a stand-in executor: finished cells counted, cells held by another runner waited for
+"""dispatch.run (lab/study/dispatch.py) with a stand-in executor: finished cells counted, cells held by another runner waited for
 (not submitted), a cell whose process lost the claim race looked at again, failures reported, Ctrl-C cancels."""
 
 import concurrent.futures
@@ -9,8 +9,8 @@ import threading
 
 import pytest
 
-from tools.study import claim as study_claim
-from tools.study import dispatch
+from lab.study import claim as study_claim
+from lab.study import dispatch
 
 
 class FakeExecutor:

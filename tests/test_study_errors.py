@@ -1,5 +1,5 @@
-"""tools.study's bad inputs: each one line on stderr naming the file, key or flag, exit status 2 (through cli.run, as
-`python -m tools.study` runs); --reuse takes an export's numbers only where they agree with its metrics.json."""
+"""lab.study's bad inputs: each one line on stderr naming the file, key or flag, exit status 2 (through cli.run, as
+`python -m lab.study` runs); --reuse takes an export's numbers only where they agree with its metrics.json."""
 
 import hashlib
 import json
@@ -8,17 +8,17 @@ import pytest
 
 from internal import cli
 from test_study import TINY_STUDY
-from tools.study import export as study_export
-from tools.study import looks as study_looks
-from tools.study import reuse
-from tools.study import runner as study_lib
-from tools.study import spec as study_spec
+from lab.study import export as study_export
+from lab.study import looks as study_looks
+from lab.study import reuse
+from lab.study import runner as study_lib
+from lab.study import spec as study_spec
 
 CELL = 'freenerf__object__views=3'
 
 
 def _one_line_error(capsys, argv) -> str:
-  """The stderr line of `python -m tools.study argv` run as the module runs it; asserts status 2 and one line."""
+  """The stderr line of `python -m lab.study argv` run as the module runs it; asserts status 2 and one line."""
   status = cli.run(lambda: study_lib.main([str(a) for a in argv]))
   err = capsys.readouterr().err
   assert status == cli.USAGE_ERROR_STATUS and len(err.strip().splitlines()) == 1 and err.startswith('error: '), err

@@ -1,4 +1,4 @@
-"""tools.study.estimate and `tools.study --list --estimate`: a study's expected wall time before it runs."""
+"""lab.study.estimate and `lab.study --list --estimate`: a study's expected wall time before it runs."""
 
 import json
 import os
@@ -9,8 +9,8 @@ import sys
 import pytest
 
 from internal import configs
-from tools.study import estimate
-from tools.study import spec as study_spec
+from lab.study import estimate
+from lab.study import spec as study_spec
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 TINY = f'''
@@ -52,7 +52,7 @@ def test_list_estimate_measures_each_setting_once(tmp_path):
   path = tmp_path / 'cost.toml'
   path.write_text(TINY)
   out = str(tmp_path / 'out')
-  result = subprocess.run([sys.executable, '-m', 'tools.study', str(path), '--out', out, '--list', '--estimate'],
+  result = subprocess.run([sys.executable, '-m', 'lab.study', str(path), '--out', out, '--list', '--estimate'],
                           cwd=REPO, capture_output=True, text=True, timeout=600, check=True)
   lines = result.stdout.splitlines()
   assert sum(line.startswith('measuring') for line in lines) == 1  # Two seeds, one setting.
@@ -65,7 +65,7 @@ def test_list_estimate_measures_each_setting_once(tmp_path):
 def test_estimate_needs_list(tmp_path):
   path = tmp_path / 'cost.toml'
   path.write_text(TINY)
-  result = subprocess.run([sys.executable, '-m', 'tools.study', str(path), '--estimate'], cwd=REPO,
+  result = subprocess.run([sys.executable, '-m', 'lab.study', str(path), '--estimate'], cwd=REPO,
                           capture_output=True, text=True, check=False)
   assert result.returncode == 2 and '--estimate goes with --list' in result.stderr
 
@@ -122,7 +122,7 @@ def test_wall_seconds_packs_the_longest_cells_first():
 def test_cluster_estimate_of_the_dtu_table_from_the_committed_gpu_record():
   assert study_spec.load(REPO / 'studies' / 'table_dtu.toml').resources == study_spec.Resources(1, 4, 3)
   bench = json.loads(next((REPO / 'results' / 'gpu').glob('bench_device_*.json')).read_text())
-  out = subprocess.run([sys.executable, '-m', 'tools.study', 'studies/table_dtu.toml', '--list', '--estimate',
+  out = subprocess.run([sys.executable, '-m', 'lab.study', 'studies/table_dtu.toml', '--list', '--estimate',
                         '--cluster-gpus', '8'], cwd=REPO, capture_output=True, text=True, check=True).stdout
   lines = out.splitlines()
   assert lines[0] == 'studies/table_dtu.toml: 135 pending cell(s) estimated, 0 done not counted'

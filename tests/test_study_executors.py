@@ -1,4 +1,4 @@
-"""tools.study's executors on one tiny 4-cell study: one process, two processes sharing the folder, and Ray (a real
+"""lab.study's executors on one tiny 4-cell study: one process, two processes sharing the folder, and Ray (a real
 cluster started with `ray start --head`; skipped without the cluster extra); each cell trained once and the same
 results.csv to the last digit (training is deterministic). Also a Ray worker killed mid-cell, then Ctrl-C; and SIGTERM
 to a driver of either executor."""
@@ -23,7 +23,7 @@ import pytest
 from conftest import JAX_CACHE
 from test_study import STEPS
 from test_study import TINY_STUDY
-from tools.study import claim as study_claim
+from lab.study import claim as study_claim
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 STUDY = TINY_STUDY.replace('"Config.curve_every = 10", "Config.curve_factor = 1",', '"Config.eval_test_ids = [0, 1]",')
@@ -47,7 +47,7 @@ def _study(tmp_path, steps=STEPS, every=10, one_cell=False):
 
 
 def _study_command(path, out, *flags):
-  return [sys.executable, '-m', 'tools.study', str(path), '--out', str(out), *flags]
+  return [sys.executable, '-m', 'lab.study', str(path), '--out', str(out), *flags]
 
 
 def _results(out):
@@ -142,12 +142,12 @@ def test_ray_beside_a_local_shard_gives_the_local_executors_results(reference, c
 
 def test_the_overhead_benchmark_records_both_executors(cluster, tmp_path):
   out = tmp_path / 'overhead.json'
-  result = subprocess.run([sys.executable, '-m', 'tools.study.executor_overhead', '--cells', '2', '--address', cluster,
+  result = subprocess.run([sys.executable, '-m', 'lab.study.executor_overhead', '--cells', '2', '--address', cluster,
                            '--out', str(out)], cwd=REPO, env=ENV, capture_output=True, text=True, timeout=600,
                           check=False)
   assert result.returncode == 0, result.stderr[-3000:]
   record = json.loads(out.read_text())
-  assert record['command'].startswith('python -m tools.study.executor_overhead --cells 2') and record['cluster'] == cluster
+  assert record['command'].startswith('python -m lab.study.executor_overhead --cells 2') and record['cluster'] == cluster
   for name, cells in (('local', 2), ('ray', 1)):  # Ray's first cell (its worker starting) is recorded apart.
     assert record[name]['cells'] == cells and record[name]['cell_startup_median_s'] > 0.
   for times in record['per_cell']['local'] + record['per_cell']['ray']:
@@ -270,7 +270,7 @@ def test_the_sbatch_script_runs_a_study_on_a_one_node_allocation(tmp_path):
   host = socket.gethostname()
   slurm = {'SLURM_JOB_ID': '7', 'SLURM_JOB_NUM_NODES': '1', 'SLURM_NNODES': '1', 'SLURM_JOB_NODELIST': host,
            'SLURMD_NODENAME': host, 'SLURM_CPUS_ON_NODE': '2', 'SLURM_SUBMIT_DIR': str(REPO)}
-  result = subprocess.run(['bash', str(REPO / 'tools' / 'slurm' / 'study_ray.sbatch'), str(path), '--out', str(out)],
+  result = subprocess.run(['bash', str(REPO / 'lab' / 'slurm' / 'study_ray.sbatch'), str(path), '--out', str(out)],
                           cwd=tmp_path, env={**ENV, **slurm, 'FREENERF_VENV': sys.prefix, 'RAY_PORT': str(_free_port()),
                                              'RAY_TEMP_DIR': temp}, capture_output=True, text=True, timeout=600)
   assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
@@ -284,7 +284,7 @@ def test_the_sbatch_script_runs_a_study_on_a_one_node_allocation(tmp_path):
     ({}, False, None), ({}, True, 'token'), ({'RAY_AUTH_TOKEN': 'x'}, False, 'token'),
     ({'RAY_AUTH_MODE': 'disabled'}, True, 'disabled')])
 def test_a_driver_uses_token_authentication_where_ray_start_would(monkeypatch, tmp_path, env, home_token, mode):
-  from tools.study import ray_executor as study_ray  # pylint: disable=import-outside-toplevel
+  from lab.study import ray_executor as study_ray  # pylint: disable=import-outside-toplevel
   for name in ('RAY_AUTH_MODE', 'RAY_AUTH_TOKEN', 'RAY_AUTH_TOKEN_PATH'):
     monkeypatch.delenv(name, raising=False)
   monkeypatch.setenv('HOME', str(tmp_path))
@@ -298,8 +298,8 @@ def test_a_driver_uses_token_authentication_where_ray_start_would(monkeypatch, t
 
 
 def test_resources_no_node_offers_are_an_error_here_and_a_warning_on_a_cluster(capsys):
-  from tools.study import ray_executor as study_ray  # pylint: disable=import-outside-toplevel
-  from tools.study import spec as study_spec  # pylint: disable=import-outside-toplevel
+  from lab.study import ray_executor as study_ray  # pylint: disable=import-outside-toplevel
+  from lab.study import spec as study_spec  # pylint: disable=import-outside-toplevel
   nodes = [{'Alive': True, 'Resources': {'CPU': 8.}}, {'Alive': False, 'Resources': {'CPU': 8., 'GPU': 4.}}]
   study_ray.check_fits(study_spec.Resources(num_gpus=0, num_cpus=8), nodes, None)
   with pytest.raises(ValueError, match=r'asks for 1 GPU and 1 CPU .* \(nodes: 0 GPU and 8 CPU\); expected'):
@@ -339,7 +339,7 @@ def test_an_address_where_no_cluster_answers_is_one_line_naming_it_within_second
 
 def test_ray_missing_is_one_line_naming_the_extra(capsys, monkeypatch, tmp_path):
   from internal import cli  # pylint: disable=import-outside-toplevel
-  from tools.study import runner as study_lib  # pylint: disable=import-outside-toplevel
+  from lab.study import runner as study_lib  # pylint: disable=import-outside-toplevel
   monkeypatch.setitem(sys.modules, 'ray', None)  # As if not installed.
   path = _study(tmp_path)
   assert cli.run(lambda: study_lib.main([str(path), '--out', str(tmp_path), '--executor', 'ray'])) == 2

@@ -6,7 +6,7 @@ import numpy as np
 from PIL import Image
 
 from internal.evaluation import vis
-from tools.study import export
+from lab.study import export
 
 H, W = 6, 8
 

@@ -1,4 +1,4 @@
-"""tools.study.stats and the seed axis of study files: statistics checked on constructed results with known values."""
+"""lab.study.stats and the seed axis of study files: statistics checked on constructed results with known values."""
 
 import csv
 import json
@@ -11,13 +11,13 @@ import numpy as np
 from PIL import Image
 import pytest
 
-from tools.study import looks as study_looks
-from tools.study import reuse
-from tools.study import runner as study_lib
-from tools.study import plots as study_plots
-from tools.study import spec as study_spec
-from tools.study import stats as study_stats
-from tools.study import time_budgets
+from lab.study import looks as study_looks
+from lab.study import reuse
+from lab.study import runner as study_lib
+from lab.study import plots as study_plots
+from lab.study import spec as study_spec
+from lab.study import stats as study_stats
+from lab.study import time_budgets
 
 SEEDED = '''
 name = "seeded"

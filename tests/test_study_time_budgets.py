@@ -1,4 +1,4 @@
-"""tools.study.time_budgets: a metric at training-time budgets from learning curves, on constructed curves."""
+"""lab.study.time_budgets: a metric at training-time budgets from learning curves, on constructed curves."""
 
 import re
 
@@ -6,9 +6,9 @@ import numpy as np
 from PIL import Image
 import pytest
 
-from tools.study import time_budgets
-from tools.study import spec as study_spec
-from tools.study import stats as study_stats
+from lab.study import time_budgets
+from lab.study import spec as study_spec
+from lab.study import stats as study_stats
 
 STUDY = '''
 name = "budget"

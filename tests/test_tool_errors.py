@@ -1,4 +1,4 @@
-"""tools.mesh, tools.pack_scene, tools.tables, tools.points, tools.synthetic_depth and tools.depth_shape end a bad
+"""tools.mesh, tools.pack_scene, tools.tables, tools.points, tools.synthetic_depth and lab.depth_shape end a bad
 input in one `error:` line and exit status 2, as the scripts do (internal/cli.py), when run as
 `python -m tools.<name>`."""
 
@@ -33,7 +33,7 @@ def test_each_tool_run_as_a_module_ends_a_bad_input_in_one_line(tmp_path):
            ['tools.mesh', '--level', 'nan'],
            ['tools.points', '--out', str(tmp_path / 'x.ply'), '--max_points', '0'],
            ['tools.synthetic_depth', '--out', str(tmp_path / 'maps'), '--gamma', '0'],
-           ['tools.depth_shape', str(tmp_path / 'absent.toml'), '--export', str(tmp_path / 'shape')]]
+           ['lab.depth_shape', str(tmp_path / 'absent.toml'), '--export', str(tmp_path / 'shape')]]
   result = subprocess.run([sys.executable, '-c', RUN_AS_MAIN, json.dumps(calls)], cwd=ROOT, capture_output=True,
                           text=True, timeout=300, check=False)
   lines = [line for line in result.stderr.splitlines() if line.startswith(('error: ', 'status '))]

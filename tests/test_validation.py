@@ -5,7 +5,6 @@ import json
 import os
 import re
 
-import gin
 import jax
 import numpy as np
 import pytest
@@ -13,6 +12,7 @@ import pytest
 from conftest import noise, save_png
 from internal import config_loader
 from internal import configs
+from internal import runs
 from internal.models import freq_schedule
 from internal.models import gaussians
 from internal.evaluation import lpips
@@ -29,8 +29,7 @@ from test_datasets_errors import blender, llff
 
 
 def _load(*bindings):
-  gin.clear_config()
-  return config_loader.load_config([], list(bindings))
+  return runs.bind_fresh([], list(bindings))
 
 
 @pytest.mark.parametrize('binding, message', [
@@ -218,7 +217,6 @@ def test_a_bad_dtu_camera_names_the_file_and_the_camera(tmp_path, problem, messa
 
 
 def test_a_bad_camera_in_a_packed_scene_names_the_pack_and_the_view(tmp_path):
-  gin.clear_config()
   source = configs.Config(data_dir=str(tmp_path / 'scene'), generated_size=(8, 10), n_input_views=2)
   pack = str(tmp_path / 'scene.npz')
   packed.write_pack(pack, loader.pack_arrays(source, {split: load_dataset(split, source) for split in ('train',

@@ -8,12 +8,11 @@ import sys
 import threading
 import time
 
-import gin
 import numpy as np
 import pytest
 
-from internal import config_loader
 from internal import datasets
+from internal import runs as internal_runs
 from internal.cameras import algebra, caster, corrections
 from internal.cameras.records import Cameras, RaySpace
 from internal.datasets import base, blender, generated, llff
@@ -138,9 +137,8 @@ def test_path_centres_are_the_cameras_centres_in_world_and_ndc_rays(ndc):
 def test_render_path_cameras_in_the_training_views_space_cast_render_pys_rays_bit_for_bit(rig, tmp_path):
   """The object rig's world rays and the forward rig's NDC rays (the training views' own NDC focal length)."""
   configs = [DEMO] + ([DEMO.replace('demo.gin', 'demo_forward.gin')] if rig == 'forward' else [])
-  gin.clear_config()
   scene = [f"Config.data_dir = '{tmp_path}'", 'Config.generated_size = (16, 20)', 'Config.render_path_frames = 2']
-  config = config_loader.load_config(configs, TINY + scene)
+  config = internal_runs.bind_fresh(configs, TINY + scene)
   space = datasets.load_dataset('train', config).space
   if rig == 'object':
     poses, pixtocam, height, width = blender.render_cameras(generated.scene(config), base.render_factor(config))

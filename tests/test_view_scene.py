@@ -4,15 +4,14 @@ the test cameras carried into the training frame; the render path through its fr
 
 import dataclasses
 
-import gin
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax import random
 
-from internal import config_loader
 from internal import datasets
+from internal import runs as internal_runs
 from internal.cameras import algebra
 from internal.evaluation import camera_evaluation
 from internal.geometry import ply
@@ -49,10 +48,9 @@ class FakeServer:
 def fixture_refining_run(tmp_path_factory):
   """A runs.Run of the tiny object scene with camera refinement, its corrections set to a few degrees and a shift
   (random weights: no training needed to draw cameras)."""
-  gin.clear_config()
-  config = config_loader.load_config([DEMO], TINY + [f"Config.data_dir = '{tmp_path_factory.mktemp('scene')}'",
-                                                     'Config.optimize_cameras = True',
-                                                     'Config.generated_size = (16, 20)'])
+  config = internal_runs.bind_fresh([DEMO], TINY + [f"Config.data_dir = '{tmp_path_factory.mktemp('scene')}'",
+                                                    'Config.optimize_cameras = True',
+                                                    'Config.generated_size = (16, 20)'])
   train_set, test_set = datasets.load_dataset('train', config), datasets.load_dataset('test', config)
   state_cameras = camera_refinement.init(config, train_set)
   free = np.random.default_rng(0).normal(scale=.05, size=state_cameras.free.shape).astype(np.float32)

@@ -15,14 +15,13 @@ import sys
 import threading
 import time
 
-import gin
 import numpy as np
 import pytest
 from PIL import Image
 
 from internal import cli
-from internal import config_loader
 from internal import interrupt
+from internal import runs
 from internal.cameras import algebra
 from internal.datasets import base, blender, generated, llff
 from internal.evaluation import render_path
@@ -50,8 +49,7 @@ def bindings(scene, run, *extra) -> list:
 
 def reference_frames(configs, flags) -> list:
   """render.py's colour frames (uint8 [H,W,3]) of a run, as it writes them."""
-  gin.clear_config()
-  out = render_path.render(config_loader.load_config(configs, flags))
+  out = render_path.render(runs.bind_fresh(configs, flags))
   return [np.asarray(Image.open(os.path.join(out, f'color_{f:03d}.png'))) for f in range(2)]
 
 
@@ -63,8 +61,7 @@ def fixture_trained(tmp_path_factory):
   found = {'root': root}
   for rig, configs, extra in (('object', [DEMO], []), ('forward', [DEMO, FORWARD], NERF)):
     flags = bindings(root / f'scene_{rig}', root / f'run_{rig}', *extra)
-    gin.clear_config()
-    loop.train(config_loader.load_config(configs, flags))
+    loop.train(runs.bind_fresh(configs, flags))
     found[rig] = {'configs': configs, 'flags': flags, 'frames': reference_frames(configs, flags)}
   return found
 
@@ -157,8 +154,7 @@ def browser(port: int):
 def path_camera(config_of: str, trained, frame: int) -> dict:
   """The camera of render-path frame `frame` of the trained run config_of ('object' | 'forward'), as a browser
   sends it (viser's own quaternion of the OpenCV rotation, vertical field of view, aspect)."""
-  gin.clear_config()
-  config = config_loader.load_config(trained[config_of]['configs'], trained[config_of]['flags'])
+  config = runs.bind_fresh(trained[config_of]['configs'], trained[config_of]['flags'])
   if config_of == 'object':
     poses, pixtocam, height, width = blender.render_cameras(generated.scene(config), base.render_factor(config))
     pose = algebra.orbit_path(poses, config.render_path_frames)[frame]
@@ -231,8 +227,7 @@ def test_a_newer_checkpoint_is_loaded_when_asked_and_the_frame_follows(trained):
 
 
 def run_main(capsys, *argv) -> tuple:
-  """(status, stderr lines) of the command's main run as cli.run runs it."""
-  gin.clear_config()
+  """(status, stderr lines) of the command's main run as cli.run runs it (each run it loads binds gin afresh)."""
   status = cli.run(lambda: view_main.main(list(argv)))
   return status, capsys.readouterr().err.strip().splitlines()
 

@@ -21,6 +21,9 @@ written, are checked before any work; nothing is replaced unless Config.overwrit
 distances to the scene's exact surfaces per solid (as tools.mesh --scores); --picture a PNG of the cloud.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import errno
 import json
 import os
@@ -166,45 +169,80 @@ def save_picture(path: str, found: dict, views=((20, -100), (20, 20))) -> None:
   fig.savefig(path, dpi=100, bbox_inches='tight')
 
 
-def main(argv=None) -> int:
-  """CLI entry point; returns the exit status."""
-  argv = sys.argv[1:] if argv is None else list(argv)
-  args = parse_args(argv)
-  config = cli.config_from_flags(args)
-  ndc = bool(loader.ndc(config))
+def check_flags(config, args, ndc: bool) -> None:
+  """ValueError naming a flag the run's scene cannot serve or an output that would be overwritten."""
   if args.path_views and ndc:
     raise ValueError(f'--path_views {args.path_views}: the render path of an NDC scene ({config.dataset_loader!r}) '
                      'gives no world cameras to turn its depths into points; leave --path_views out')
   if args.scores:
     mesh_tool.check_scores_flag(config, args.scores)
   check_outputs(config, args)
+
+
+def restored_renderer(config, args, train, path, ndc: bool) -> tuple:
+  """(render_fn, step) of the run's newest checkpoint, once the views' memory is known to fit (check_memory)."""
   run_dir = run_dir_lib.check_run_dir(config)
-  train = datasets.load_dataset('train', config)
-  path = loader.render_path_rays(config) if args.path_views else None
   pixels = train.height * train.width
   check_memory(len(train.ids), pixels, max(pixels, 0 if path is None else int(np.prod(path.origins.shape[1:3]))),
                args.max_points)
   model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], train.rays))
-  render_fn = inference.make_render_fn(config, model, state.params, int(state.step), compute_normals=not ndc)
-  start = time.perf_counter()
+  step = int(state.step)
+  return inference.make_render_fn(config, model, state.params, step, compute_normals=not ndc), step
+
+
+def render_views(render_fn, config, args, train, path, ndc: bool) -> tuple:
+  """(the training views, --path_views frames spread over the render path) as render_view gives them."""
   views = [render_view(render_fn, jax.tree.map(lambda x, i=i: x[i], train.rays), config.render_chunk_size, ndc,
                        train.camtoworlds[i], train.pixtocams[i], os.path.basename(train.image_paths[i]))
            for i in range(len(train.ids))]
   frames = np.linspace(0, len(path.origins) - 1, args.path_views).round().astype(int) if args.path_views else []
   others = [render_view(render_fn, jax.tree.map(lambda x, f=f: x[f], path), config.render_chunk_size, ndc)
             for f in frames]
+  return views, others
+
+
+def gather(views: list, others: list, args) -> dict:
+  """The cloud of the views' agreeing pixels ({'points', 'colours', 'normals'}); ValueError when it is empty."""
   with out_of_memory.naming_host_setting('gathering the points', '--max_points'):
     found = points_lib.cloud(views, others, args.min_opacity, args.tolerance, args.min_views, args.max_points,
                              np.random.default_rng(0))
-  seconds = round(time.perf_counter() - start, 1)
   if not len(found['points']):
     raise ValueError(f'no pixel of the {len(views) + len(others)} views is {args.min_opacity} opaque with '
                      f'{args.min_views} training views agreeing within {args.tolerance:.0%}: no point to write '
                      '(--min_opacity, --tolerance and --min_views set the rule)')
-  for path in filter(None, (args.out, args.picture, args.scores)):
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+  return found
+
+
+def write_scores(config, args, argv, found: dict, step: int, seconds: float) -> None:
+  """--scores: the cloud's distances to the generated scene's solids, with its settings and provenance."""
+  solids = scene_generator.read_scene(config.data_dir)['solids']
+  record = {'run': config.checkpoint_dir, 'step': step, 'points': len(found['points']),
+            'seconds': seconds, 'settings': {k: getattr(args, k) for k in (
+                'max_points', 'path_views', 'min_opacity', 'tolerance', 'min_views')},
+            'scores': mesh_scores.score(found['points'], solids),
+            'provenance': provenance.record(['python', '-m', 'tools.points', *argv])}
+  atomic.write_text(args.scores, json.dumps(record, indent=1) + '\n')
+  print(f'Chamfer distance {record["scores"]["chamfer"]:.3f} in {args.scores!r}')
+
+
+def main(argv=None) -> int:
+  """CLI entry point; returns the exit status."""
+  argv = sys.argv[1:] if argv is None else list(argv)
+  args = parse_args(argv)
+  config = cli.config_from_flags(args)
+  ndc = bool(loader.ndc(config))
+  check_flags(config, args, ndc)
+  train = datasets.load_dataset('train', config)
+  path = loader.render_path_rays(config) if args.path_views else None
+  render_fn, step = restored_renderer(config, args, train, path, ndc)
+  start = time.perf_counter()
+  views, others = render_views(render_fn, config, args, train, path, ndc)
+  found = gather(views, others, args)
+  seconds = round(time.perf_counter() - start, 1)
+  for out in filter(None, (args.out, args.picture, args.scores)):
+    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
   ply.write_points(args.out, found['points'], found['colours'], found['normals'])
-  print(f'{len(found["points"])} points of step {int(state.step)} from {len(views)} training and {len(others)} path '
+  print(f'{len(found["points"])} points of step {step} from {len(views)} training and {len(others)} path '
         f'views in {args.out!r}')
   if args.colmap:
     sizes = [image_io.image_size(p) for p in train.image_paths]
@@ -213,14 +251,7 @@ def main(argv=None) -> int:
   if args.picture:
     save_picture(args.picture, found)
   if args.scores:
-    solids = scene_generator.read_scene(config.data_dir)['solids']
-    record = {'run': config.checkpoint_dir, 'step': int(state.step), 'points': len(found['points']),
-              'seconds': seconds, 'settings': {k: getattr(args, k) for k in (
-                  'max_points', 'path_views', 'min_opacity', 'tolerance', 'min_views')},
-              'scores': mesh_scores.score(found['points'], solids),
-              'provenance': provenance.record(['python', '-m', 'tools.points', *argv])}
-    atomic.write_text(args.scores, json.dumps(record, indent=1) + '\n')
-    print(f'Chamfer distance {record["scores"]["chamfer"]:.3f} in {args.scores!r}')
+    write_scores(config, args, argv, found, step, seconds)
   return 0
 
 

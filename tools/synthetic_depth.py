@@ -11,6 +11,9 @@ view of the run's flags, and a PNG of them side by side with the exact depths (-
 folder holding files is refused, so no map is replaced; so is a flag out of its range, in one line naming it.
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import math
 import os
 import sys

@@ -1,14 +1,19 @@
-"""Visualisation: turbo-coloured depth, grey opacity and PNG saving as released (truncation, not rounding)."""
+"""Visualisation: turbo-coloured depth, grey opacity and PNG saving as released (truncation, not rounding); plots and
+labelled grids of tiles (the demo's, the studies' and the GPU report's pictures)."""
 
 import io
 import os
 
+from typing import List
+
 import matplotlib
 import matplotlib.figure
+from matplotlib import font_manager
 import numpy as np
-from PIL import Image
+from PIL import Image, ImageDraw, ImageFont
 
 DEPTH_PERCENTILES = (0.5, 99.5)
+GAP, HEADER, LABEL_WIDTH, LINE = 4, 22, 56, 16  # grid's pixels; LABEL_WIDTH: the row titles' column, at least.
 
 
 def to_uint8(image) -> np.ndarray:
@@ -99,3 +104,62 @@ def save_figure(fig, ax, x_label: str, y_label: str, title: str, path: str) -> N
   drawn = io.BytesIO()
   fig.savefig(drawn, dpi=100, format='png')
   save_picture(np.asarray(Image.open(drawn).convert('RGB')), path)
+
+
+def label_font(size: int = 11) -> ImageFont.FreeTypeFont:
+  """DejaVu Sans, the font matplotlib ships, for picture labels (PIL's default bitmap font draws spaces 2 px wide)."""
+  return ImageFont.truetype(font_manager.findfont('DejaVu Sans'), size)
+
+
+def label_width(row_titles) -> int:
+  """Pixels of the row titles' column: the widest title with a margin, at least LABEL_WIDTH."""
+  font = label_font()
+  return max([LABEL_WIDTH] + [int(np.ceil(font.getlength(text))) + 8 for text in row_titles])
+
+
+def wrap_label(text: str, width: float, font) -> List[str]:
+  """text broken at spaces into lines at most width pixels wide in font (a longer word keeps a line of its own)."""
+  lines = []
+  for word in text.split(' '):
+    if lines and font.getlength(f'{lines[-1]} {word}') <= width:
+      lines[-1] = f'{lines[-1]} {word}'
+    else:
+      lines.append(word)
+  return lines
+
+
+def tiles_top(column_titles, tile_width: int, title: str = '') -> int:
+  """Pixels above grid's first row of tiles: the title's line, and the column titles wrapped to tile_width."""
+  lines = max((len(wrap_label(text, tile_width - 2, label_font())) for text in column_titles), default=1)
+  return HEADER + LINE * (lines - 1) + (LINE if title else 0)
+
+
+def grid(tiles, column_titles, row_titles, title: str = '', scale: int = 1) -> np.ndarray:
+  """Tiles (rows of float [h, w, 3] images in [0, 1]) -> labelled uint8 picture [H, W, 3].
+
+  Tile (r, c) is upscaled by `scale` (nearest) and placed at top = HEADER + LINE * (bool(title) + extra lines of the
+  longest column title, wrapped to its tile's width) + r * (h*scale + GAP), left = label_width(row_titles) +
+  c * (w*scale + GAP), on white.
+  """
+  h, w = np.shape(tiles[0][0])[:2]
+  th, tw, left0 = h * scale, w * scale, label_width(row_titles)
+  draw_font = label_font()
+  wrapped = [wrap_label(text, tw - 2, draw_font) for text in column_titles]
+  top0 = tiles_top(column_titles, tw, title)
+  extra = top0 - HEADER - (LINE if title else 0)
+  canvas = np.full((top0 + len(tiles) * (th + GAP), left0 + len(tiles[0]) * (tw + GAP), 3), 255, np.uint8)
+  for r, row in enumerate(tiles):
+    for c, tile in enumerate(row):
+      top, left = top0 + r * (th + GAP), left0 + c * (tw + GAP)
+      canvas[top:top + th, left:left + tw] = np.repeat(np.repeat(to_uint8(tile), scale, 0), scale, 1)
+  image = Image.fromarray(canvas)
+  draw = ImageDraw.Draw(image)
+  if title:
+    draw.text((4, 2), title, fill=(0, 0, 0), font=draw_font)
+  for c, lines in enumerate(wrapped):
+    for k, text in enumerate(lines):
+      draw.text((left0 + c * (tw + GAP) + 2, top0 - HEADER - extra + 4 + k * LINE), text, fill=(0, 0, 0),
+                font=draw_font)
+  for r, text in enumerate(row_titles):
+    draw.text((4, top0 + r * (th + GAP) + th // 2 - 6), text, fill=(0, 0, 0), font=draw_font)
+  return np.asarray(image)

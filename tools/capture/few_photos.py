@@ -31,12 +31,12 @@ import os
 import sys
 import time
 
-import gin
 import numpy as np
 
 from internal import atomic
 from internal import cli
 from internal import config_loader
+from internal import runs
 from internal.cameras import alignment
 from internal.datasets import colmap_model
 from internal.datasets import capture as capture_loader
@@ -51,10 +51,9 @@ OFF_DEGREES = 5.  # A capture whose cameras are this far off at the median has w
 
 def arc_names(capture_dir: str) -> list:
   """The capture's registered images in the loader's order along the arc."""
-  gin.clear_config()
-  config = config_loader.load_config([os.path.join(pipeline.REPO, pipeline.CONFIG)],
-                                     [f'Config.data_dir = {capture_dir!r}'])
-  found = capture_loader.read_capture(config)
+  bindings = [f'Config.data_dir = {capture_dir!r}']
+  with runs.fresh_config([os.path.join(pipeline.REPO, pipeline.CONFIG)], bindings) as config:
+    found = capture_loader.read_capture(config)
   return [found.names[i] for i in capture_loader.arc_order(found)]
 
 

@@ -12,13 +12,12 @@ import time
 from typing import Optional, Sequence
 import warnings
 
-import gin
 import numpy as np
 
 from internal import atomic
 from internal import cli
-from internal import config_loader
 from internal import configs
+from internal import runs
 from internal.cameras import alignment
 from internal.datasets import colmap_model, load_dataset
 from internal.datasets import capture as capture_loader
@@ -159,10 +158,9 @@ def bindings(out: str, factor: int, n_registered: int) -> list:
 def load_back(gin_bindings: list) -> tuple:
   """(Config, the loader's Capture, default views {split: ids}): the capture read, both splits loaded through the
   capture loader and the learning curve's views checked, with the printed command's config."""
-  gin.clear_config()  # The tool's own process: the config is parsed once, fresh.
-  config = config_loader.load_config([os.path.join(REPO, CONFIG)], gin_bindings)
-  load_dataset('train', config)
-  test = load_dataset('test', config)
+  with runs.fresh_config([os.path.join(REPO, CONFIG)], gin_bindings) as config:
+    load_dataset('train', config)
+    test = load_dataset('test', config)
   if config.curve_every:
     learning_curve.curve_positions(config, len(test.ids))
   capture = capture_loader.read_capture(config)

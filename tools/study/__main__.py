@@ -1,11 +1,8 @@
-"""`python -m tools.study`: the study command (runner.py)."""
+"""`python -m tools.study`, the old name of `python -m lab.study` (lab/study/): runs it for a turn, saying so."""
 
 from internal import interrupt
 interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
 
-import sys
-
 from internal import cli
-from tools.study import runner
 
-sys.exit(cli.run(runner.main))
+cli.run_moved('tools.study', 'lab.study')

@@ -1,10 +1,10 @@
 """A run the viewer shows: its settings, scene and cameras, and its newest checkpoint rendering any rays.
 
-Each run is loaded with its own gin state (gin.clear_config, then its files and bindings): the model reads gin when
-it is built, and two runs of a comparison have different models. Renders go in chunks of a power of two rays (at
-least MIN_CHUNK, at most Config.render_chunk_size), padded as render.py pads its last chunk: a handful of compiled
-shapes serve every frame size the viewer asks for. A newer checkpoint (train.py still writing them) replaces the
-parameters in place; the compiled renderer is kept.
+Each run is loaded with its own gin state (runs.bind_fresh: gin cleared, then its files and bindings): the model
+reads gin when it is built, and two runs of a comparison have different models. Renders go in chunks of a power of
+two rays (at least MIN_CHUNK, at most Config.render_chunk_size), padded as render.py pads its last chunk: a handful
+of compiled shapes serve every frame size the viewer asks for. A newer checkpoint (train.py still writing them)
+replaces the parameters in place; the compiled renderer is kept.
 """
 
 import dataclasses
@@ -12,14 +12,13 @@ import os
 import threading
 import warnings
 
-import gin
 import jax
 import numpy as np
 
 from internal import cli
-from internal import config_loader
 from internal import datasets
 from internal import rays as rays_lib
+from internal import runs
 from internal.datasets import base, loader
 from internal.evaluation import camera_evaluation, inference
 from internal.run import checkpoints, run_dir as run_dir_lib
@@ -138,8 +137,7 @@ class Run:
 def load(gin_configs, gin_bindings) -> Run:
   """The Run of gin configs (none: the demo's FreeNeRF) and bindings; the same errors as eval.py for a missing
   run, a run trained with other settings or missing data."""
-  gin.clear_config()
-  config = config_loader.load_config(list(gin_configs) or cli.DEMO_CONFIGS, gin_bindings)
+  config = runs.bind_fresh(list(gin_configs) or cli.DEMO_CONFIGS, gin_bindings)
   run_dir = run_dir_lib.check_run_dir(config)
   checkpoints.latest_step(run_dir)  # Names the folder when it holds no checkpoint, before the data loads.
   train_set = datasets.load_dataset('train', config)

@@ -7,6 +7,9 @@ writes a PNG of the window. Chromium runs without a GPU (software WebGL), a sand
 new empty profile. Needs websockets (installed with viser).
 """
 
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
 import argparse
 import base64
 import json

@@ -1,0 +1,8 @@
+"""`python -m bench.ledger`, the old name of `python -m lab.ledger` (lab/ledger/): runs it for a turn, saying so."""
+
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
+from internal import cli
+
+cli.run_moved('bench.ledger', 'lab.ledger')

@@ -1,0 +1,9 @@
+"""`python -m bench.prepare_lease`, the old name of `python -m lab.prepare_lease` (lab/prepare_lease.py): runs it for
+a turn, saying so."""
+
+from internal import interrupt
+interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
+
+from internal import cli
+
+cli.run_moved('bench.prepare_lease', 'lab.prepare_lease')
