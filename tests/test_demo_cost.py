@@ -48,5 +48,5 @@ def test_a_recorded_kind_and_a_used_work_folder_are_refused(tmp_path, monkeypatc
 
 @pytest.mark.parametrize('bindings, steps, coarse', [([], 500, 16), (demo_cost.FORMER, 700, 32)])
 def test_the_former_bindings_give_the_demo_its_former_length(bindings, steps, coarse):
-  config = demo.method_config('FreeNeRF', bindings)
-  assert (config.max_steps, gin.query_parameter('NerfModel.num_coarse_samples')) == (steps, coarse)
+  with demo.method_config('FreeNeRF', bindings) as config:
+    assert (config.max_steps, gin.query_parameter('NerfModel.num_coarse_samples')) == (steps, coarse)
