@@ -140,6 +140,11 @@ def test_the_readme_has_its_command_blocks():
   assert any(name.startswith('docs/') for name, _ in BLOCKS)  # The docs' blocks are run too.
 
 
+def test_the_readme_is_a_front_door_of_at_most_250_lines():
+  with open(README) as f:
+    assert len(f.read().splitlines()) <= 250  # Results and details live in results/ and docs/, linked from it.
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize('index,block', BLOCKS, ids=[name for name, _ in BLOCKS])
 def test_readme_block_runs_as_written(index, block, sandbox):
