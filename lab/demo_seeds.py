@@ -1,6 +1,6 @@
 """Runs the demo for several seeds and records what it measured, per machine kind, to be committed: results/demo/.
 
-  python -m tools.demo_seeds --seeds 20200823 1 [--out results/demo] [--work out/demo_seeds] [--gin_bindings B]
+  python -m lab.demo_seeds --seeds 20200823 1 [--out results/demo] [--work out/demo_seeds] [--gin_bindings B]
 
 A seed is Config.jax_rng_seed (the models' initialization and sampling noise; 20200823, the default, is the demo's
 own, run as plain `python train.py`). Per seed, each as its own process in <work>/seed_<seed>/, timed:
@@ -152,7 +152,7 @@ def readme(records: list, table: dict, kind: str) -> str:
   """The README of a machine kind's folder of results/demo: per seed and over the seeds, and where each seed was
   measured."""
   names = list(table['over_seeds'])
-  lines = [f'# The demo over seeds: {kind} machines', '', 'Written by `python -m tools.demo_seeds` (its docstring says '
+  lines = [f'# The demo over seeds: {kind} machines', '', 'Written by `python -m lab.demo_seeds` (its docstring says '
            'what it runs); every number below is in `seed_<seed>.json` and `summary.json`. Per seed '
            '(`Config.jax_rng_seed`) the demo (`python train.py`, 2 views; its wall time from scratch) and the all-views '
            'check (the demo\'s NeRF on every training view, without LPIPS; tests/test_demo.py compares against it). '
@@ -193,7 +193,7 @@ def write_summary(folder: str) -> dict:
 
 def index(out: str) -> str:
   """The README of results/demo: one line per machine kind with a folder of records."""
-  lines = ['# The demo over seeds, per machine kind', '', 'Written by `python -m tools.demo_seeds`. A machine kind is '
+  lines = ['# The demo over seeds, per machine kind', '', 'Written by `python -m lab.demo_seeds`. A machine kind is '
            'the instruction set XLA compiles for: float32 results agree to the last digit only within a kind, so '
            'each kind has its records, and tests/test_demo.py pins the demo to those of the machine it runs on. '
            'Means over the seeds; wall seconds of `python train.py` from scratch.', '',
@@ -253,7 +253,7 @@ def main(argv=None) -> int:
                             'times would not be whole runs; remove it or choose --work')
   os.makedirs(folder, exist_ok=True)
   command = ([f'XLA_FLAGS={os.environ["XLA_FLAGS"]}'] if os.environ.get('XLA_FLAGS') else []) + [
-      'python', '-m', 'tools.demo_seeds', *argv]
+      'python', '-m', 'lab.demo_seeds', *argv]
   for seed in args.seeds:
     found = run_seed(seed, args.work, args.gin_bindings)
     atomic.write_text(seed_file(folder, seed), json.dumps(dict(found, provenance=provenance.record(command)),

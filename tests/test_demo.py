@@ -23,9 +23,8 @@ from tools import provenance
 import train
 
 REGULARIZERS = {'freq_reg', 'freq_reg_end', 'freq_reg_end_fraction', 'occ_reg_loss_mult'}
-# The demo's results, per seed, as `python -m tools.demo_seeds` recorded them (results/demo/README.md). The tests
-# below train with the default seed and compare with what was recorded for it (what the demo shows:
-# results/README.md).
+# The demo's results, per seed, as `python -m lab.demo_seeds` recorded them (results/demo/README.md). The tests below
+# train with the default seed and compare with what was recorded for it (what the demo shows: results/README.md).
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / 'results' / 'demo'
 # On the machine and versions that recorded them a run reproduces them; within this of them, in dB.
 REPRODUCED = .01
@@ -72,7 +71,7 @@ def check_against_recorded(psnr: float, key) -> None:
   low, high = accepted_range([key(r) for r in records], same_machine(records[0]))
   assert low <= psnr <= high, (f'{psnr:.2f} dB is outside [{low:.2f}, {high:.2f}] of results/demo (per seed '
                                f'{[round(key(r), 2) for r in records]}); if the demo changed on purpose, record it '
-                               'again: python -m tools.demo_seeds --seeds ' + ' '.join(str(r['seed']) for r in records)
+                               'again: python -m lab.demo_seeds --seeds ' + ' '.join(str(r['seed']) for r in records)
                                + ' (a folder per machine kind: results/demo/README.md)')
 
 

@@ -1,4 +1,4 @@
-"""tools.demo_seeds: the commands it runs per seed, what it records and summarizes, what it refuses."""
+"""lab.demo_seeds: the commands it runs per seed, what it records and summarizes, what it refuses."""
 
 import json
 import os
