@@ -4,12 +4,12 @@
 
 Each repeat runs the whole demo (`python train.py`, the scene generated, both methods trained, evaluated and
 rendered) from scratch twice, each in its own folder under --work: as configured, and at its former length (FORMER:
-700 steps and 32 coarse samples a ray, where configs/demo_forward.gin now has 500 and 16). Each run's wall seconds and
-CPU seconds (user + system of the process and its children) are measured. CPU seconds count only the time a core
-ran the demo, so other jobs move them less than wall seconds; their ratio is what carries to a machine of the same
-kind (environment.cpu_isa: XLA_FLAGS=--xla_cpu_max_isa=AVX2 compiles for the AVX2 kind on an AVX-512 machine):
-the former demo's wall time measured there, times the ratio, estimates the new one's. Writes <out>/<kind>.json
-(every run, the medians, the ratios, provenance with the load average) and <out>/README.md over every kind's file.
+700 steps and 32 coarse samples a ray, where configs/demo_forward.gin now has 500 and 16). Each run's wall seconds,
+CPU seconds (user + system of the process and its children) and both methods' test PSNR are recorded. CPU seconds
+count only the time a core ran the demo, so other jobs move them less than wall seconds; their ratio estimates the new demo's time on another
+machine from the former one's measured there (the two lengths run the same operations, in other numbers). Writes
+<out>/<kind>.json (the machine kind: environment.cpu_isa; every run, the medians, the ratios, provenance with the
+load average) and <out>/README.md over every kind's file.
 """
 
 from internal import interrupt
@@ -27,7 +27,9 @@ import time
 
 from internal import atomic
 from internal import cli
+from internal import demo
 from internal import environment
+from internal import runs
 from tools import provenance
 
 FORMER = ['Config.max_steps = 700', 'Config.checkpoint_every = 350', 'NerfModel.num_coarse_samples = 32']
@@ -49,7 +51,13 @@ def run_demo(bindings: list, cwd: str) -> dict:
     if subprocess.run(argv, cwd=cwd, stdout=log, stderr=subprocess.STDOUT, check=False).returncode:
       raise RuntimeError(f'the demo failed in {cwd!r}; its output is in {os.path.join(cwd, "log.txt")!r}')
   return {'wall_seconds': round(time.perf_counter() - wall, 1), 'cpu_seconds': round(children_cpu_seconds() - cpu, 1),
-          'load_average': [round(load, 2), round(os.getloadavg()[0], 2)]}
+          'load_average': [round(load, 2), round(os.getloadavg()[0], 2)], 'psnr': test_psnrs(bindings, cwd)}
+
+
+def test_psnrs(bindings: list, cwd: str) -> dict:
+  """{method: mean test PSNR} of the demo that ran in cwd with bindings (its digits: this machine kind's)."""
+  return {name: runs.metrics_record(os.path.join(cwd, config.checkpoint_dir), config.max_steps)['means']['psnr']
+          for name, config in demo.method_configs(bindings).items()}
 
 
 def measure(repeats: int, work: str) -> dict:
@@ -67,8 +75,8 @@ def measure(repeats: int, work: str) -> dict:
 def readme(out: str) -> str:
   """The README over every kind's record in out."""
   lines = ['# The demo\'s cost, now and at its former length', '',
-           'Written by `python -m bench.demo_cost` (its docstring says what it runs): per machine kind (the '
-           'instruction set XLA compiles for), the medians of the whole demo run from scratch as configured and at '
+           'Written by `python -m bench.demo_cost` (its docstring says what it runs): per machine kind '
+           '(`environment.cpu_isa`), the medians of the whole demo run from scratch as configured and at '
            'its former length (700 steps and 32 coarse samples a ray), alternating in one run. Every number is in '
            'the kind\'s JSON file.', '',
            '| kind | repeats | wall seconds now | wall seconds former | CPU seconds now | CPU seconds former | '

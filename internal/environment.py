@@ -18,8 +18,10 @@ PACKAGES = ('jax', 'jaxlib', 'jax-cuda12-plugin', 'jax-cuda12-pjrt', 'flax', 'op
 # Environment variables that change which devices jax uses or how it compiles.
 VARIABLES = ('JAX_PLATFORMS', 'CUDA_VISIBLE_DEVICES', 'XLA_PYTHON_CLIENT_PREALLOCATE', 'XLA_PYTHON_CLIENT_MEM_FRACTION',
              'XLA_FLAGS')
-# x86 vector instruction sets XLA's CPU compiler targets, oldest first, with the /proc/cpuinfo flags each needs. The
-# widest one decides how XLA vectorizes, so results agree to the last digit only between machines of one level.
+# x86 vector instruction sets, oldest first, with the /proc/cpuinfo flags each needs. The widest one the CPU has
+# decides the kernels its libraries pick at run time (matmuls among them), so results agree to the last digit only
+# between machines of one level. XLA_FLAGS' --xla_cpu_max_isa caps only the code XLA generates itself: on an AVX-512
+# machine a cap at AVX2 gave the demo's own AVX-512 digits, not those of a machine without AVX-512.
 ISA_LEVELS = (('SSE4_2', ('sse4_2',)), ('AVX', ('avx',)), ('AVX2', ('avx2', 'fma')), ('AVX512', ('avx512f',)))
 MAX_ISA_FLAG = re.compile(r'--xla_cpu_max_isa=(\w+)')
 
@@ -58,8 +60,9 @@ def report_startup(out=sys.stdout, err=sys.stderr) -> None:
 
 
 def cpu_isa(cpuinfo: str = '/proc/cpuinfo', xla_flags=None) -> str:
-  """The instruction set XLA compiles for on this CPU: the widest of ISA_LEVELS the CPU has, capped by XLA_FLAGS'
-  --xla_cpu_max_isa; the machine's name (e.g. 'aarch64') where /proc/cpuinfo has no x86 flags."""
+  """The machine kind whose float32 digits a run gives: the widest of ISA_LEVELS the CPU has, followed by
+  '_max_<level>' where XLA_FLAGS' --xla_cpu_max_isa caps XLA's code below it (a kind of its own, not the capped
+  level's); the machine's name (e.g. 'aarch64') where /proc/cpuinfo has no x86 flags."""
   try:
     with open(cpuinfo) as f:
       flags = set(next((line.split(':', 1)[1].split() for line in f if line.startswith('flags')), []))
@@ -70,8 +73,9 @@ def cpu_isa(cpuinfo: str = '/proc/cpuinfo', xla_flags=None) -> str:
     return platform.machine()
   cap = MAX_ISA_FLAG.search(os.environ.get('XLA_FLAGS', '') if xla_flags is None else xla_flags)
   names = [name for name, _ in ISA_LEVELS]
-  if cap and cap.group(1).upper() in names:
-    levels = [name for name in levels if names.index(name) <= names.index(cap.group(1).upper())]
+  if cap and cap.group(1).upper() in names and names.index(cap.group(1).upper()) < names.index(levels[-1]):
+    capped = [name for name in levels if names.index(name) <= names.index(cap.group(1).upper())]
+    return f'{levels[-1]}_max_{capped[-1]}'
   return levels[-1]
 
 
@@ -85,7 +89,7 @@ def _version(package: str) -> str:
 def describe() -> str:
   """The environment as lines for a bug report: Python, platform, jax's devices, package versions, numerics."""
   lines = [f'python: {sys.version.split()[0]} ({sys.executable})', f'platform: {platform.platform()}',
-           f'CPU instruction set XLA compiles for: {cpu_isa()}', backend_line(), f'processes: {jax.process_count()}']
+           f'CPU instruction set (machine kind): {cpu_isa()}', backend_line(), f'processes: {jax.process_count()}']
   lines += [f'  device {d.id}: {d.platform} {d.device_kind}' for d in jax.devices()]
   lines.append(f'NVIDIA GPU present (driver or nvidia-smi): {nvidia_gpu_present()}')
   lines += [f'{package}: {_version(package)}' for package in PACKAGES]

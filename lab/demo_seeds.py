@@ -6,9 +6,10 @@ A seed is Config.jax_rng_seed (the models' initialization and sampling noise; 20
 own, run as plain `python train.py`). Per seed, each as its own process in <work>/seed_<seed>/, timed:
   the demo: `python train.py [--gin_bindings "Config.jax_rng_seed = <seed>"]`, both methods' test metrics;
   the all-views check (tests/test_demo.py): the demo's NeRF trained on every training view, evaluated without LPIPS.
-A machine kind is the instruction set XLA compiles for (environment.cpu_isa: AVX512, AVX2, ...): float32 results
-agree to the last digit only within a kind, so each kind has its own folder <out>/<kind>/ (XLA_FLAGS=
---xla_cpu_max_isa=AVX2 records the AVX2 kind's digits on an AVX-512 machine, its times then being this machine's).
+A machine kind is the CPU's widest instruction set (environment.cpu_isa: AVX512, AVX2, ...): float32 results
+agree to the last digit only within a kind, so each kind has its own folder <out>/<kind>/. XLA_FLAGS'
+--xla_cpu_max_isa does not make a machine of another kind (an AVX-512 machine capped at AVX2 keeps its own digits):
+a kind is recorded on a machine of that kind.
 Writes <out>/<kind>/seed_<seed>.json (the metrics, each method's learning curve (test PSNR of the curve views against
 the step, as demo_curves.png draws it), the commands and their seconds, the load average before and after the demo
 (other jobs on the machine slow it), provenance: commit, machine, date and this command), then <out>/<kind>/summary.json and README.md over every seed_*.json there: per seed and over the seeds
@@ -156,8 +157,8 @@ def readme(records: list, table: dict, kind: str) -> str:
            'what it runs); every number below is in `seed_<seed>.json` and `summary.json`. Per seed '
            '(`Config.jax_rng_seed`) the demo (`python train.py`, 2 views; its wall time from scratch) and the all-views '
            'check (the demo\'s NeRF on every training view, without LPIPS; tests/test_demo.py compares against it). '
-           'PSNR, SSIM and LPIPS over the test views, depth MAE in world units, times in seconds. Measured where XLA '
-           f'compiles for {kind} (`environment.cpu_isa`), whose float32 digits these are.', '',
+           'PSNR, SSIM and LPIPS over the test views, depth MAE in world units, times in seconds. Measured on {kind} '
+           f'machines (`environment.cpu_isa`), whose float32 digits these are.', '',
            '| seed | ' + ' | '.join(names) + ' |', '|---' * (len(names) + 1) + '|']
   lines += [f'| {seed} | ' + ' | '.join(_cell(row.get(n), n) for n in names) + ' |'
             for seed, row in table['rows'].items()]
@@ -194,7 +195,7 @@ def write_summary(folder: str) -> dict:
 def index(out: str) -> str:
   """The README of results/demo: one line per machine kind with a folder of records."""
   lines = ['# The demo over seeds, per machine kind', '', 'Written by `python -m lab.demo_seeds`. A machine kind is '
-           'the instruction set XLA compiles for: float32 results agree to the last digit only within a kind, so '
+           'the CPU\'s widest instruction set: float32 results agree to the last digit only within a kind, so '
            'each kind has its records, and tests/test_demo.py pins the demo to those of the machine it runs on. '
            'Means over the seeds; wall seconds of `python train.py` from scratch.', '',
            '| kind | seeds | NeRF psnr | FreeNeRF psnr | smallest FreeNeRF lead psnr | demo seconds | folder |',

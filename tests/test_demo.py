@@ -34,7 +34,7 @@ PIPELINE = ['Config.n_input_views = 0', 'Config.compute_lpips = False']
 
 
 def recorded() -> list:
-  """The per-seed records of results/demo of this machine's kind (the instruction set XLA compiles for), by seed;
+  """The per-seed records of results/demo of this machine's kind (the CPU's instruction set), by seed;
   where this kind has none, those of every kind."""
   here = demo_seeds.kind_dir(str(RESULTS))
   if os.path.isdir(here):

@@ -15,7 +15,7 @@ def test_runs_alternate_and_the_ratio_is_of_the_medians(tmp_path, monkeypatch):
   def fake_run(bindings, cwd):
     calls.append(cwd.rsplit('/', 1)[-1])
     cost = 100. if bindings else 60. + len(calls)  # The former length costs 100; now 61, 63, 65.
-    return {'wall_seconds': 2 * cost, 'cpu_seconds': cost, 'load_average': [0., 0.]}
+    return {'wall_seconds': 2 * cost, 'cpu_seconds': cost, 'load_average': [0., 0.], 'psnr': {}}
 
   monkeypatch.setattr(demo_cost, 'run_demo', fake_run)
   record = demo_cost.measure(3, str(tmp_path))

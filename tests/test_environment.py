@@ -68,12 +68,15 @@ def test_env_prints_the_environment_and_help_names_it():
     assert '--env' in _run([script, '--help']).stdout
 
 
-def test_cpu_isa_is_the_widest_level_the_flags_have_capped_by_xla_flags(tmp_path):
+def test_cpu_isa_is_the_widest_level_the_flags_have_and_a_cap_of_xla_flags_apart(tmp_path):
   cpuinfo = tmp_path / 'cpuinfo'
   cpuinfo.write_text('model name\t: AMD EPYC\nflags\t\t: fpu sse4_2 avx avx2 fma avx512f avx512bw\n')
   assert environment.cpu_isa(str(cpuinfo), xla_flags='') == 'AVX512'
-  assert environment.cpu_isa(str(cpuinfo), xla_flags='--xla_cpu_max_isa=AVX2') == 'AVX2'
-  assert environment.cpu_isa(str(cpuinfo), xla_flags='--xla_cpu_max_isa=avx') == 'AVX'
+  # A cap changes XLA's own code, not the kernels the CPU's libraries pick: not the capped level's kind.
+  assert environment.cpu_isa(str(cpuinfo), xla_flags='--xla_cpu_max_isa=AVX2') == 'AVX512_max_AVX2'
+  assert environment.cpu_isa(str(cpuinfo), xla_flags='--xla_cpu_max_isa=avx') == 'AVX512_max_AVX'
+  assert environment.cpu_isa(str(cpuinfo), xla_flags='--xla_cpu_max_isa=AVX512') == 'AVX512'
   cpuinfo.write_text('flags\t\t: fpu sse4_2 avx avx2\n')  # AVX2 without FMA is not XLA's AVX2 target.
   assert environment.cpu_isa(str(cpuinfo), xla_flags='') == 'AVX'
+  assert environment.cpu_isa(str(cpuinfo), xla_flags='--xla_cpu_max_isa=AVX512') == 'AVX'
   assert environment.cpu_isa(str(tmp_path / 'missing'), xla_flags='') == platform.machine()

@@ -68,7 +68,7 @@ CASES = {'demo': (_demo, None), 'dtu_mini': (_dtu, DTU), 'llff_regnerf': (_regne
 
 
 def machine_kind() -> str:
-  """The key of this machine's entry: the instruction set XLA compiles for and the jax version."""
+  """The key of this machine's entry: its kind (the CPU's instruction set) and the jax version."""
   return f'{environment.cpu_isa()} jax {jax.__version__}'
 
 
