@@ -4,7 +4,7 @@
 Each case trains in-process as pipeline/loop.py does (the data, the seeded batcher, one device's mesh, the jitted
 step) for STEPS steps and hashes the parameters (SHA-256 over every leaf's path, dtype, shape and bytes), and the
 camera corrections and their Adam moments where the run refines its cameras. The record (pinned_steps.json) holds
-one entry per machine kind, XLA's instruction set (environment.cpu_isa) and the jax version, since both change the
+one entry per machine kind, the CPU's instruction set (environment.cpu_isa) and the jax version, since both change the
 float32 arithmetic; on a kind with no entry the tests skip saying so. To record this machine's kind, on a commit whose
 numbers are the ones to keep: FREENERF_RECORD_PINNED=1 python -m pytest -n 0 tests/test_pinned_steps.py
 """
