@@ -59,8 +59,9 @@ def accepted_range(values: list, reproduced: bool) -> tuple:
 
 
 def same_machine(record: dict) -> bool:
-  """Whether this machine and its versions compute as those that recorded a result: the instruction set XLA
-  compiles for, the cores (XLA's threads), jax and Python; not the CPU's name (one name spans several kinds)."""
+  """Whether this machine and its versions compute as those that recorded a result: the machine kind
+  (environment.cpu_isa), the cores (XLA's threads), jax and Python; not the CPU's name (one name spans several
+  kinds)."""
   here = provenance.record([])['machine']
   return all(record['provenance']['machine'].get(key) == here[key] for key in ('isa', 'cpu_count', 'jax', 'python'))
 
