@@ -66,6 +66,7 @@ EXPECTED_RANGES = {
     'depth_rank_loss_mult': {NN}, 'depth_rank_margin': {NN}, 'depth_pearson_loss_mult': {NN},
     'depth_patch_size': {P}, 'depth_prior_rays': {P}, 'sfm_depth_loss_mult': {NN},
     'camera_lr_init': {F, P}, 'camera_lr_final': {F, P}, 'camera_lr_delay_steps': {NN}, 'camera_adam_eps': {F, P},
+    'coarse_to_fine_start': {F, NN}, 'coarse_to_fine_end': {F, P},
     'camera_noise_rotation_deg': {F, NN}, 'camera_noise_translation': {F, NN}, 'test_pose_steps': {NN},
     'test_pose_lr': {F, P}}
 
