@@ -15,7 +15,7 @@ import pytest
 from jax import random
 
 from internal import datasets
-from internal.datasets import camera_alignment, colmap_model, loader, pose_correction, raygen
+from internal.datasets import camera_alignment, camera_noise, colmap_model, loader, pose_correction, raygen
 from internal.evaluation import camera_evaluation
 from internal.evaluation import evaluate
 from internal.pipeline import loop
@@ -97,6 +97,20 @@ def test_resumed_refinement_equals_uninterrupted_refinement_and_writes_its_camer
   runs = [str(tmp_path / name) for name in ('straight', 'resumed')]  # Two runs in one call: each its own settings.
   assert camera_report.main(['--out', str(tmp_path / 'report'), '--runs', *runs]) == 0
   assert sorted(os.listdir(tmp_path / 'report')) == ['cameras_resumed.png', 'cameras_straight.png']
+  # Without a similarity: the refined cameras' angles from the exact ones, and the noise's mean turn they keep.
+  frame = camera_report.unaligned_errors(runs[0])
+  exact = datasets.load_dataset('train', camera_evaluation.reference_config(config)).camtoworlds
+  angles = pose_correction.rotation_angle(refined[:, :, :3] @ np.swapaxes(exact[:, :, :3], 1, 2))
+  assert abs(frame['rotation_deg'] - np.rad2deg(np.median(angles))) < 1e-4
+  noise, _ = camera_noise.draw(data.ids, config, 1.)
+  mean_turn = np.linalg.norm(np.mean([pose_correction.rotation_angle(r) * _axis(r) for r in noise], 0))
+  assert abs(frame['common_turn_deg'] - np.rad2deg(mean_turn)) < 1e-4
+
+
+def _axis(rotation):
+  """The unit axis [3] of a rotation [3,3] (of an angle in (0, pi))."""
+  axis = np.array([rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0], rotation[1, 0] - rotation[0, 1]])
+  return axis / np.linalg.norm(axis)
 
 
 SHARDED = textwrap.dedent('''

@@ -12,7 +12,9 @@ centre and its viewing ray out to the depth of the scene's middle, so that a few
 apart; the title gives the median errors before and after.
 --study: a study's results.csv (tools.study); writes DIR/targets.md with provenance: per method and seed, the
 median camera errors on the noisy cameras and the share of the baseline's noise cost in PSNR (clean - noisy) that
-the method recovers on the noisy cameras, (method - baseline) / (baseline clean - baseline noisy), with its mean.
+the method recovers on the noisy cameras, (method - baseline) / (baseline clean - baseline noisy), with its mean;
+where the study's run folders sit beside the results.csv, also each refining run's rotation error without a
+similarity and the mean turn of its given cameras, which that error keeps (unaligned_errors).
 Bad input is one line (exit status 2).
 """
 
@@ -25,6 +27,7 @@ import sys
 import gin
 import matplotlib.figure
 import numpy as np
+from scipy.spatial import transform as spatial_transform
 
 from internal import cli
 from internal import config_loader
@@ -46,9 +49,8 @@ def run_name(run_dir: str) -> str:
   return os.path.basename(os.path.dirname(path) if os.path.basename(path) == 'run' else path)
 
 
-def run_cameras(run_dir: str) -> dict:
-  """{'reference', 'given', 'refined'}: [N,3,4] cameras of a run's training views, the given and refined ones
-  carried onto the reference by their best similarity; 'distance': the reference's camera distance; 'forward'."""
+def _saved_cameras(run_dir: str) -> tuple:
+  """(cameras.json's record, the run's Config, its training split) of a run that refined its cameras."""
   path = os.path.join(run_dir, camera_export.FOLDER, 'cameras.json')
   if not os.path.isfile(path):
     raise ValueError(f'{path!r} does not exist: {run_dir!r} is not a run that refined its cameras '
@@ -57,7 +59,13 @@ def run_cameras(run_dir: str) -> dict:
     record = json.load(f)
   gin.clear_config()  # Each run's own settings, not the previous run's.
   config = config_loader.load_config([os.path.join(run_dir, 'config.gin')], [])
-  train_set = datasets.load_dataset('train', config)
+  return record, config, datasets.load_dataset('train', config)
+
+
+def run_cameras(run_dir: str) -> dict:
+  """{'reference', 'given', 'refined'}: [N,3,4] cameras of a run's training views, the given and refined ones
+  carried onto the reference by their best similarity; 'distance': the reference's camera distance; 'forward'."""
+  record, config, train_set = _saved_cameras(run_dir)
   reference, distance = camera_evaluation.reference_cameras(config, train_set)
   cameras = {'reference': reference, 'distance': distance, 'opengl': record['axes'] == 'OpenGL',
              'forward': bool(loader.ray_space(config, train_set).ndc_focal)}
@@ -65,6 +73,23 @@ def run_cameras(run_dir: str) -> dict:
     c2w = np.array(record[name])
     cameras[name] = camera_alignment.fit(c2w, reference).cameras(c2w)
   return cameras
+
+
+def turns(cameras: np.ndarray, reference: np.ndarray) -> np.ndarray:
+  """[N,3] rotation vectors (radians, world axes) that turn the reference's orientations [N,3,4] into cameras'."""
+  relative = np.asarray(cameras, np.float64)[:, :, :3] @ np.swapaxes(np.asarray(reference)[:, :, :3], 1, 2)
+  return spatial_transform.Rotation.from_matrix(relative).as_rotvec()
+
+
+def unaligned_errors(run_dir: str) -> dict:
+  """Without a similarity (where the reference is exact, the generated scene): {'rotation_deg': the median angle
+  of a run's refined training cameras from the reference, 'common_turn_deg': the angle of the mean turn of its given
+  cameras, which refinement keeps (its corrections have mean zero: training/camera_refinement.py's gauge)}."""
+  record, config, train_set = _saved_cameras(run_dir)
+  reference, _ = camera_evaluation.reference_cameras(config, train_set)
+  refined, given = (turns(np.array(record[name]), reference) for name in ('refined', 'given'))
+  return {'rotation_deg': float(np.rad2deg(np.median(np.linalg.norm(refined, axis=1)))),
+          'common_turn_deg': float(np.rad2deg(np.linalg.norm(given.mean(0))))}
 
 
 def draw(path: str, cameras: dict, title: str) -> None:
@@ -111,8 +136,9 @@ def _rows(path: str) -> list:
     return [row for row in csv.DictReader(f) if row.get('status') == 'done']
 
 
-def targets(rows: list, axis: str, clean: str, noisy: str, baseline: str) -> list:
-  """[(method, seed, camera_rotation_deg, camera_translation, psnr, recovered share)] on the noisy cameras."""
+def targets(rows: list, axis: str, clean: str, noisy: str, baseline: str, unaligned=None) -> list:
+  """[(method, seed, camera_rotation_deg, camera_translation, psnr, recovered share, rotation without a similarity,
+  the common turn it keeps)] on the noisy cameras; unaligned: {cell: unaligned_errors} (nan where absent)."""
   psnr = {(r['method'], r[axis], r['seed']): float(r['psnr']) for r in rows}
   out = []
   for r in rows:
@@ -121,20 +147,39 @@ def targets(rows: list, axis: str, clean: str, noisy: str, baseline: str) -> lis
     key = (baseline, noisy, r['seed'])
     cost = psnr.get((baseline, clean, r['seed']), np.nan) - psnr.get(key, np.nan)
     share = (float(r['psnr']) - psnr.get(key, np.nan)) / cost if cost else np.nan
+    frame = (unaligned or {}).get(r.get('cell'), {})
     out.append((r['method'], int(r['seed']), float(r['camera_rotation_deg'] or 'nan'),
-                float(r['camera_translation'] or 'nan'), float(r['psnr']), share))
+                float(r['camera_translation'] or 'nan'), float(r['psnr']), share,
+                frame.get('rotation_deg', np.nan), frame.get('common_turn_deg', np.nan)))
   return sorted(out)
+
+
+def study_unaligned(results_csv: str, rows: list, axis: str, noisy: str) -> dict:
+  """{cell: unaligned_errors} of the refining runs on the noisy cameras whose run folders sit beside results_csv
+  (a study's folder: <cell>/run; an export has none)."""
+  found = {}
+  for r in rows:
+    run_dir = os.path.join(os.path.dirname(results_csv), r.get('cell', ''), 'run')
+    if r[axis] == noisy and os.path.isfile(os.path.join(run_dir, camera_export.FOLDER, 'cameras.json')):
+      found[r['cell']] = unaligned_errors(run_dir)
+  return found
 
 
 def targets_markdown(found: list, args, argv) -> str:
   """targets.md: a row per method and seed, each method's means, and the provenance."""
   lines = [f'On the {args.noisy!r} cameras of {args.study}; the share is (method - {args.baseline}) / '
-           f'({args.baseline} {args.clean} - {args.baseline} {args.noisy}) in PSNR, per seed.', '',
+           f'({args.baseline} {args.clean} - {args.baseline} {args.noisy}) in PSNR, per seed. Camera errors are '
+           'medians over the training views after the similarity that best maps them onto the reference (the '
+           'target\'s); without it (the generated scene\'s frame is exact) the refined cameras keep the mean turn of '
+           'the given ones, which the corrections\' gauge leaves (nan: a run without refined cameras here).', '',
            '| method | seed | camera rotation error (deg, median) | camera translation error (median) | PSNR | '
-           'share of the noise cost recovered |', '|---|---|---|---|---|---|']
-  lines += [f'| {m} | {s} | {r:.3f} | {t:.4f} | {p:.3f} | {share:.2f} |' for m, s, r, t, p, share in found]
-  lines += ['', '| method | mean rotation error (deg) | mean translation error | mean PSNR | mean share |',
-            '|---|---|---|---|---|']
+           'share of the noise cost recovered | rotation error without the similarity (deg, median) | '
+           'mean turn of the given cameras (deg) |', '|---|---|---|---|---|---|---|---|']
+  lines += [f'| {m} | {s} | {r:.3f} | {t:.4f} | {p:.3f} | {share:.2f} | {u:.3f} | {c:.3f} |'
+            for m, s, r, t, p, share, u, c in found]
+  lines += ['', '| method | mean rotation error (deg) | mean translation error | mean PSNR | mean share | '
+            'mean rotation error without the similarity (deg) | mean turn of the given cameras (deg) |',
+            '|---|---|---|---|---|---|---|']
   for method in sorted({f[0] for f in found}):
     values = np.array([f[2:] for f in found if f[0] == method])
     lines.append(f'| {method} | ' + ' | '.join(f'{v:.3f}' for v in values.mean(0)) + ' |')
@@ -163,8 +208,10 @@ def main(argv=None) -> int:
     if not os.path.isfile(args.study):
       raise FileNotFoundError(f'--study {args.study!r} does not exist; expected a study\'s results.csv')
     path = os.path.join(args.out, 'targets.md')
+    rows = _rows(args.study)
+    unaligned = study_unaligned(args.study, rows, args.axis, args.noisy)
     with open(path, 'w', encoding='utf-8') as f:
-      f.write(targets_markdown(targets(_rows(args.study), args.axis, args.clean, args.noisy, args.baseline), args,
+      f.write(targets_markdown(targets(rows, args.axis, args.clean, args.noisy, args.baseline, unaligned), args,
                                argv))
     print(path)
   return 0
