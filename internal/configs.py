@@ -260,6 +260,9 @@ class Config:
   # every camera the same way) steps follow their size, as gradient descent's; Adam's normalized steps follow the
   # pull at the full rate (on the generated scene, 6 exact views drifted by 5-11 degrees with 1e-8, 0.6 with 1).
   camera_adam_eps: float = setting(1., FINITE, POSITIVE)
+  # The corrections' shifts in units of the camera distance (camera_noise.py), not scene units: with the large epsilon
+  # above a step then moves an image as far by its shift as by its turn (training/camera_refinement.py).
+  camera_shift_in_distances: bool = setting(False)
   # BARF's coarse-to-fine weighting of the encodings' frequency bands (models/coarse_to_fine.py): band k of L opens
   # smoothly as alpha = L * (progress - start) / (end - start) passes k; off by default (mip-NeRF's encodings).
   coarse_to_fine: bool = setting(False)
