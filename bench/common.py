@@ -14,7 +14,7 @@ import numpy as np
 from internal import config_loader
 from internal import configs
 from internal import rays as rays_lib
-from internal.datasets import random_poses
+from internal.datasets import batching, random_poses
 from internal.evaluation import inference
 from internal.training import flops
 from internal.training import train_step as ts
@@ -77,7 +77,7 @@ def step_runner(config, model, batch, compiler_options=None):
 
   The step is compiled once, with XLA compiler_options (e.g. {'xla_gpu_enable_cublaslt': True}) where given.
   """
-  _, state = ts.create_train_state(config, random.PRNGKey(0), batch['rays'])
+  _, state = ts.create_train_state(config, random.PRNGKey(0), batch.rays)
   key = random.PRNGKey(1)
   xla = flops.compiled_cost(ts.make_train_step(config, model), state, batch, key,
                             compiler_options=compiler_options)
@@ -102,20 +102,20 @@ def dtu_like_rays(num_rays: int, seed: int = 0) -> rays_lib.Rays:
   return rays_lib.map_rays(lambda x: jnp.asarray(x, jnp.float32), rays)
 
 
-def dtu_like_batch(num_rays: int) -> dict:
-  """{'rays': dtu_like_rays [num_rays, ...], 'rgb' [num_rays, 3] uniform colours}: a training batch without data."""
-  return {'rays': dtu_like_rays(num_rays),
-          'rgb': jnp.asarray(np.random.default_rng(1).uniform(size=(num_rays, 3)), jnp.float32)}
+def dtu_like_batch(num_rays: int) -> batching.Batch:
+  """A training Batch without data: dtu_like_rays [num_rays, ...] and uniform colours [num_rays, 3]."""
+  return batching.Batch(rays=dtu_like_rays(num_rays),
+                        rgb=jnp.asarray(np.random.default_rng(1).uniform(size=(num_rays, 3)), jnp.float32))
 
 
-def with_patches(batch: dict, config) -> dict:
+def with_patches(batch: batching.Batch, config) -> batching.Batch:
   """batch with RegNeRF's random-pose patches [P, ps, ps, ...] (P = batch_size_random // ps**2 DTU-like rays) when
   Config asks for depth smoothness, else batch as it is."""
   if not random_poses.needs_patches(config):
     return batch
   size = config.patch_size
   rays = dtu_like_rays(config.batch_size_random // size**2 * size**2, seed=3)
-  return dict(batch, patch_rays=rays_lib.map_rays(lambda x: x.reshape((-1, size, size, x.shape[-1])), rays))
+  return batch._replace(patch_rays=rays_lib.map_rays(lambda x: x.reshape((-1, size, size, x.shape[-1])), rays))
 
 
 def render_runner(render_fn, num_rays: int, chunk: int):

@@ -125,7 +125,8 @@ def main(argv=None):
   bindings = TINY if args.tiny else []
   words = ['python', '-m', 'bench.device'] + list(sys.argv[1:] if argv is None else argv)
   report = {'device': jax.devices()[0].device_kind, 'platform': jax.devices()[0].platform,
-            'jax_version': jax.__version__, 'command': cli.quoted(words), 'provenance': provenance.record(words),
+            'jax_version': jax.__version__, 'command': cli.recorded_command(words),
+            'provenance': provenance.record(words),
             'batch_size': args.batch_size, 'repeats': args.repeats, 'render_rays': args.render_rays,
             'tiny': args.tiny, 'results': {}}
   print(f'{report["device"]} ({report["platform"]}), jax {report["jax_version"]}: {report["command"]}')

@@ -135,7 +135,7 @@ def picture(out_dir: str, runs) -> str:
       rows += [f'{run} {label}' for label in KINDS.values()]
   path = os.path.join(out_dir, 'test_views.png')
   columns = [f'test view {_view_id(n)}' for n in names]
-  vis.save_png(demo.grid(tiles, columns, rows, scale=1) / 255., path)
+  vis.save_picture(demo.grid(tiles, columns, rows, scale=1), path)
   return path
 
 

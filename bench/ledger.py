@@ -1,15 +1,17 @@
 """The ledger of paper-length runs (bench/ledger.toml): what a GPU window trains next, and what it hands back.
 
 Usage, inside a GPU window (`bash bench/lease.sh` runs these; docs/benchmarks.md, "GPU windows: the ledger"):
-  python -m bench.ledger plan --work DIR [--budget S]   the window's plan, printed; DIR/plan.env, DIR/window.json
+  python -m bench.ledger plan --work DIR [--budget S] [--allow_cpu]   the window's plan, printed; DIR/plan.env,
+      DIR/window.json (refused when jax sees no GPU, unless --allow_cpu: the tests' tiny ledger)
   python -m bench.ledger next --work DIR                the next run's folder DIR/runs/RUN made ready from its
       committed checkpoint, its train.py arguments in DIR/RUN.args, RUN and ACTION (train | evaluate) in
       DIR/next.env; status 1 when the window has nothing left to do (every run evaluated, or one was cut)
   python -m bench.ledger retry-base --work DIR          after a failed training: a run this window started at
-      step 0 with another variant goes again with base (status 1 when the run is no such run)
+      step 0 with another variant and that saved no checkpoint goes again with base (status 1 for any other run:
+      no retry drops steps a window trained)
   python -m bench.ledger pack RUN --work DIR --out OUT  the run's folder as OUT/run_RUN.tar.gz (newest intact
-      checkpoint, curve, clock, settings, tensorboard: what the next window resumes from) and, once evaluated,
-      OUT/eval_RUN.tar.gz (metrics and test-view renders)
+      checkpoint with its SHA-256 sums, curve, clock, settings, tensorboard: what the next window resumes from)
+      and, once evaluated, OUT/eval_RUN.tar.gz (metrics and test-view renders)
   python -m bench.ledger pack-window --work DIR --out OUT   the window's plan, logs and timings as OUT/window.tar.gz
 Afterwards, on the CPU machine (bench/ledger_commit.py):
   python -m bench.ledger unpack FOLDER                  what came back, into results/gpu/ledger/ (then git commit)
@@ -26,8 +28,10 @@ import argparse
 import dataclasses
 import datetime
 import glob
+import gzip
 import hashlib
 import importlib.util
+import io
 import json
 import os
 import platform
@@ -36,7 +40,9 @@ import shutil
 import subprocess
 import sys
 import tarfile
+import time
 import tomllib
+import zlib
 from typing import Optional, Tuple
 
 from internal import cli
@@ -50,8 +56,11 @@ DATA = '.devdata'
 CODE_GLOBS = ('internal/models/*.py', 'internal/training/*.py', 'internal/losses/*.py', 'bench/step_variants.py',
               'bench/common.py')
 STATE, TIMED, CHECKPOINT = 'state.json', 'timed.json', 'checkpoint.tar.gz'
-LEFT_OUT = ('train.lock',)  # Never packed: a lock of a process that ended with the window.
+SUMS = 'checkpoint_sha256.json'  # In a run's tar: the step packed and the SHA-256 of each of its files.
+# Never packed from a run folder: a lock of a process that ended with the window; sums of an earlier pack.
+LEFT_OUT = ('train.lock', SUMS)
 RUN_FIELDS = {'gin': str, 'pack': str, 'steps': int, 'paper': list, 'metric': str, 'released': str}
+PACK_FIELDS = {'gin': str, 'data': str, 'bindings': list}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,15 +99,29 @@ def _require(table: dict, field: str, kind, where: str):
   return value
 
 
+def _packs(spec: dict, path: str) -> dict:
+  """The [pack.*] tables of a ledger, each checked to hold PACK_FIELDS."""
+  packs = spec.get('pack', {})
+  if not isinstance(packs, dict):
+    raise ValueError(f'ledger {path!r}: pack = {packs!r}; expected [pack.NAME] tables')
+  for name, table in packs.items():
+    where = f'ledger {path!r}, [pack.{name}]'
+    if not isinstance(table, dict):
+      raise ValueError(f'{where} = {table!r}; expected a table with {sorted(PACK_FIELDS)}')
+    for field, kind in PACK_FIELDS.items():
+      _require(table, field, kind, where)
+  return packs
+
+
 def load(path: str = LEDGER) -> Ledger:
-  """The ledger of a TOML file, checked: every run complete (a follow-up takes the fields of the run it follows),
-  names unique, packs declared."""
+  """The ledger of a TOML file, checked: every pack and run complete (a follow-up takes the fields of the run it
+  follows), names unique, packs declared."""
   try:
     with open(path, 'rb') as f:
       spec = tomllib.load(f)
   except (OSError, tomllib.TOMLDecodeError) as err:
     raise ValueError(f'ledger {path!r}: {err}; expected a TOML file like bench/ledger.toml') from err
-  packs, runs = spec.get('pack', {}), {}
+  packs, runs = _packs(spec, path), {}
   for i, table in enumerate(spec.get('run', [])):
     where = f'ledger {path!r}, run {i + 1}'
     name = _require(table, 'name', str, where)
@@ -261,9 +284,26 @@ def variant_for(run: Run, committed: dict, precision_measured: str) -> Tuple[str
 
 
 def safe_extract(tar_path: str, folder: str) -> None:
-  """Extracts a tar of bench.ledger into folder, refusing members that would land outside it."""
-  with tarfile.open(tar_path) as tar:
-    tar.extractall(folder, filter='data')
+  """Extracts a tar of bench.ledger into folder; ValueError naming the tar when it is cut short, damaged, or holds a
+  member that would land outside folder."""
+  try:
+    with tarfile.open(tar_path) as tar:
+      tar.extractall(folder, filter='data')
+  except (tarfile.TarError, EOFError, zlib.error, gzip.BadGzipFile) as err:
+    raise ValueError(f'{tar_path!r} is refused ({type(err).__name__}: {cli.one_line(err)}); expected a whole tar '
+                     'that bench.ledger or bench/lease.sh wrote') from err
+
+
+def committed_checkpoint(results: str, run: Run, committed: dict) -> Optional[str]:
+  """The run's committed checkpoint.tar.gz, None for a run without one at step 0; FileNotFoundError when state.json
+  has the run at a step and its checkpoint is missing."""
+  path = os.path.join(results, run.name, CHECKPOINT)
+  if os.path.isfile(path):
+    return path
+  if committed['step'] > 0:
+    raise FileNotFoundError(f"{path!r} is missing, while {os.path.join(results, run.name, STATE)!r} has {run.name} at "
+                            f"step {committed['step']:,}; expected the checkpoint committed with it (git checkout it)")
+  return None
 
 
 def ready_run(ledger: Ledger, results: str, work: str, data: str) -> Optional[Tuple[Run, str]]:
@@ -273,38 +313,53 @@ def ready_run(ledger: Ledger, results: str, work: str, data: str) -> Optional[Tu
     return None
   run, action = found
   committed, run_dir = state(results, run), os.path.join(work, 'runs', run.name)
-  checkpoint = os.path.join(results, run.name, CHECKPOINT)
-  os.makedirs(run_dir)
-  if os.path.isfile(checkpoint):
-    safe_extract(checkpoint, run_dir)
+  checkpoint, pack = committed_checkpoint(results, run, committed), pack_path(ledger, run, data)
+  if not os.path.isfile(pack):
+    raise FileNotFoundError(f'{pack!r} is missing: {run.name} trains on the pack {run.pack!r}; expected '
+                            '`python -m bench.prepare_lease` to have made it there (--data)')
+  if os.path.exists(run_dir):
+    raise FileExistsError(f'{run_dir!r} exists already; expected a new --work folder for the window')
   plan = read_json(os.path.join(work, 'window.json'), {})
   variant, bindings = variant_for(run, committed, measured_variants(results, work, plan.get('key', '')))
-  with open(os.path.join(work, 'next.env'), 'w') as f:
-    f.write(f'RUN={run.name}\nACTION={action}\nSTEPS={run.steps}\n')
   done = outcomes(work)
   done[run.name] = {'action': action, 'from_step': committed['step'], 'to_step': committed['step'],
                     'steps': run.steps, 'evaluated': False, 'packed': False}
-  _take_variant(ledger, run, work, data, done, variant, bindings)
+  os.makedirs(run_dir)
+  try:  # Nothing left behind by a refusal: the same call again says the same.
+    if checkpoint:
+      safe_extract(checkpoint, run_dir)
+    _take_variant(ledger, run, work, data, done, variant, bindings)
+  except BaseException:
+    shutil.rmtree(run_dir)
+    raise
+  with open(os.path.join(work, 'next.env'), 'w') as f:
+    f.write(f'RUN={run.name}\nACTION={action}\nSTEPS={run.steps}\n')
   return run, action
 
 
 def _take_variant(ledger: Ledger, run: Run, work: str, data: str, done: dict, variant: str, bindings) -> None:
   """Writes the run's train.py arguments (DIR/RUN.args: its gin file, then its bindings) with a variant, and
   records the variant in this window's outcomes."""
-  run_dir = os.path.join(work, 'runs', run.name)
+  lines = [run.gin] + train_bindings(ledger, run, data, os.path.join(work, 'runs', run.name), bindings)
   with open(os.path.join(work, f'{run.name}.args'), 'w') as f:
-    f.write('\n'.join([run.gin] + train_bindings(ledger, run, data, run_dir, bindings)) + '\n')
+    f.write('\n'.join(lines) + '\n')
   done[run.name].update(variant=variant, variant_bindings=list(bindings))
   write_json(os.path.join(work, 'outcomes.json'), done)
 
 
 def retry_base(ledger: Ledger, work: str, data: str) -> bool:
   """`retry-base`, after a training that failed (not a budget cut): a run this window started at step 0 with a
-  variant other than base starts again from step 0 with base (what it trained here is dropped); False for any
-  other run (a run resumed with its variant keeps it: its settings are fingerprinted)."""
+  variant other than base, and that saved no checkpoint, starts again from step 0 with base; False for any other
+  run (a run resumed with its variant keeps it: its settings are fingerprinted; steps this window trained are
+  packed, never dropped)."""
   done = outcomes(work)
   name = next((n for n, o in done.items() if not o['packed']), None)
   if name is None or done[name]['from_step'] or done[name]['variant'] == 'base':
+    return False
+  trained = newest_step(os.path.join(work, 'runs', name))
+  if trained is not None:
+    print(f"{name}: training with variant {done[name]['variant']} failed after its checkpoint at step {trained:,}; "
+          'no retry with base, which would drop those steps: they are packed as they are')
     return False
   run = next(r for r in ledger.runs if r.name == name)
   print(f"{name}: training with variant {done[name]['variant']} failed; again from step 0 with base")
@@ -367,10 +422,15 @@ def timed_variants(ledger: Ledger) -> list:
   return list(ledger.variants)
 
 
-def plan(ledger: Ledger, results: str, work: str, budget: int) -> None:
-  """`plan`: prints the window's plan; writes DIR/window.json, DIR/plan.txt and DIR/plan.env for bench/lease.sh."""
-  os.makedirs(work, exist_ok=True)
+def plan(ledger: Ledger, results: str, work: str, budget: int, allow_cpu: bool = False) -> None:
+  """`plan`: prints the window's plan; writes DIR/window.json, DIR/plan.txt and DIR/plan.env for bench/lease.sh.
+  ValueError, writing nothing, when jax sees no GPU, unless allow_cpu."""
   window = window_record(budget, results)
+  if window['platform'] != 'gpu' and not allow_cpu:
+    raise ValueError(f"jax sees no GPU (its device: {window['device']}, platform {window['platform']}, jax "
+                     f"{window['jax']}); a window trains on a GPU, nothing done (LEASE_ON_CPU=1 bash bench/lease.sh "
+                     'runs it on the CPU, for the tests\' tiny ledger)')
+  os.makedirs(work, exist_ok=True)
   write_json(os.path.join(work, 'window.json'), window)
   text = '\n'.join(plan_lines(ledger, results, work, window))
   with open(os.path.join(work, 'plan.txt'), 'w') as f:
@@ -400,10 +460,36 @@ def newest_step(run_dir: str) -> Optional[int]:
     return None
 
 
-def _tar(path: str, folder: str, keep=lambda member: True) -> int:
-  """Writes folder (as '.') into the gzipped tar path, with the members keep accepts; returns its size."""
-  with tarfile.open(path, 'w:gz') as tar:
-    tar.add(folder, '.', filter=lambda member: member if keep(member) else None)
+def _sha256(path: str) -> str:
+  """The SHA-256 of a file's bytes, in hex."""
+  digest = hashlib.sha256()
+  with open(path, 'rb') as f:
+    for block in iter(lambda: f.read(2**20), b''):
+      digest.update(block)
+  return digest.hexdigest()
+
+
+def checkpoint_sums(run_dir: str, step: int) -> dict:
+  """{path below run_dir: SHA-256 hex} of every file of the run folder's checkpoint at step."""
+  folder = os.path.join(run_dir, 'checkpoints', str(step))
+  return {os.path.relpath(os.path.join(d, f), run_dir): _sha256(os.path.join(d, f))
+          for d, _, files in os.walk(folder) for f in files}
+
+
+def _tar(path: str, folder: str, keep=lambda member: True, extra=None) -> int:
+  """Writes folder (as '.') into the gzipped tar path, with the members keep accepts and the files of extra
+  ({name: bytes}); returns its size. A failure leaves no file."""
+  try:
+    with tarfile.open(path, 'w:gz') as tar:
+      tar.add(folder, '.', filter=lambda member: member if keep(member) else None)
+      for name, data in (extra or {}).items():
+        info = tarfile.TarInfo(f'./{name}')
+        info.size, info.mtime, info.mode = len(data), int(time.time()), 0o644
+        tar.addfile(info, io.BytesIO(data))
+  except BaseException:
+    if os.path.exists(path):
+      os.remove(path)
+    raise
   return os.path.getsize(path)
 
 
@@ -411,8 +497,14 @@ def pack(ledger: Ledger, name: str, work: str, out: str) -> None:
   """`pack`: the run's resumable folder (and its evaluation once evaluated) into OUT; this window's outcome."""
   run = next(r for r in ledger.runs if r.name == name)
   run_dir, done = os.path.join(work, 'runs', name), outcomes(work)
+  if not os.path.isdir(run_dir):
+    raise FileNotFoundError(f'{run_dir!r} does not exist; expected the run folder `python -m bench.ledger next` '
+                            f'made for {name} (nothing written to {out!r})')
   step = newest_step(run_dir)
-  sizes = {f'run_{name}.tar.gz': _tar(os.path.join(out, f'run_{name}.tar.gz'), run_dir, lambda m: _keep(m, step))}
+  sums = {} if step is None else {SUMS: json.dumps({'step': step, 'sha256': checkpoint_sums(run_dir, step)},
+                                                   indent=1).encode()}
+  sizes = {f'run_{name}.tar.gz': _tar(os.path.join(out, f'run_{name}.tar.gz'), run_dir, lambda m: _keep(m, step),
+                                      sums)}
   evaluated = os.path.join(run_dir, f'test_preds_step_{run.steps}')
   record = read_json(os.path.join(evaluated, 'metrics.json'))
   complete = final(record, run)
@@ -461,6 +553,7 @@ def main(argv=None) -> int:
   parser.add_argument('--work', default='', help='the window\'s working folder (run folders, logs)')
   parser.add_argument('--out', default='', help='pack, pack-window: the folder that comes back ($OUT)')
   parser.add_argument('--budget', type=int, default=0, help='plan: the window\'s budget in seconds')
+  parser.add_argument('--allow_cpu', action='store_true', help='plan: a window on the CPU (the tests\' tiny ledger)')
   parser.add_argument('--into', default='', help='model: the run folder to write')
   args = parser.parse_args(argv)
   ledger = load(args.ledger)
@@ -473,8 +566,10 @@ def main(argv=None) -> int:
                                                          for n in missing))
   if args.command in ('pack', 'model') and args.target not in [r.name for r in ledger.runs]:
     raise ValueError(f'{args.target!r} is no run of {args.ledger}; expected one of {[r.name for r in ledger.runs]}')
+  if args.command in ('pack', 'pack-window') and not os.path.isdir(args.out):
+    raise FileNotFoundError(f'--out {args.out!r} is no folder; expected the folder that comes back ($OUT)')
   if args.command == 'plan':
-    plan(ledger, args.results, args.work, args.budget)
+    plan(ledger, args.results, args.work, args.budget, args.allow_cpu)
   elif args.command == 'next':
     return 0 if ready_run(ledger, args.results, args.work, args.data) else 1
   elif args.command == 'retry-base':

@@ -7,6 +7,10 @@ window resumes from, replaced each window), learning_curve.csv and .png (test PS
 logs/ (each window's training and evaluation logs); once evaluated also metrics.json, test_views.png and model.npz
 (the final parameters, which replace the checkpoint). timed.json keys the step variants timed per GPU kind and
 code hash, their records in variants/<kind>_<code>/; README.md gives every run's progress.
+
+Every tar that came back is extracted and every checkpoint verified before anything is committed: it matches the
+SHA-256 sums `pack` wrote beside it (the lease's plain tar, written when `pack` failed, has none), restores, holds
+finite values only, and is not older than the committed step; else one line names the tar and nothing changes.
 """
 
 import glob
@@ -15,6 +19,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from typing import Optional
 
 import numpy as np
 from PIL import Image
@@ -22,6 +27,7 @@ from PIL import Image
 from bench import ledger as ledger_lib
 from internal import cli
 from internal.evaluation import learning_curve
+from internal.run import checkpoints
 from internal.evaluation import vis
 from tools import tables
 
@@ -35,7 +41,10 @@ def _window(folder: str, scratch: str) -> dict:
   if not os.path.isfile(path):
     raise FileNotFoundError(f'{path!r} is missing; expected the folder a GPU window of bash bench/lease.sh filled')
   ledger_lib.safe_extract(path, os.path.join(scratch, 'window'))
-  return ledger_lib.read_json(os.path.join(scratch, 'window', 'window.json'))
+  window = ledger_lib.read_json(os.path.join(scratch, 'window', 'window.json'))
+  if window is None:
+    raise ValueError(f'{path!r} holds no window.json; expected the window.tar.gz of bash bench/lease.sh')
+  return window
 
 
 def commit_variants(results: str, scratch: str, window: dict) -> None:
@@ -70,11 +79,61 @@ def _stage_seconds(scratch: str, names):
   return sum(ran) if ran else None
 
 
+def _restored(run_dir: str, step: int) -> dict:
+  """The tree of a run folder's checkpoint at step, as saved (no template needed)."""
+  import orbax.checkpoint as ocp  # pylint: disable=import-outside-toplevel
+  return ocp.StandardCheckpointer().restore(os.path.abspath(os.path.join(run_dir, checkpoints.CHECKPOINT_SUBDIR,
+                                                                         str(step), checkpoints.ITEM)))
+
+
+def verify_checkpoint(run_dir: str, step: Optional[int], tar: str) -> None:
+  """ValueError naming tar unless the run folder's newest checkpoint (step) matches the sums `pack` wrote (when
+  the tar holds them), restores, and holds finite values only."""
+  refused = f'{tar!r} is refused, nothing of it is committed:'
+  sums = ledger_lib.read_json(os.path.join(run_dir, ledger_lib.SUMS))
+  if sums is not None:
+    found, listed = ledger_lib.checkpoint_sums(run_dir, sums['step']), sums['sha256']
+    if found != listed:
+      differ = sorted(p for p in set(found) | set(listed) if found.get(p) != listed.get(p))
+      raise ValueError(f"{refused} checkpoint step {sums['step']} differs from the SHA-256 sums `pack` wrote in "
+                       f"{', '.join(differ[:3])}{' ...' if len(differ) > 3 else ''}")
+    if sums['step'] != step:
+      raise ValueError(f"{refused} its sums are of checkpoint step {sums['step']}, its newest intact checkpoint is "
+                       f'step {step}')
+  if step is None:
+    return
+  try:
+    bad = checkpoints.nonfinite_leaves(_restored(run_dir, step))
+  except Exception as err:  # pylint: disable=broad-except  (orbax and tensorstore raise bare Exceptions)
+    raise ValueError(f'{refused} checkpoint step {step} does not restore ({cli.one_line(err)[:300]})') from err
+  if bad:
+    raise ValueError(f"{refused} checkpoint step {step} holds non-finite values in {', '.join(bad[:3])}"
+                     f"{' ...' if len(bad) > 3 else ''}")
+  if sums is None:
+    print(f'{tar}: no SHA-256 sums (the lease\'s plain tar); checkpoint step {step} restores and is finite')
+
+
+def extract_run(run: ledger_lib.Run, folder: str, scratch: str, results: str) -> Optional[int]:
+  """A run's tars of a window extracted into scratch/<run> (and scratch/eval_<run>), its checkpoint verified (not
+  older than the committed one either); returns its newest step (None: no checkpoint)."""
+  tar = os.path.join(folder, f'run_{run.name}.tar.gz')
+  run_dir = os.path.join(scratch, run.name)
+  ledger_lib.safe_extract(tar, run_dir)
+  committed, newest = ledger_lib.state(results, run), ledger_lib.newest_step(run_dir)
+  verify_checkpoint(run_dir, newest, tar)
+  if (newest or 0) < committed['step']:
+    raise ValueError(f'{tar!r} holds {run.name} at step {newest or 0}, older than the committed step '
+                     f"{committed['step']} ({os.path.join(results, run.name, ledger_lib.STATE)}): nothing of it is "
+                     'committed')
+  evaluated = os.path.join(folder, f'eval_{run.name}.tar.gz')
+  if os.path.isfile(evaluated) and newest == run.steps:
+    ledger_lib.safe_extract(evaluated, os.path.join(scratch, f'eval_{run.name}'))
+  return newest
+
+
 def save_model(run_dir: str, step: int, path: str) -> None:
   """The parameters of a run folder's checkpoint at step as an .npz, keys '/'-joined (e.g. 'mlp/Dense_0/kernel')."""
-  import orbax.checkpoint as ocp  # pylint: disable=import-outside-toplevel
-  tree = ocp.StandardCheckpointer().restore(os.path.abspath(os.path.join(run_dir, 'checkpoints', str(step),
-                                                                         'default')))
+  tree = _restored(run_dir, step)
   flat = {}
   def visit(prefix, node):
     for key, value in node.items():
@@ -111,17 +170,12 @@ def plot_curve(run: ledger_lib.Run, rows: list, windows: list, path: str) -> Non
 
 
 def commit_run(ledger, run: ledger_lib.Run, folder: str, scratch: str, results: str, window: dict,
-               outcome: dict) -> dict:
-  """One run's files of a window into results/gpu/ledger/<run>/; returns its new state."""
+               outcome: dict, newest: Optional[int]) -> dict:
+  """One run's files of a window (extracted and verified by extract_run, newest its step) into
+  results/gpu/ledger/<run>/; returns its new state."""
   here, run_dir = os.path.join(results, run.name), os.path.join(scratch, run.name)
   tar = os.path.join(folder, f'run_{run.name}.tar.gz')
-  ledger_lib.safe_extract(tar, run_dir)
-  committed = ledger_lib.state(results, run)
-  newest = ledger_lib.newest_step(run_dir)
-  step = newest or 0
-  if step < committed['step']:
-    raise ValueError(f'{tar!r} holds {run.name} at step {step}, older than the committed step '
-                     f"{committed['step']} ({os.path.join(here, ledger_lib.STATE)}): nothing of it is committed")
+  committed, step = ledger_lib.state(results, run), newest or 0
   os.makedirs(os.path.join(here, 'logs'), exist_ok=True)
   stages = {'train': f'train_{run.name}', 'train_base': f'train_{run.name}_base', 'eval': f'eval_{run.name}'}
   for kind, stage in stages.items():  # train_base: a new run retried with base (bench/lease.sh).
@@ -141,10 +195,8 @@ def commit_run(ledger, run: ledger_lib.Run, folder: str, scratch: str, results: 
          'windows': committed['windows'] + [line]}
   if os.path.isfile(os.path.join(run_dir, CURVE)):
     shutil.copy(os.path.join(run_dir, CURVE), os.path.join(here, CURVE))
-  evaluated = os.path.join(folder, f'eval_{run.name}.tar.gz')
-  if os.path.isfile(evaluated) and step == run.steps:
-    preds = os.path.join(scratch, f'eval_{run.name}')
-    ledger_lib.safe_extract(evaluated, preds)
+  preds = os.path.join(scratch, f'eval_{run.name}')
+  if os.path.isdir(preds):
     shutil.copy(os.path.join(preds, 'metrics.json'), os.path.join(here, 'metrics.json'))
     montage(preds, os.path.join(here, MONTAGE))
     save_model(run_dir, step, os.path.join(here, MODEL))
@@ -226,14 +278,17 @@ def unpack(ledger, folder: str, results: str) -> None:
   """`unpack`: a window's folder (window.tar.gz, run_RUN.tar.gz, eval_RUN.tar.gz) into results."""
   with tempfile.TemporaryDirectory() as scratch:
     window = _window(folder, scratch)
-    commit_variants(results, scratch, window)
     done = ledger_lib.read_json(os.path.join(scratch, 'window', 'outcomes.json'), {})
     runs = {run.name: run for run in ledger.runs}
-    for name, outcome in done.items():
+    steps = {}
+    for name in done:  # Every tar extracted and verified before anything is committed.
       if not os.path.isfile(os.path.join(folder, f'run_{name}.tar.gz')):
         print(f'{name}: no run_{name}.tar.gz came back; its committed checkpoint stays')
         continue
-      commit_run(ledger, runs[name], folder, scratch, results, window, outcome)
+      steps[name] = extract_run(runs[name], folder, scratch, results)
+    commit_variants(results, scratch, window)
+    for name, newest in steps.items():
+      commit_run(ledger, runs[name], folder, scratch, results, window, done[name], newest)
   write_overview(ledger, results)
   print(f'Now: git add {results} && git commit')
 

@@ -31,6 +31,7 @@ from bench import kernel_profile
 from bench import released_comparison
 from internal import cli
 from internal import rays as rays_lib
+from internal.datasets import batching
 from internal.models import registry
 
 SCALES = {'demo': (cli.DEMO_CONFIGS, None),
@@ -57,13 +58,13 @@ def scale_config(name: str):
   return common.gin_config(files, ['MLP.density_noise = 1.0'], **({'batch_size': batch_size} if batch_size else {}))
 
 
-def random_batch(config):
-  """{'rays', 'rgb'} of config.batch_size random rays between the config's near and far."""
+def random_batch(config) -> batching.Batch:
+  """A Batch of config.batch_size random rays between the config's near and far."""
   rays = common.dtu_like_rays(config.batch_size)
   bounds = jnp.ones_like(rays.near)
   rays = rays_lib.Rays(*rays[:-2], bounds * config.near, bounds * config.far)
   rgb = jnp.asarray(np.random.default_rng(1).uniform(size=(config.batch_size, 3)), jnp.float32)
-  return {'rays': rays, 'rgb': rgb}
+  return batching.Batch(rays=rays, rgb=rgb)
 
 
 def mlp_shape(config, model):

@@ -61,7 +61,7 @@ def method_config(name: str, batch_size: int):
 def step_runner(name: str, batch, model_cls=None):
   """(zero-arg callable returning one step's seconds, [state, stats], flops per step) of a step of GIN_FILES,
   compiled right after its gin file is parsed (the model reads its bindings when traced)."""
-  config = method_config(name, batch['rgb'].shape[0])
+  config = method_config(name, batch.rgb.shape[0])
   model = (model_cls(white_background=config.white_background) if model_cls else
            registry.build(config.model, white_background=config.white_background))
   run, holder, xla = common.step_runner(config, model, batch)

@@ -162,7 +162,7 @@ def build(variant: str, precision_name: str, args, batch):
 
 def first_gradients(config, model, batch, options) -> dict:
   """{parameter name: float64 gradient} of the step's loss at its initial parameters, batch and key."""
-  _, state = ts.create_train_state(config, random.PRNGKey(0), batch['rays'])
+  _, state = ts.create_train_state(config, random.PRNGKey(0), batch.rays)
   step = state.step + 1
   loss = lambda params: ts.compute_loss(config, model, params, batch, random.fold_in(random.PRNGKey(1), step),
                                         step)[0]

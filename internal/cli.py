@@ -8,8 +8,9 @@ A checkpoint save that finds the disk full (the earlier checkpoints stay intact)
 prints one line and exits with DISK_FULL_STATUS. Running out of accelerator memory is a user error too: its line
 names Config.batch_size (training, with XLA's estimate of the compiled step) or Config.render_chunk_size
 (rendering); so is running out of host memory drawing the training batch (Config.batch_size). Ctrl-C outside the
-training loop (which saves a checkpoint and stops itself) prints `interrupted: ...` and exits with 128 + SIGINT
-(before main, while a script imports, internal/interrupt.py prints the same line).
+training loop (which saves a checkpoint and stops itself) prints `interrupted: ...` and exits with 128 + SIGINT,
+whatever exception the interrupted code raised (before main, while a script imports, internal/interrupt.py prints
+the same line).
 Anything else is a bug and keeps its traceback (exit status 1). FREENERF_DEBUG=1 in the
 environment shows the traceback of user errors too. Warnings print as one line `warning: <message>`.
 """
@@ -34,7 +35,8 @@ from internal.run import out_of_memory
 from internal.run import run_dir
 from internal.training import train_step
 
-CONFIG_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'configs')
+REPOSITORY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+CONFIG_DIR = os.path.join(REPOSITORY, 'configs')
 # The demo's FreeNeRF: the short CPU schedule (demo.gin), then its scene, 2 views and NeRF model (demo_forward.gin).
 DEMO_CONFIGS = [os.path.join(CONFIG_DIR, name) for name in ('demo.gin', 'demo_forward.gin')]
 USAGE_ERROR_STATUS = 2
@@ -73,35 +75,42 @@ def run(main) -> int:
   """Calls main() -> exit status; a user error prints one line on stderr (status 2, or 3 / 4 of OWN_STATUS).
 
   Ctrl-C outside training's own handling (eval.py, render.py, training before its loop) prints one line too and
-  exits with signal_status(SIGINT), as training stopped by SIGINT does. Warnings print as one line
-  `warning: ...` while main runs.
+  exits with signal_status(SIGINT), as training stopped by SIGINT does; so does any exception once a SIGINT arrived
+  (what an interrupted import made of it), and a SIGINT during the script's imports that they swallowed stops it
+  before main. Warnings print as one line `warning: ...` while main runs.
   """
   progress.robust_streams()
   debug = os.environ.get(DEBUG_ENV, '') not in ('', '0')
   python_format, warnings.formatwarning = warnings.formatwarning, format_warning
-  try:
-    return main()
-  except (*USER_ERRORS, *(cls for cls, _ in OWN_STATUS)) as err:
-    if debug:
-      raise
-    print(f'error: {one_line(err)}', file=sys.stderr)
-    return next((status for cls, status in OWN_STATUS if isinstance(err, cls)), USAGE_ERROR_STATUS)
-  except OSError as err:
-    if debug or not disk_full.is_disk_full(err):
-      raise
-    where = f' writing {err.filename!r}' if err.filename else ''
-    print(f'error: no space left on the device{where}; free disk space and run the same command again',
-          file=sys.stderr)
-    return DISK_FULL_STATUS
-  except KeyboardInterrupt:
-    if debug:
-      raise
+  with interrupt.recording() as sigint:
+    try:
+      sigint.raise_if_received()
+      return main()
+    except BaseException as err:  # pylint: disable=broad-except  (what is not named below is raised again)
+      status = None if debug else _one_line_status(err, sigint.received)
+      if status is None:
+        raise
+      return status
+    finally:
+      warnings.formatwarning = python_format
+
+
+def _one_line_status(err: BaseException, interrupted: bool):
+  """Prints err's one line and returns the exit status; None for a bug (or SystemExit), whose traceback stays."""
+  if isinstance(err, KeyboardInterrupt) or (interrupted and isinstance(err, Exception)):
     if threading.current_thread() is threading.main_thread():  # A Ctrl-C during the exit's cleanup (Ray's) would
       signal.signal(signal.SIGINT, signal.SIG_IGN)              # escape here and kill the process by signal.
     print(interrupt.MESSAGE, file=sys.stderr)
     return signal_status(signal.SIGINT)
-  finally:
-    warnings.formatwarning = python_format
+  if isinstance(err, (*USER_ERRORS, *(cls for cls, _ in OWN_STATUS))):
+    print(f'error: {one_line(err)}', file=sys.stderr)
+    return next((status for cls, status in OWN_STATUS if isinstance(err, cls)), USAGE_ERROR_STATUS)
+  if isinstance(err, OSError) and disk_full.is_disk_full(err):
+    where = f' writing {err.filename!r}' if err.filename else ''
+    print(f'error: no space left on the device{where}; free disk space and run the same command again',
+          file=sys.stderr)
+    return DISK_FULL_STATUS
+  return None
 
 
 MULTI_VALUE_FLAGS = ('--gin_configs', '--gin_bindings')
@@ -114,26 +123,47 @@ def quoted(words) -> str:
                   else shlex.quote(w) for w in words)
 
 
+# An absolute path in a word or a text: a '/' that starts it or follows '=', a quote, a space or a bracket.
+ABSOLUTE_PATH = re.compile(r"(?<![\w.~/-])/[\w.@+,=-]+(?:/[\w.@+,=-]*)*")
+
+
+def relative_paths(text: str) -> str:
+  """text with each absolute path written relative to the repository (/work/x/out -> ../x/out from /work/repo),
+  so that what a command writes into a committed record names no machine's folders."""
+  return ABSOLUTE_PATH.sub(lambda m: os.path.relpath(m.group(0), REPOSITORY), text)
+
+
+def recorded_command(words) -> str:
+  """A command's words as the line a record keeps: quoted, each absolute path relative to the repository."""
+  return quoted([relative_paths(w) for w in words])
+
+
 def command_line(module: str, argv=None) -> str:
-  """The line that ran `python -m module` with argv (default: this process's arguments), quoted."""
-  return quoted(['python', '-m', module] + list(sys.argv[1:] if argv is None else argv))
+  """The line that ran `python -m module` with argv (default: this process's arguments), as a record keeps it."""
+  return recorded_command(['python', '-m', module] + list(sys.argv[1:] if argv is None else argv))
 
 
-def split_flag_values(argv):
-  """argv with '--gin_bindings=A' split into '--gin_bindings', 'A', so that values after it join it."""
+def split_flag_values(argv, flags=MULTI_VALUE_FLAGS):
+  """argv with '--gin_bindings=A' split into '--gin_bindings', 'A' for each of the flags, so that values after it
+  join it."""
   out = []
   for arg in argv:
     name, sep, value = arg.partition('=')
-    out.extend([name, value] if sep and name in MULTI_VALUE_FLAGS else [arg])
+    out.extend([name, value] if sep and name in flags else [arg])
   return out
 
 
 class FlagParser(argparse.ArgumentParser):
-  """An ArgumentParser that accepts `--flag=A B` for the multi-value flags (argparse alone takes only A)."""
+  """An ArgumentParser that accepts `--flag=A B` for its multi-value flags, multi_value_flags (default the gin
+  flags; argparse alone takes only A)."""
+
+  def __init__(self, *args, multi_value_flags=MULTI_VALUE_FLAGS, **kwargs):
+    super().__init__(*args, **kwargs)
+    self.multi_value_flags = tuple(multi_value_flags)
 
   def parse_known_args(self, args=None, namespace=None):
     args = sys.argv[1:] if args is None else args
-    return super().parse_known_args(split_flag_values(args), namespace)
+    return super().parse_known_args(split_flag_values(args, self.multi_value_flags), namespace)
 
 
 class PrintEnvironment(argparse.Action):
@@ -147,10 +177,10 @@ class PrintEnvironment(argparse.Action):
     parser.exit()
 
 
-def flag_parser(description: str) -> argparse.ArgumentParser:
+def flag_parser(description: str, more_multi_value_flags=()) -> argparse.ArgumentParser:
   """An argument parser with --gin_configs / --gin_bindings, each repeatable and taking one or more values, and
-  --env."""
-  parser = FlagParser(description=description)
+  --env; the caller's own such flags (more_multi_value_flags, added by it) take `--flag=A B` as they do."""
+  parser = FlagParser(description=description, multi_value_flags=MULTI_VALUE_FLAGS + tuple(more_multi_value_flags))
   parser.add_argument('--env', action=PrintEnvironment,
                       help='print the environment for a bug report (jax backend and devices, package versions, '
                            'numerics) and exit')

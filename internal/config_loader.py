@@ -1,6 +1,7 @@
 """Reading a Config from .gin files and bindings, and checking every setting before any work."""
 
 import ast
+import contextlib
 import dataclasses
 import logging
 import math
@@ -10,6 +11,7 @@ import warnings
 from typing import Sequence
 
 import gin
+import numpy as np
 
 from internal import configs
 from internal.configs import Config
@@ -28,7 +30,7 @@ from internal.datasets import batching
 from internal.datasets import depth_prior
 from internal.datasets import image_io
 from internal.datasets import loader
-from internal.datasets import raygen
+from internal.cameras import caster
 
 
 # `include 'configs/common/...'` in the repository's configs resolves from any working directory.
@@ -36,16 +38,21 @@ gin.add_config_file_search_path(os.path.dirname(os.path.dirname(os.path.abspath(
 
 # Model fields set from Config (gin refuses bindings of them), e.g. the background the data and renderer share.
 SET_FROM_CONFIG = configs.declared(configs.TO_MODEL)
+# How gin names Config in the bindings it records.
+CONFIG_SELECTOR = gin.config.ParsedBindingKey.parse(('', 'Config', 'expname')).complete_selector
 
 
-def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> None:
-  """Parses .gin files and bindings; unknown bindings raise, naming the binding."""
+def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ()) -> tuple:
+  """Parses .gin files and bindings; unknown bindings raise, naming the binding. Returns the Config fields they
+  bind, in the order gin binds them (files and their includes in order, then the bindings; repeats kept)."""
   for path in gin_configs:
     if not os.path.isfile(path):
       raise FileNotFoundError(f'gin config {path!r} does not exist')
   logging.root.addFilter(_not_gin_path_noise)
   try:
-    gin.parse_config_files_and_bindings(list(gin_configs), list(gin_bindings), skip_unknown=False)
+    with _config_bindings_in_order() as bound:
+      gin.parse_config_files_and_bindings(list(gin_configs), list(gin_bindings), skip_unknown=False)
+    return tuple(bound)
   except SyntaxError as err:  # gin reports a malformed value as a SyntaxError; it is a bad setting.
     raise ValueError(f'cannot parse the gin configs {list(gin_configs)} / bindings {list(gin_bindings)}: '
                      f'{err}') from err
@@ -60,6 +67,25 @@ def parse_gin(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = ())
     raise
   finally:
     logging.root.removeFilter(_not_gin_path_noise)
+
+
+@contextlib.contextmanager
+def _config_bindings_in_order():
+  """Yields a list that collects the name of each Config field gin binds (unscoped, as Config() reads them) while
+  the context is open, in order: gin keeps only each binding's last value, not which of two came last."""
+  bound, bind = [], gin.config.bind_parameter
+
+  def recording_bind(binding_key, value):
+    bind(binding_key, value)
+    key = gin.config.ParsedBindingKey.parse(binding_key)
+    if key.config_key == ('', CONFIG_SELECTOR):
+      bound.append(key.arg_name)
+
+  gin.config.bind_parameter = recording_bind
+  try:
+    yield bound
+  finally:
+    gin.config.bind_parameter = bind
 
 
 def _not_gin_path_noise(record: logging.LogRecord) -> bool:
@@ -79,8 +105,8 @@ def _raise_missing_include(err: OSError) -> None:
 
 def load_config(gin_configs: Sequence[str] = (), gin_bindings: Sequence[str] = (), backend: str = '') -> Config:
   """Parses gin and returns a validated Config, its precision resolved for backend ('' = this process's)."""
-  parse_gin(gin_configs, gin_bindings)
-  config = _expand_home(_resolve_freq_reg_end(_apply_warmup_end(_current_loader_name(Config())), gin_bindings))
+  bound = parse_gin(gin_configs, gin_bindings)
+  config = _expand_home(_resolve_freq_reg_end(_apply_warmup_end(_current_loader_name(Config())), bound))
   validate(config)
   # Concrete from here on: a run records (and its fingerprint checks) the numerics it trained with.
   return dataclasses.replace(config, precision=precision.resolve(config.precision, backend))
@@ -120,23 +146,19 @@ def _apply_warmup_end(config: Config) -> Config:
   return config
 
 
-def _bound(bindings: Sequence[str], name: str) -> bool:
-  """Whether gin bindings (command-line strings, one or more lines each) bind Config.<name>."""
-  return any(re.search(rf'^\s*Config\.{name}\s*=', b, re.M) for b in bindings)
+def _last(bound: Sequence[str], name: str) -> int:
+  """Position of the last binding of Config.<name> in bound (parse_gin's order), -1 when none binds it."""
+  return max((i for i, b in enumerate(bound) if b == name), default=-1)
 
 
-def _resolve_freq_reg_end(config: Config, gin_bindings: Sequence[str]) -> Config:
-  """Config with freq_reg_end = round(freq_reg_end_fraction x max_steps) when a fraction is set. A step count bound
-  in gin_bindings wins over a fraction from the gin files (the later setting, as gin's own rule); binding both there
-  is a ValueError, as is a fraction that is negative or not finite."""
+def _resolve_freq_reg_end(config: Config, bound: Sequence[str]) -> Config:
+  """Config with freq_reg_end = round(freq_reg_end_fraction x max_steps) when a fraction is set and bound after
+  the last freq_reg_end (bound: the Config fields in the order gin bound them; the later setting wins, as gin's
+  own rule); a fraction that is negative or not finite is a ValueError."""
   fraction = config.freq_reg_end_fraction
   if fraction is None:
     return config
-  in_steps, as_fraction = _bound(gin_bindings, 'freq_reg_end'), _bound(gin_bindings, 'freq_reg_end_fraction')
-  if in_steps and as_fraction:
-    raise ValueError(f'Config.freq_reg_end = {config.freq_reg_end} and Config.freq_reg_end_fraction = {fraction} '
-                     'are both bound; expected one of them (T in steps, or as a fraction of Config.max_steps)')
-  if in_steps:
+  if _last(bound, 'freq_reg_end') > _last(bound, 'freq_reg_end_fraction'):
     return dataclasses.replace(config, freq_reg_end_fraction=None)
   if isinstance(fraction, bool) or not (isinstance(fraction, (int, float)) and math.isfinite(fraction) and fraction >= 0):
     raise ValueError(f'Config.freq_reg_end_fraction = {fraction!r}; expected a finite number >= 0 (T as a '
@@ -182,39 +204,58 @@ def validate(config: Config) -> None:
 
 
 def _check_ranges(config: Config) -> None:
-  """Raises a ValueError naming the first setting outside a range it declares (configs.RANGES), with its hint."""
-  fields = {f.name: f for f in dataclasses.fields(Config)}
-  for kind in configs.RANGES:
-    for name in configs.declared(kind):
-      value, field = getattr(config, name), fields[name]
-      expected = _outside(kind, value, isinstance(field.default, float))
-      if expected:
-        hint = f' ({field.metadata["hint"]})' if field.metadata['hint'] else ''
-        raise ValueError(f'Config.{name} = {value}; expected {expected}{hint}')
+  """Raises a ValueError naming the first setting outside a range it declares (configs.RANGES, then its at_most),
+  with its hint."""
+  fields = dataclasses.fields(Config)
+  checks = [(kind, f) for kind in configs.RANGES for f in fields if kind in f.metadata['properties']]
+  for kind, field in checks + [(AT_MOST, f) for f in fields if f.metadata['at_most'] is not None]:
+    value = getattr(config, field.name)
+    expected = _outside(kind, value, field)
+    if expected:
+      hint = f' ({field.metadata["hint"]})' if field.metadata['hint'] else ''
+      raise ValueError(f'Config.{field.name} = {value}; expected {expected}{hint}')
+
+
+# Training computes in float32: a float setting must be a number it holds, a positive one a normal number (XLA
+# flushes smaller ones to 0 on CPUs).
+FLOAT32_MAX, FLOAT32_TINY = float(np.finfo(np.float32).max), float(np.finfo(np.float32).tiny)
+AT_MOST = 'at_most'  # The check of a field's at_most (configs.setting), after its RANGES.
+
+
+def _outside(kind: str, value, field: dataclasses.Field) -> str:
+  """What a value of field outside a declared range (or at_most) is expected to be ('' when it is inside)."""
+  if kind == AT_MOST:
+    return '' if value <= field.metadata['at_most'] else f'<= {field.metadata["at_most"]:g}'
+  if kind == configs.FINITE:
+    if isinstance(value, float) and not math.isfinite(value):
+      return 'a finite number'
+    return '' if abs(value) <= FLOAT32_MAX else f'a finite number float32 holds (|x| <= {FLOAT32_MAX:.4g})'
+  if kind == configs.NON_NEGATIVE:
+    return '' if value >= 0 else '>= 0'
+  if not isinstance(field.default, float):
+    return '' if value >= 1 else 'a positive integer'
+  if value <= 0:
+    return '> 0'
+  return '' if value >= FLOAT32_TINY else f'a positive number float32 holds (>= {FLOAT32_TINY:.4g})'
 
 
 # Seeds jax.random.PRNGKey (int64) and numpy's generators (non-negative) both take.
 SEED_LIMIT = 2**63
 
 
+def seed_expected(seed) -> str:
+  """What a seed that a random generator would refuse (numpy's message names no setting) is expected to be ('' when
+  both jax's and numpy's take it); each caller names its setting or flag."""
+  return '' if 0 <= seed < SEED_LIMIT else "a whole number in [0, 2^63) (a seed of jax's and numpy's random generators)"
+
+
 def _check_seeds(config: Config) -> None:
-  """Raises a ValueError naming the first seed (configs.SEED) that no random generator takes."""
-  for name in configs.declared(configs.SEED):
+  """Raises a ValueError naming the first seed setting (configs.RNG_SEED) that no random generator takes."""
+  for name in configs.declared(configs.RNG_SEED):
     value = getattr(config, name)
-    if not 0 <= value < SEED_LIMIT:
-      raise ValueError(f'Config.{name} = {value}; expected a whole number in [0, 2^63) (a seed of jax\'s and '
-                       'numpy\'s random generators)')
-
-
-def _outside(kind: str, value, floats: bool) -> str:
-  """What a value outside a declared range is expected to be ('' when it is inside)."""
-  if kind == configs.FINITE:
-    return '' if math.isfinite(value) else 'a finite number'
-  if kind == configs.NON_NEGATIVE:
-    return '' if value >= 0 else '>= 0'
-  if floats:
-    return '' if value > 0 else '> 0'
-  return '' if value >= 1 else 'a positive integer'
+    expected = seed_expected(value)
+    if expected:
+      raise ValueError(f'Config.{name} = {value}; expected {expected}')
 
 
 def _validate_blender_code_settings(config: Config) -> None:
@@ -262,9 +303,9 @@ def _check_ndc_near_far(config: Config) -> None:
     return
   fields = {f.name: f.default for f in dataclasses.fields(Config)}
   unset = (config.near, config.far) == (fields['near'], fields['far']) and not config.anneal_nearfar
-  if unset or (config.near, config.far) == raygen.NDC_NEAR_FAR:
+  if unset or (config.near, config.far) == caster.NDC_NEAR_FAR:
     return
-  name, value = ('near', config.near) if config.near != raygen.NDC_NEAR_FAR[0] else ('far', config.far)
+  name, value = ('near', config.near) if config.near != caster.NDC_NEAR_FAR[0] else ('far', config.far)
   why = ' (Config.anneal_nearfar reads them)' if config.anneal_nearfar else ''
   raise ValueError(f'Config.{name} = {value}: {config.dataset_loader!r} scenes use NDC rays, which fix near = 0 '
                    f'and far = 1{why}; set Config.near = 0 and Config.far = 1')

@@ -12,31 +12,36 @@ from typing import Optional, Sequence
 import gin
 
 # The properties a setting may declare.
-FINITE = 'finite'              # config_loader.validate: not inf or nan.
-POSITIVE = 'positive'          # config_loader.validate: an integer >= 1, a float > 0.
+# config_loader.validate: a number float32 holds (not inf or nan, |x| <= 3.4e38), as training computes in float32;
+# every float setting declares it.
+FINITE = 'finite'
+# config_loader.validate: an integer >= 1, a float > 0 (and, as FINITE, one float32 holds: >= 1.2e-38).
+POSITIVE = 'positive'
 NON_NEGATIVE = 'non_negative'  # config_loader.validate: >= 0.
-RANGES = (FINITE, POSITIVE, NON_NEGATIVE)  # In the order validate checks them.
+RANGES = (FINITE, POSITIVE, NON_NEGATIVE)  # In the order validate checks them (then each setting's at_most).
 # Changes nothing that training computes: left out of a run's fingerprint (run/run_dir.py), so it may differ between
 # a run and its resumption.
 BOOKKEEPING = 'bookkeeping'
 PATH = 'path'                  # A file or folder: a leading '~' is a home folder (config_loader).
 SEED = 'seed'                  # A seed: runs that differ only in these are replicates (metrics.json's "seeds").
+RNG_SEED = 'rng_seed'          # Seeds a random generator: config_loader.validate checks that numpy and jax take it.
 TO_MODEL = 'to_model'          # Also sets the model's field of that name, which gin then refuses to bind.
-PROPERTIES = RANGES + (BOOKKEEPING, PATH, SEED, TO_MODEL)
+PROPERTIES = RANGES + (BOOKKEEPING, PATH, SEED, RNG_SEED, TO_MODEL)
 # shapes=: the Config.dataset_loader values whose loaded data the setting shapes (a pack records and checks it,
 # datasets/packed.py), or ALL_LOADERS.
 ALL_LOADERS = '*'
 LR_HINT = 'the learning rate decays log-linearly from lr_init to lr_final'
 
 
-def setting(default, *properties: str, shapes=(), hint: str = ''):
-  """A Config field: its default, its PROPERTIES, the loaders whose data it shapes and a hint for range errors."""
+def setting(default, *properties: str, shapes=(), hint: str = '', at_most=None):
+  """A Config field: its default, its PROPERTIES, the loaders whose data it shapes, a hint for range errors and
+  the largest value it may take (None = no such bound)."""
   unknown = set(properties) - set(PROPERTIES)
   if unknown:
     raise ValueError(f'unknown setting properties {sorted(unknown)}; expected some of {PROPERTIES}')
   shapes = (shapes,) if isinstance(shapes, str) else tuple(shapes)
   return dataclasses.field(default=default, metadata={'properties': frozenset(properties), 'shapes': shapes,
-                                                      'hint': hint})
+                                                      'hint': hint, 'at_most': at_most})
 
 
 @gin.configurable()
@@ -52,8 +57,10 @@ class Config:
   overwrite: bool = setting(False, BOOKKEEPING)
   # Where eval.py and render.py write (test_preds_step_<step>/, path_renders_step_<step>/); '' = the run directory.
   output_dir: str = setting('', BOOKKEEPING, PATH)
-  jax_rng_seed: int = setting(20200823, SEED)  # Seed of the model's initialization and of sampling noise (as released).
-  np_rng_seed: int = setting(20201473, SEED)  # Seed of the ray batches: a step's batch depends only on it and the step.
+  # Seed of the model's initialization and of sampling noise (as released).
+  jax_rng_seed: int = setting(20200823, SEED, RNG_SEED)
+  # Seed of the ray batches: a step's batch depends only on it and the step.
+  np_rng_seed: int = setting(20201473, SEED, RNG_SEED)
   # Steps between checkpoints (the last step is always saved).
   checkpoint_every: int = setting(25000, POSITIVE, BOOKKEEPING)
   checkpoint_keep: int = setting(5, POSITIVE, BOOKKEEPING)  # Newest checkpoints kept (>= 1); older ones are deleted.
@@ -101,14 +108,14 @@ class Config:
   near: float = setting(2., FINITE, shapes=('dtu', 'blender', 'generated'))
   # Ray end distance (world units); NDC scenes (LLFF) fix it at 1.
   far: float = setting(6., FINITE, shapes=('dtu', 'blender', 'generated'))
-  near_origin: float = setting(0.0, shapes=('dtu',))  # DTU: ray origins moved onto the plane z = near_origin.
+  near_origin: float = setting(0.0, FINITE, shapes=('dtu',))  # DTU: ray origins moved onto the plane z = near_origin.
   # Blender-layout scenes (Blender, the generated object rig): rays through pixel (i, j) + pixel_offset; 0.5 =
   # pixel centres (mip-NeRF), 0 = the integer pixel coordinates of the released Blender (NeRF) code.
-  pixel_offset: float = setting(0.5, shapes=('blender', 'generated'))
+  pixel_offset: float = setting(0.5, FINITE, shapes=('blender', 'generated'))
   render_path_frames: int = setting(240, POSITIVE, BOOKKEEPING)  # Frames of the camera path render.py renders (>= 1).
   generated_rig: str = setting('object', shapes=('generated',))  # Generated scene: 'object' | 'forward'.
   generated_size: Sequence[int] = setting((64, 80), shapes=('generated',))  # Generated scene image (H, W).
-  generated_seed: int = setting(0, shapes=('generated',))  # Generated scene: seed of its layout and textures.
+  generated_seed: int = setting(0, RNG_SEED, shapes=('generated',))  # Generated scene: seed of its layout and textures.
   # Captures (dataset_loader 'capture', internal/datasets/capture.py): a user's photos and their COLMAP model.
   # The capture's folder under Config.data_dir ('' = data_dir is the capture).
   capture_scene: str = setting('', shapes=('capture',))
@@ -123,7 +130,7 @@ class Config:
 
   # Central-crop warm-up (NeRF's Blender recipe): early steps draw pixels from the image centre only.
   precrop_steps: int = setting(0, NON_NEGATIVE)  # Steps 1..precrop_steps sample the central crop (0 = off).
-  precrop_frac: float = setting(0.5)  # Crop side as a fraction of the image side, in (0, 1].
+  precrop_frac: float = setting(0.5, FINITE)  # Crop side as a fraction of the image side, in (0, 1].
 
   # Optimization.
   # Training steps (the paper: DTU 43,945 / 87,891 / 131,836, LLFF 69,768 / 139,535 / 209,303 for 3/6/9 views).
@@ -134,19 +141,19 @@ class Config:
   lr_final: float = setting(5e-5, FINITE, POSITIVE, hint=LR_HINT)
   # Warm-up steps; the rate rises from lr_delay_mult x on a sine curve (the paper: 512).
   lr_delay_steps: int = setting(0, NON_NEGATIVE)
-  lr_delay_mult: float = setting(0.)  # Warm-up's starting multiple of the learning rate (the paper: 0.01).
-  grad_max_norm: float = setting(0.)  # 0 = no global-norm clipping.
-  grad_max_val: float = setting(0.)  # 0 = no clipping by value.
-  adam_eps: float = setting(1e-8)  # Adam's epsilon.
+  lr_delay_mult: float = setting(0., FINITE)  # Warm-up's starting multiple of the learning rate (the paper: 0.01).
+  grad_max_norm: float = setting(0., FINITE)  # 0 = no global-norm clipping.
+  grad_max_val: float = setting(0., FINITE)  # 0 = no clipping by value.
+  adam_eps: float = setting(1e-8, FINITE)  # Adam's epsilon.
   nonfinite_grad_policy: str = setting('skip')  # 'skip' the update or 'raise' on a non-finite loss/gradient/lr/update.
   # Stop the run after this many consecutive skipped updates.
   max_skipped_steps: int = setting(100, POSITIVE, BOOKKEEPING)
-  coarse_loss_mult: float = setting(0.1)  # Weight of the coarse level's losses (mip-NeRF: 0.1).
-  weight_decay_mult: float = setting(0.)  # Weight of the mean squared parameter (weight L2) loss; 0 = off.
+  coarse_loss_mult: float = setting(0.1, FINITE)  # Weight of the coarse level's losses (mip-NeRF: 0.1).
+  weight_decay_mult: float = setting(0., FINITE)  # Weight of the mean squared parameter (weight L2) loss; 0 = off.
   # Padding of the fine level's resampling histogram at step 0 (mip-NeRF: 0.01).
-  resample_padding_init: float = setting(0.01)
+  resample_padding_init: float = setting(0.01, FINITE)
   # Padding at max_steps (log-linear in between); evaluation uses this one.
-  resample_padding_final: float = setting(0.01)
+  resample_padding_final: float = setting(0.01, FINITE)
   # Stratified jitter of the samples and density noise in training (eval is deterministic).
   randomized: bool = setting(True)
   precision: str = setting('auto', TO_MODEL)  # The MLP's numerics: one of precision.CHOICES ('auto' per backend).
@@ -163,20 +170,22 @@ class Config:
   # T: the step at which every frequency is visible; 0 = no ramp (the paper: 0.9 x steps, 3 views).
   freq_reg_end: int = setting(0, NON_NEGATIVE)
   # T as a fraction of max_steps (the paper: 0.9 / 0.7 / 0.5 for 3 / 6 / 9 views); None = freq_reg_end in steps.
-  # config_loader resolves it into freq_reg_end when the config loads; a freq_reg_end bound on the command line
-  # (or a study's bindings) wins over a fraction from the gin files.
+  # config_loader resolves it into freq_reg_end when the config loads; of freq_reg_end and this, the one gin binds
+  # last wins (a later file over an earlier one, the bindings over the files), as for any setting.
   freq_reg_end_fraction: Optional[float] = setting(None, BOOKKEEPING)
   # 'released' (3 features at a time over sin-then-cos) | 'paper' (sin and cos of a band together).
   freq_mask_layout: str = setting('released')
-  max_vis_freq_ratio: float = setting(0.)  # Fixed visible-ratio ablation (paper Fig. 2), under freq_reg only; 0 = off.
-  occ_reg_loss_mult: float = setting(0.)  # Weight of FreeNeRF's occlusion loss; 0 = off (the paper: 0.01).
+  # Fixed visible-ratio ablation (paper Fig. 2), under freq_reg only; 0 = off.
+  max_vis_freq_ratio: float = setting(0., FINITE)
+  occ_reg_loss_mult: float = setting(0., FINITE)  # Weight of FreeNeRF's occlusion loss; 0 = off (the paper: 0.01).
   # M: the occlusion loss covers the first M fine samples (the paper: DTU 10, LLFF/Blender 20).
   occ_reg_range: int = setting(10, NON_NEGATIVE)
   # DTU: also penalize samples predicted black or white within the first occ_wb_range.
   occ_wb_prior: bool = setting(False)
   # Samples covered by the black/white prior (the released DTU configs: 15).
   occ_wb_range: int = setting(15, NON_NEGATIVE)
-  distortion_loss_mult: float = setting(0.)  # Weight of mip-NeRF 360's distortion loss (Table 5a ablation); 0 = off.
+  # Weight of mip-NeRF 360's distortion loss (Table 5a ablation); 0 = off.
+  distortion_loss_mult: float = setting(0., FINITE)
 
   # RegNeRF's geometry regularization and sample-space annealing (docs/regnerf.md), released names.
   load_random_rays: bool = setting(True)  # Allow random-pose patches; made only when a geometry loss needs them.
@@ -185,19 +194,21 @@ class Config:
   # Random poses patches are drawn from (LLFF as released: 1, see regnerf_fix_released_bugs).
   n_random_poses: int = setting(10000, POSITIVE)
   random_pose_focusptjitter: bool = setting(True)  # DTU: jitter the look-at point by N(0, 0.125^2).
-  random_pose_radius: float = setting(1.0)  # DTU: scale of the random camera-position box.
-  depth_tvnorm_loss_mult: float = setting(0.)  # Depth-smoothness (TV) weight when depth_tvnorm_decay is False.
+  random_pose_radius: float = setting(1.0, FINITE)  # DTU: scale of the random camera-position box.
+  depth_tvnorm_loss_mult: float = setting(0., FINITE)  # Depth-smoothness (TV) weight when depth_tvnorm_decay is False.
   depth_tvnorm_decay: bool = setting(False)  # Weight from _loss_mult_start to _end over depth_tvnorm_maxstep steps.
   depth_tvnorm_maxstep: int = setting(0)  # Steps of the depth-smoothness weight's decay.
-  depth_tvnorm_loss_mult_start: float = setting(0.)  # Depth-smoothness weight at step 0 under depth_tvnorm_decay.
-  depth_tvnorm_loss_mult_end: float = setting(0.)  # Depth-smoothness weight from depth_tvnorm_maxstep on.
-  depth_tvnorm_mask_weight: float = setting(0.)  # TV weighted by stop_grad(acc) * this (released: 0 zeroes the loss).
+  # Depth-smoothness weight at step 0 under depth_tvnorm_decay.
+  depth_tvnorm_loss_mult_start: float = setting(0., FINITE)
+  depth_tvnorm_loss_mult_end: float = setting(0., FINITE)  # Depth-smoothness weight from depth_tvnorm_maxstep on.
+  # TV weighted by stop_grad(acc) * this (released: 0 zeroes the loss).
+  depth_tvnorm_mask_weight: float = setting(0., FINITE)
   anneal_nearfar: bool = setting(False)  # Grow [near, far] from a band around its mid point (pure in the step).
   # Steps over which the annealed [near, far] grows to the full range.
   anneal_nearfar_steps: int = setting(2000, POSITIVE)
-  anneal_nearfar_perc: float = setting(0.2)  # Fraction of [near, far] sampled at step 0.
-  anneal_mid_perc: float = setting(0.5)  # Where in [near, far] the initial band is centred (0.5 = the middle).
-  flow_loss_mult: float = setting(0.)  # The appearance (flow) model was never released: must stay 0.
+  anneal_nearfar_perc: float = setting(0.2, FINITE)  # Fraction of [near, far] sampled at step 0.
+  anneal_mid_perc: float = setting(0.5, FINITE)  # Where in [near, far] the initial band is centred (0.5 = the middle).
+  flow_loss_mult: float = setting(0., FINITE)  # The appearance (flow) model was never released: must stay 0.
   regnerf_fix_released_bugs: bool = setting(False)  # LLFF: n_random_poses poses (not 1); mask weight 0 = unweighted TV.
   warmup_end: int = setting(0)  # Older released name of freq_reg_end (llff9_regnerf.gin sets it to 0).
 
@@ -233,15 +244,16 @@ class Config:
   # .png (16-bit grey); 0 and non-finite values are "no prior" there.
   depth_prior_dir: str = setting('', PATH)
   depth_prior_kind: str = setting('')  # What the maps hold: 'depth' or 'disparity' (up to scale and shift).
-  depth_rank_loss_mult: float = setting(0., NON_NEGATIVE)  # SparseNeRF's local ranking loss on the maps; 0 = off.
-  depth_rank_margin: float = setting(1e-4, NON_NEGATIVE)  # Its margin, in units of the rays' t (NDC for LLFF).
-  depth_pearson_loss_mult: float = setting(0., NON_NEGATIVE)  # 1 - Pearson correlation per patch; 0 = off.
+  # SparseNeRF's local ranking loss on the maps; 0 = off.
+  depth_rank_loss_mult: float = setting(0., FINITE, NON_NEGATIVE)
+  depth_rank_margin: float = setting(1e-4, FINITE, NON_NEGATIVE)  # Its margin, in units of the rays' t (NDC for LLFF).
+  depth_pearson_loss_mult: float = setting(0., FINITE, NON_NEGATIVE)  # 1 - Pearson correlation per patch; 0 = off.
   depth_patch_size: int = setting(8, POSITIVE)  # Side of the training-view patches the two losses above compare.
   # Rays per step rendered for the depth losses: depth_prior_rays // depth_patch_size**2 patches of the training
   # views (ranking, Pearson), and this many rays through structure-from-motion points (sparse depth).
   depth_prior_rays: int = setting(512, POSITIVE)
   # Captures: DS-NeRF's sparse depth, the COLMAP points whose tracks hold >= 2 training views; 0 = off.
-  sfm_depth_loss_mult: float = setting(0., NON_NEGATIVE)
+  sfm_depth_loss_mult: float = setting(0., FINITE, NON_NEGATIVE)
   # '' = the capture's own model (its points were triangulated with every photo, test views included); the strict
   # form: a COLMAP model made from the training photos alone (e.g. python -m tools.capture on a folder of them),
   # aligned to the capture by its cameras.
@@ -255,25 +267,27 @@ class Config:
   camera_lr_init: float = setting(1e-3, FINITE, POSITIVE, hint=LR_HINT)
   camera_lr_final: float = setting(1e-5, FINITE, POSITIVE, hint=LR_HINT)  # At max_steps, log-linear in between.
   camera_lr_delay_steps: int = setting(0, NON_NEGATIVE)  # Warm-up steps of the corrections' learning rate.
-  camera_lr_delay_mult: float = setting(0.)  # Warm-up's starting multiple of camera_lr_init.
+  camera_lr_delay_mult: float = setting(0., FINITE)  # Warm-up's starting multiple of camera_lr_init.
   # The corrections' Adam epsilon. Large on purpose: while gradients are small (the first steps' rough model pulls
   # every camera the same way) steps follow their size, as gradient descent's; Adam's normalized steps follow the
   # pull at the full rate (on the generated scene, 6 exact views drifted by 5-11 degrees with 1e-8, 0.6 with 1).
   camera_adam_eps: float = setting(1., FINITE, POSITIVE)
-  # The corrections' shifts in units of the camera distance (camera_noise.py), not scene units: with the large epsilon
-  # above a step then moves an image as far by its shift as by its turn (training/camera_refinement.py).
+  # The corrections' shifts in units of the camera distance (cameras/alignment.py), not scene units: with the large
+  # epsilon above a step then moves an image as far by its shift as by its turn (training/camera_refinement.py).
   camera_shift_in_distances: bool = setting(False)
   # BARF's coarse-to-fine weighting of the encodings' frequency bands (models/coarse_to_fine.py): band k of L opens
   # smoothly as alpha = L * (progress - start) / (end - start) passes k; off by default (mip-NeRF's encodings).
   coarse_to_fine: bool = setting(False)
   coarse_to_fine_start: float = setting(.1, FINITE, NON_NEGATIVE)  # Fraction of max_steps where alpha = 0 (BARF: .1).
   coarse_to_fine_end: float = setting(.5, FINITE, POSITIVE)  # Fraction of max_steps where every band is open (.5).
-  # Studies: every training camera turned by this angle (degrees) about a random axis through its centre...
-  camera_noise_rotation_deg: float = setting(0., FINITE, NON_NEGATIVE)
+  # Studies: every training camera turned by this angle (degrees) about a random axis through its centre (at most
+  # 180: a larger turn about one axis is a smaller one about the opposite axis)...
+  camera_noise_rotation_deg: float = setting(0., FINITE, NON_NEGATIVE, at_most=180.,
+                                             hint='degrees; a turn by more is one by 360 minus it')
   # ... and moved by this fraction of the camera distance in a random direction (camera_noise.py says the distance).
   camera_noise_translation: float = setting(0., FINITE, NON_NEGATIVE)
   # Seed of that noise (a view's draw depends on it and the view's id; not among metrics.json's "seeds").
-  camera_noise_seed: int = setting(0)
+  camera_noise_seed: int = setting(0, RNG_SEED)
   # Evaluation: steps of test-time pose optimization per test view, the model frozen (0 = none; BARF: 100).
   test_pose_steps: int = setting(0, NON_NEGATIVE, BOOKKEEPING)
   test_pose_lr: float = setting(1e-3, FINITE, POSITIVE, BOOKKEEPING)  # Its learning rate (Adam, constant).

@@ -179,7 +179,7 @@ def write_picture(truth, records: dict, renderings: dict, n_input_views: int, pa
   scores = ', '.join(f'{name} {record["means"]["psnr"]:.2f} dB' for name, record in records.items())
   evaluated = len(records['FreeNeRF']['per_image'])
   picture = grid(tiles, columns, rows, f'{n_input_views} training views; test PSNR over {evaluated} views: {scores}')
-  vis.save_png(picture / 255., path)
+  vis.save_picture(picture, path)
   return picture
 
 

@@ -25,6 +25,14 @@ class LineFile:
     self.stream.flush()
 
 
+def duration(seconds: float) -> str:
+  """seconds in the largest unit that is at least one of them: '45 s', '12 min', '3.5 h', '2.1 days', '31.7 years'."""
+  units = (('years', 365.25 * 86400), ('days', 86400), ('h', 3600), ('min', 60))
+  unit, size = next(((unit, size) for unit, size in units if seconds >= size), ('s', 1))
+  text = f'{seconds / size:.3g} {unit}'
+  return text[:-1] if text.startswith('1 ') and unit in ('years', 'days') else text  # '1 day'.
+
+
 def progress_kwargs(stream=None) -> dict:
   """tqdm arguments: a live bar on a terminal; a line at most every 5 s in a log file or pipe."""
   stream = sys.stderr if stream is None else stream

@@ -7,6 +7,7 @@ import jax
 import pytest
 
 from bench import device
+from internal import cli
 
 ARGS = ['--tiny', '--batch_size', '64', '--repeats', '1', '--render_rays', '64', '--methods', 'freenerf',
         '--precisions', 'bfloat16']
@@ -18,7 +19,8 @@ def test_device_benchmark_writes_every_figure(tmp_path):
   with open(out) as f:
     report = json.load(f)
   assert report['device'] == jax.devices()[0].device_kind and report['jax_version'] == jax.__version__
-  assert report['command'] == 'python -m bench.device ' + ' '.join(ARGS + ['--out', out])
+  recorded = os.path.relpath(out, cli.REPOSITORY)  # Its path relative to the repository.
+  assert report['command'] == 'python -m bench.device ' + ' '.join(ARGS + ['--out', recorded])
   assert list(report['results']) == ['bfloat16']
   for result in report['results'].values():
     # The MLP's [B, W] @ [W, W] and [B * S, W] @ [W, W] (2 x 32 MLP, 8 samples), and a side-64 square.

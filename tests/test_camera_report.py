@@ -2,11 +2,9 @@
 
 import csv
 
-import numpy as np
 import pytest
 
-from internal.datasets import pose_correction
-
+from internal import cli
 from tools import camera_report
 
 
@@ -19,7 +17,8 @@ def _write(path, rows):
 
 def _row(method, noise, seed, psnr, rotation=''):
   return {'method': method, 'noise': noise, 'seed': seed, 'status': 'done', 'psnr': psnr,
-          'camera_rotation_deg': rotation, 'camera_translation': rotation and .01}
+          'camera_rotation_deg': rotation, 'camera_translation': rotation and .01,
+          'camera_rotation_deg_unaligned': rotation and rotation + 1., 'camera_translation_unaligned': rotation and .02}
 
 
 def test_the_share_of_the_noise_cost_recovered_per_seed(tmp_path):
@@ -28,34 +27,48 @@ def test_the_share_of_the_noise_cost_recovered_per_seed(tmp_path):
           {**_row('refine', '5deg', 2, 30.), 'status': 'missing'}]
   _write(tmp_path / 'results.csv', rows)
   found = camera_report.targets(camera_report._rows(tmp_path / 'results.csv'), 'noise', 'exact', '5deg', 'freenerf')
-  assert [(m, s, share) for m, s, _, _, _, share, *_ in found] == [('freenerf', 0, 0.), ('freenerf', 1, 0.),
+  assert [(m, s, share) for m, s, _, _, _, share in found] == [('freenerf', 0, 0.), ('freenerf', 1, 0.),
                                                               ('refine', 0, .75), ('refine', 1, -.5)]
   assert camera_report.main(['--out', str(tmp_path / 'out'), '--study', str(tmp_path / 'results.csv')]) == 0
   text = (tmp_path / 'out' / 'targets.md').read_text()
-  assert '| refine | 0.850 | 0.010 | 18.500 | 0.125 | nan | nan |' in text and '"command"' in text
-
-
-def test_the_errors_without_a_similarity_come_from_the_runs_that_have_them(tmp_path):
-  rows = [{**_row('refine', '5deg', 0, 19., .8), 'cell': 'refine_0'},
-          {**_row('refine', '5deg', 1, 18., .9), 'cell': 'b'}, {**_row('freenerf', 'exact', 0, 20.), 'cell': 'c'}]
-  found = camera_report.targets(rows, 'noise', 'exact', '5deg', 'freenerf',
-                                {'refine_0': {'rotation_deg': 2.5, 'common_turn_deg': 2.25}})
-  assert [f[-2:] for f in found][0] == (2.5, 2.25) and np.isnan(found[1][-1])
-  assert camera_report.study_unaligned(str(tmp_path / 'results.csv'), rows, 'noise', '5deg') == {}  # No runs here.
-
-
-def test_turns_are_the_rotation_vectors_between_cameras():
-  rng = np.random.default_rng(3)
-  vectors, base = .1 * rng.normal(size=(4, 3)), pose_correction.so3_exp(rng.normal(size=(4, 3)))
-  reference = np.concatenate([base, rng.normal(size=(4, 3, 1))], -1)
-  turned = np.concatenate([pose_correction.so3_exp(vectors) @ base, reference[:, :, 3:]], -1)
-  np.testing.assert_allclose(camera_report.turns(turned, reference), vectors, atol=1e-12)
+  assert '| refine | 0.850 | 0.010 | 18.500 | 0.125 |' in text and '"command"' in text
+  assert 'after the similarity' in text and '| refine | 1.850 | 0.0200 |' in text  # The target's alignment said.
 
 
 @pytest.mark.parametrize('args, message', [
     (['--study', 'nowhere.csv'], "--study 'nowhere.csv' does not exist"),
     (['--runs', 'nowhere'], "is not a run that refined its cameras")])
 def test_bad_input_is_one_line(tmp_path, args, message, capsys):
-  from internal import cli
   assert cli.run(lambda: camera_report.main(['--out', str(tmp_path), *args])) == 2
   assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('rows, args, message', [
+    ([{'method': 'freenerf', 'seed': 0, 'status': 'done', 'psnr': 20.}], [],
+     "--axis 'noise': --study '{study}' has no such column; expected the study axis of the camera noise"),
+    ([_row('freenerf', 'exact', 0, 20.), _row('freenerf', '5deg', 0, 16.)], ['--noisy', '7deg'],
+     "--noisy '7deg': no finished row of --study '{study}' has it; expected one of ['5deg', 'exact']"),
+    ([_row('freenerf', 'exact', 0, 20.), _row('freenerf', '5deg', 0, 16.)], ['--clean', 'none'],
+     "--clean 'none': no finished row"),
+    ([_row('freenerf', 'exact', 0, 20.), _row('freenerf', '5deg', 0, 16.)], ['--baseline', 'nerf'],
+     "--baseline 'nerf': no finished row of --study '{study}' has it; expected one of ['freenerf']"),
+    ([{**_row('freenerf', 'exact', 0, 20.), 'status': 'missing'}], [], "--study '{study}': no finished row"),
+])
+def test_a_study_without_the_noise_axis_or_the_labels_asked_is_one_line(tmp_path, capsys, rows, args, message):
+  _write(tmp_path / 'results.csv', rows)
+  study = str(tmp_path / 'results.csv')
+  assert cli.run(lambda: camera_report.main(['--out', str(tmp_path / 'out'), '--study', study, *args])) == 2
+  err = capsys.readouterr().err
+  assert err.startswith('error: ' + message.format(study=study)) and len(err.strip().splitlines()) == 1, err
+  assert not (tmp_path / 'out').exists()
+
+
+def test_two_runs_of_one_name_are_one_line_before_any_picture(tmp_path, capsys):
+  first, second = tmp_path / 'a' / 'freenerf__cup' / 'run', tmp_path / 'b' / 'freenerf__cup' / 'run'
+  assert cli.run(lambda: camera_report.main(['--out', str(tmp_path / 'out'), '--runs', str(first),
+                                             str(second)])) == 2
+  err = capsys.readouterr().err
+  assert err == (f"error: --runs {str(first)!r} and {str(second)!r} are both named 'freenerf__cup' (a study cell's "
+                 "folder, or the run's): both pictures would be cameras_freenerf__cup.png; give them in separate "
+                 'commands with another --out\n')
+  assert not (tmp_path / 'out').exists()

@@ -17,6 +17,7 @@ from PIL import Image
 
 from conftest import SHARED_DATA
 from internal import config_loader
+from internal.cameras import algebra
 from internal.datasets import colmap_model, load_dataset
 from internal.datasets import capture as capture_loader
 from tools.capture import CaptureError, __main__ as capture, bench, output, photos, pipeline, poses, sfm
@@ -99,7 +100,7 @@ def _reprojection_errors(model) -> np.ndarray:
   for image in model.images.values():
     seen = image.points2d[image.points2d['point3d_id'] >= 0]
     xyz = np.stack([model.points[int(i)].xyz for i in seen['point3d_id']])
-    in_camera = xyz @ colmap_model.qvec_to_rotmat(image.qvec).T + image.tvec
+    in_camera = xyz @ algebra.quaternion_to_rotation(image.qvec).T + image.tvec
     normalized = in_camera[:, :2] / in_camera[:, 2:]
     camera = model.cameras[image.camera_id]
     assert camera.model == 'SIMPLE_RADIAL'

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from internal.cameras import alignment
 from internal.datasets import colmap_model
 from test_capture import CUP, needs_cup, needs_pycolmap
 from tools.capture import few_photos, poses
@@ -36,10 +37,28 @@ def test_spread_subsets_cover_their_span_evenly_and_random_ones_are_distinct(n):
     few_photos.subset(ORDER, 9, .1, np.random.default_rng(0))
 
 
+def test_the_distribution_of_the_captures_errors_shows_the_few_that_are_off(tmp_path):
+  """Two wrong captures among nineteen leave the median where it was: the distribution names them."""
+  errors = [.1, .2, .3, .4] * 4 + [.5, 14.5, 31.1]
+  runs = [{'n': 6, 'median_rotation_deg': e, 'capture_made': True} for e in errors] + [
+      {'n': 6, 'capture_made': False}, {'n': 3, 'capture_made': False}]
+  six, three = few_photos.distribution_rows(runs)
+  assert three == {'n': 3, 'captures': 0, 'q1': None, 'median': None, 'q3': None, 'max': None, 'off': 0}
+  assert (six['captures'], six['off'], six['max']) == (19, 2, 31.1) and six['median'] == pytest.approx(.3)
+  assert (six['q1'], six['q3']) == (pytest.approx(.2), pytest.approx(.4))
+  results = tmp_path / 'few.json'
+  results.write_text(json.dumps({'photos_in_capture': 77, 'capture': 'cup', 'command': 'python -m x', 'commit': 'abc',
+                                 'machine': {'cpu': 'cpu', 'cpu_count': 2}, 'pycolmap': '4', 'date': 'today',
+                                 'summary': [], 'runs': [dict(r, label='x', photos=[], registered=0, rig=None,
+                                                              best_pair_matches=None, error=None) for r in runs]}))
+  assert few_photos.main(['--summarize', '--out', str(results)]) == 0
+  assert '| 6 | 19 | 0.30 deg | 0.20 to 0.40 deg | 31.10 deg | 2 of 19 |' in (tmp_path / 'few.md').read_text()
+
+
 @needs_cup
 def test_a_model_against_itself_moved_has_no_camera_error_and_positions_are_in_the_given_distance():
   model = colmap_model.read_model(str(CUP / 'sparse' / '0'))
-  distance = poses.camera_distance(poses.model_cameras(model)[1])
+  distance = alignment.camera_distance(poses.model_cameras(model)[1])
   found = few_photos.camera_errors(model, model, distance)
   assert max(found.values()) < 1e-4  # arccos near 1: degrees to about 1e-6.
   names, c2w = poses.model_cameras(model)
@@ -73,7 +92,7 @@ def test_a_small_run_on_the_cup_writes_every_run_and_its_summary(tmp_path):
 @needs_pycolmap
 def test_neighbouring_photos_register_near_the_all_photo_models_cameras(tmp_path):
   reference = colmap_model.read_model(str(CUP / 'sparse' / '0'))
-  distance = poses.camera_distance(poses.model_cameras(reference)[1])
+  distance = alignment.camera_distance(poses.model_cameras(reference)[1])
   names = [f'{i}.jpg' for i in range(1, 7)]
   row = few_photos.run(str(CUP / 'images'), names, str(tmp_path / 'six'), 200, reference, distance)
   assert row['capture_made'] and row['registered'] >= 3, row

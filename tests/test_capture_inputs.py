@@ -55,7 +55,7 @@ def test_a_few_photos_chosen_from_a_folder_make_a_capture_of_those_alone(tmp_pat
   config = config_loader.load_config([os.path.join(REPO, pipeline.CONFIG)],
                                      [words[3].split('=', 1)[1]] + words[4:])
   assert config.data_dir == str(out)
-  train = load_dataset('train', config)  # The colmap loader reads the capture as training does.
+  train = load_dataset('train', config)  # The capture loader reads the capture as training does.
   assert len(train.ids) == 3 and train.images.shape[1:] == (150, 200, 3)
 
 

@@ -16,7 +16,8 @@ from PIL import Image, ImageFilter
 from conftest import SHARED_DATA
 from internal import cli
 from internal import config_loader
-from internal.datasets import cameras, colmap_model
+from internal.cameras import algebra, alignment
+from internal.datasets import colmap_model
 from tools.capture import CaptureError, bench, model, output, photos, pipeline, poses, report, sfm
 from tools.capture import video
 
@@ -36,7 +37,7 @@ def _arc(n: int = 20, radius: float = 2., degrees: float = 120.) -> np.ndarray:
   """[n, 3, 4] OpenCV cameras on an arc about +z at height 0.5, looking at the origin, in arc order."""
   angles = np.radians(np.linspace(0., degrees, n))
   centres = np.stack([radius * np.cos(angles), radius * np.sin(angles), np.full(n, .5)], -1)
-  return np.stack([cameras.viewmatrix(-c, np.array([0., 0., -1.]), c) for c in centres])
+  return np.stack([algebra.viewmatrix(-c, np.array([0., 0., -1.]), c) for c in centres])
 
 
 def test_similarity_recovers_a_known_one_and_the_errors_of_moved_cameras_are_zero():
@@ -44,9 +45,9 @@ def test_similarity_recovers_a_known_one_and_the_errors_of_moved_cameras_are_zer
   rotation, scale, shift = _rotation([1., 2., 3.], 40.), 3.7, np.array([1., -2., .5])
   moved = np.concatenate([rotation @ reference[:, :, :3], (scale * reference[:, :, 3] @ rotation.T + shift)[..., None]],
                          -1)
-  fit = poses.similarity(reference[:, :, 3], moved[:, :, 3])
-  np.testing.assert_allclose(fit[0], scale, rtol=1e-10)
-  np.testing.assert_allclose(fit[1], rotation, atol=1e-10)
+  fit = alignment.fit(reference, moved)
+  np.testing.assert_allclose(fit.scale, scale, rtol=1e-10)
+  np.testing.assert_allclose(fit.rotation, rotation, atol=1e-10)
   found = poses.pose_errors(moved, reference)
   assert found['rotation_deg'].max() < 1e-5 and found['position'].max() < 1e-10
 
@@ -58,15 +59,14 @@ def test_pose_errors_measure_a_camera_turned_and_one_moved():
   wrong[20, :, 3] += np.array([0., 0., .2])                            # Moved by 0.2.
   found = poses.pose_errors(wrong, reference)
   distance = np.hypot(2., .5)  # From the point the cameras look at, (0, 0, 0).
-  assert poses.camera_distance(reference) == pytest.approx(distance)
+  assert alignment.camera_distance(reference) == pytest.approx(distance)
   assert found['rotation_deg'][5] == pytest.approx(3., abs=.1) and np.median(found['rotation_deg']) < .1
   assert found['position'][20] == pytest.approx(.2 / distance, abs=.005) and np.median(found['position']) < .005
 
 
-def test_rotation_degrees_of_known_turns():
+def test_rotation_angles_of_known_turns():
   turns = np.stack([_rotation([0., 0., 1.], d) for d in (0., 30., 90., 180.)])
-  np.testing.assert_allclose(poses.rotation_degrees(np.stack([np.eye(3)] * 4), turns), [0., 30., 90., 180.],
-                             atol=1e-6)
+  np.testing.assert_allclose(np.degrees(alignment.rotation_angle(turns)), [0., 30., 90., 180.], atol=1e-6)
 
 
 @pytest.mark.skipif(not CUP.is_dir(), reason=f'the shared cup capture is absent: {CUP} does not exist')

@@ -27,6 +27,21 @@ def test_every_form_of_the_multi_value_flags(argv):
   assert args.gin_configs == ['x.gin', 'y.gin'] and args.gin_bindings == ['A = 1', 'B = 2']
 
 
+def test_a_tools_own_multi_value_flags_take_every_form_too():
+  parser = cli.flag_parser('test', ['--compare_bindings'])
+  parser.add_argument('--compare_bindings', action='extend', nargs='+', default=[])
+  parser.add_argument('--other', action='extend', nargs='+', default=[])  # Not named: '=' keeps one value.
+  args = parser.parse_args(['--compare_bindings=A = 1', 'B = 2', '--gin_bindings=C = 3', 'D = 4', '--other=x=1'])
+  assert args.compare_bindings == ['A = 1', 'B = 2'] and args.gin_bindings == ['C = 3', 'D = 4']
+  assert args.other == ['x=1']
+  own = cli.FlagParser(multi_value_flags=['--seeds'])  # Only the flags it is given.
+  own.add_argument('--seeds', action='extend', nargs='+', default=[])
+  own.add_argument('--gin_bindings', action='extend', nargs='+', default=[])
+  assert own.parse_args(['--seeds=1', '2']).seeds == ['1', '2']
+  args, rest = own.parse_known_args(['--gin_bindings=a=1', 'b=2'])
+  assert args.gin_bindings == ['a=1'] and rest == ['b=2']
+
+
 def test_recorded_command_lines_give_the_shell_back_the_same_words():
   words = ['--gin_bindings', "Config.data_dir = 'my scans'", "--gin_bindings=Config.near='a'", 'a$HOME', 'say "hi"',
            '', 'plain/path-1.gin', "it's"]

@@ -82,3 +82,4 @@ def test_the_loader_checks_the_schedule():
     config_loader.validate(Config(coarse_to_fine=True, coarse_to_fine_start=.6))
   with pytest.warns(UserWarning, match=r'Config\.coarse_to_fine_end = 1\.5 exceeds 1'):
     coarse_to_fine.check_settings(Config(coarse_to_fine=True, coarse_to_fine_end=1.5))
+  config_loader.validate(Config(coarse_to_fine_start=.6, coarse_to_fine_end=2e-38))  # Off: read by nothing.

@@ -7,6 +7,7 @@ import os
 import numpy as np
 import pytest
 
+from internal.cameras import algebra
 from internal.datasets import colmap_model as cm
 from tests.conftest import SHARED_DATA
 
@@ -26,7 +27,7 @@ def _tiny_model():
              7: cm.Camera(7, 'OPENCV', 40, 30, np.array([35., 36., 20.5, 14.5, .02, -.01, .001, -.002]))}
   points2d = np.array([(1.5, 2.25, 3), (10., 11., -1)], cm.POINT2D)
   images = {2: cm.Image(2, np.array([1., 0., 0., 0.]), np.array([0., 0., 4.]), 1, 'a b.png', points2d),
-            5: cm.Image(5, cm.rotmat_to_qvec(np.diag([1., -1., -1.])), np.array([.1, .2, 3.]), 7, 'c.png',
+            5: cm.Image(5, algebra.rotation_to_quaternion(np.diag([1., -1., -1.])), np.array([.1, .2, 3.]), 7, 'c.png',
                         np.zeros(0, cm.POINT2D))}
   points = {3: cm.Point3D(3, np.array([.1, -.2, .3]), np.array([1, 2, 250], np.uint8), .5,
                           np.array([(2, 0), (5, 4)], cm.TRACK)),
@@ -60,7 +61,7 @@ def test_cup_poses_equal_the_independent_poses_bounds(cup):
   images = sorted(cup.images.values(), key=lambda i: i.name)
   assert len(images) == len(rows) == 77
   for image, row in zip(images, rows):
-    rotation = cm.qvec_to_rotmat(image.qvec).T  # Columns: camera right, down, forward in the world.
+    rotation = algebra.quaternion_to_rotation(image.qvec).T  # Columns: camera right, down, forward in the world.
     expected = row[:15].reshape(3, 5)
     np.testing.assert_allclose(rotation[:, [1, 0]], expected[:, :2], atol=1e-12)
     np.testing.assert_allclose(-rotation[:, 2], expected[:, 2], atol=1e-12)
@@ -108,8 +109,8 @@ def test_quaternions_against_rodrigues():
     k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     rodrigues = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
     qvec = np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
-    np.testing.assert_allclose(cm.qvec_to_rotmat(qvec), rodrigues, atol=1e-12)
-    np.testing.assert_allclose(cm.rotmat_to_qvec(rodrigues), qvec, atol=1e-12)
+    np.testing.assert_allclose(algebra.quaternion_to_rotation(qvec), rodrigues, atol=1e-12)
+    np.testing.assert_allclose(algebra.rotation_to_quaternion(rodrigues), qvec, atol=1e-12)
 
 
 def test_truncated_file_names_it(tmp_path):

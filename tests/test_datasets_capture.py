@@ -13,8 +13,11 @@ import pytest
 
 from internal import config_loader
 from internal.configs import Config
-from internal.datasets import DatasetError, colmap_model as cm, distortion, load_dataset, loader
+from internal.cameras import algebra, caster, distortion
+from internal.datasets import DatasetError, colmap_model as cm, load_dataset, loader
 from internal.datasets import capture as capture_loader
+from internal.datasets import random_poses
+from internal.datasets.batching import make_batcher
 from internal.evaluation import results
 from internal.run import run_dir
 from tests.conftest import SHARED_DATA
@@ -47,7 +50,7 @@ def _capture_from(data, folder, camera_model='PINHOLE', extra=()):
     rotation = (c2w[:, :3] @ np.diag([1., -1., -1.])).T  # World to OpenCV camera.
     cameras[k + 1] = cm.Camera(k + 1, camera_model, data.width, data.height,
                                np.array([focal, focal, data.width / 2., data.height / 2., *extra]))
-    images[k + 1] = cm.Image(k + 1, cm.rotmat_to_qvec(rotation), -rotation @ c2w[:, 3], k + 1, name,
+    images[k + 1] = cm.Image(k + 1, algebra.rotation_to_quaternion(rotation), -rotation @ c2w[:, 3], k + 1, name,
                              np.zeros(0, cm.POINT2D))
   grid = np.stack(np.meshgrid(*[np.linspace(-.8, .8, 4)] * 3), -1).reshape(-1, 3)
   track = np.array([(k, 0) for k in images], cm.TRACK)
@@ -276,8 +279,8 @@ def test_forward_captures_follow_llffs_pipeline(tmp_path):
   for k, row in enumerate(rows):
     pose = row[:15].reshape(3, 5)
     rotation = np.stack([pose[:, 1], pose[:, 0], -pose[:, 2]], 1).T  # World to OpenCV camera.
-    images[k + 1] = cm.Image(k + 1, cm.rotmat_to_qvec(rotation), -rotation @ pose[:, 3], 1, f'image{k:03d}.png',
-                             np.zeros(0, cm.POINT2D))
+    images[k + 1] = cm.Image(k + 1, algebra.rotation_to_quaternion(rotation), -rotation @ pose[:, 3], 1,
+                             f'image{k:03d}.png', np.zeros(0, cm.POINT2D))
   rng = np.random.default_rng(0)
   lookat = rows[:, :15].reshape(-1, 3, 5)[:, :, 3].mean(0) - rows[:, :15].reshape(-1, 3, 5)[:, :, 2].mean(0) * 3.
   track = np.array([(k, 0) for k in images], cm.TRACK)
@@ -296,7 +299,7 @@ def test_forward_captures_follow_llffs_pipeline(tmp_path):
   read = capture_loader.read_capture(capture)  # Its points carried along: their depths scale as LLFF scales the scene.
   xyz = np.stack([p.xyz for p in points.values()])
   for k, image in enumerate(images.values()):
-    depths = (xyz @ cm.qvec_to_rotmat(image.qvec).T + image.tvec)[:, 2]
+    depths = (xyz @ algebra.quaternion_to_rotation(image.qvec).T + image.tvec)[:, 2]
     loaded = ((read.points - read.camtoworlds[k, :, 3]) @ read.camtoworlds[k, :, :3])[:, 2]
     np.testing.assert_allclose(loaded, depths / (.75 * converted[:, 15:].min()), rtol=1e-9)
   llff = Config(dataset_loader='llff', data_dir=str(tmp_path), llff_scan='llff', n_input_views=3)
@@ -308,30 +311,41 @@ def test_forward_captures_follow_llffs_pipeline(tmp_path):
     np.testing.assert_array_equal(ours.images, theirs.images)
   # RegNeRF's random poses: LLFF's rule (all n draws, as LLFF with the released bugs fixed).
   capture, llff = (dataclasses.replace(c, n_random_poses=5, regnerf_fix_released_bugs=True) for c in (capture, llff))
-  ours, theirs = (loader.random_pose_cameras(load_dataset('train', c), c, np.random.default_rng(0))
-                  for c in (capture, llff))
-  for a, b in zip(ours, theirs):
-    np.testing.assert_allclose(a, b, atol=1e-5)
+  # Its poses are OpenCV cameras in the capture's space, LLFF's OpenGL ones in LLFF's: the same patches.
+  pixels = random_poses.patch_pixels(np.arange(5), np.zeros(5, int), np.full(5, 3), 4)
+  ours, theirs = (caster.cast(loader.random_pose_cameras(data, c, np.random.default_rng(0)), pixels,
+                              random_poses.patch_space(data.space))
+                  for c, data in ((c, load_dataset('train', c)) for c in (capture, llff)))
+  for field, a, b in zip(ours._fields, ours, theirs):
+    np.testing.assert_allclose(a, b, atol=1e-5, err_msg=field)
 
 
 def test_inward_captures_draw_regnerfs_random_poses_by_dtus_rule(generated_capture):
   config = _capture_config(generated_capture[1], n_input_views=3, n_random_poses=200,
                            random_pose_focusptjitter=False)
   data = load_dataset('train', config)
-  poses, pixtocam, ndc_focal = loader.random_pose_cameras(data, config, np.random.default_rng(0))
-  assert poses.shape == (200, 3, 4) and ndc_focal == 0.
-  np.testing.assert_allclose(pixtocam, data.pixtocams.mean(0), rtol=1e-6)
+  cameras = loader.random_pose_cameras(data, config, np.random.default_rng(0))
+  poses = cameras.camtoworlds
+  assert poses.shape == (200, 3, 4) and cameras.distortion is None and not data.space.ndc_focal
+  np.testing.assert_allclose(cameras.pixtocams, np.broadcast_to(data.pixtocams.mean(0), (200, 3, 3)), rtol=1e-6)
   centres = capture_loader.read_capture(config).camtoworlds[:, :, 3]
   # In a box of half-sides radius x max |centre| per axis about the mean camera (rotated: bounded by its norm).
   reach = config.random_pose_radius * np.linalg.norm(np.abs(centres).max(0)) + np.linalg.norm(centres.mean(0))
   assert np.linalg.norm(poses[:, :, 3], axis=-1).max() <= reach + 1e-6
   # Without the focus jitter every +z axis passes through the centre (the origin of the capture's frame).
   camtoworlds = capture_loader.read_capture(config).camtoworlds
-  np.testing.assert_allclose(capture_loader.cameras.focus_point(camtoworlds), 0., atol=1e-9)
+  np.testing.assert_allclose(algebra.focus_point(camtoworlds), 0., atol=1e-9)
   to_centre = -poses[:, :, 3]
   along = np.sum(to_centre * poses[:, :, 2], -1)
   np.testing.assert_allclose(to_centre, along[:, None] * poses[:, :, 2], atol=1e-9)
   assert np.all(along > 0)
+  # Their patches are the capture's world rays from the poses' centres (not moved onto DTU's origin plane).
+  regnerf = dataclasses.replace(config, depth_tvnorm_loss_mult=.1, batch_size=64, batch_size_random=128)
+  patches = make_batcher(data, regnerf)(1).patch_rays
+  drawn = loader.random_pose_cameras(data, regnerf, np.random.default_rng([regnerf.np_rng_seed,
+                                                                          random_poses.POSES_STREAM]))
+  centres = [np.linalg.norm(drawn.camtoworlds[:, :, 3] - o, axis=-1).min() for o in patches.origins.reshape(-1, 3)]
+  assert max(centres) < 1e-5 and (patches.near == data.near).all() and (patches.far == data.far).all()
 
 
 def test_the_loaders_earlier_name_is_read_as_capture_in_gin_files_run_folders_and_metrics(tmp_path):

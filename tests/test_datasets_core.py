@@ -5,7 +5,9 @@ import pytest
 from PIL import Image
 
 from internal.configs import Config
-from internal.datasets import base, blender, cameras, dtu, image_io, llff, raygen
+from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
+from internal.datasets import base, blender, dtu, image_io, llff
 from internal.datasets.batching import make_batcher
 from internal.rays import Rays
 
@@ -102,30 +104,55 @@ def test_decompose_projection_recovers_k_r_c(seed, sign):
                 [0., rng.uniform(500, 3000), rng.uniform(100, 700)], [0., 0., 1.]])
   rot, centre = random_rotation(rng), rng.normal(size=3) * 100.
   proj = sign * k @ np.concatenate([rot, -rot @ centre[:, None]], 1)
-  k_out, rot_out, centre_out = cameras.decompose_projection(proj)
+  k_out, rot_out, centre_out = algebra.decompose_projection(proj)
   np.testing.assert_allclose(k_out, k, rtol=1e-9, atol=1e-9)
   np.testing.assert_allclose(rot_out, rot, atol=1e-12)
   np.testing.assert_allclose(centre_out, centre, rtol=1e-9)
-  _, c2w = cameras.projection_to_camtoworld(proj)
+  _, c2w = algebra.projection_to_camtoworld(proj)
   np.testing.assert_allclose(c2w, np.concatenate([rot.T, centre[:, None]], 1), atol=1e-9)
 
 
 def test_rq3_properties():
   m = np.random.default_rng(3).normal(size=(3, 3))
-  r, q = cameras.rq3(m)
+  r, q = algebra.rq3(m)
   np.testing.assert_allclose(r @ q, m, atol=1e-12)
   np.testing.assert_allclose(q @ q.T, np.eye(3), atol=1e-12)
   assert np.allclose(np.tril(r, -1), 0.) and (np.diag(r) > 0).all()
 
 
+@pytest.mark.parametrize('seed', range(6))
+def test_a_rotation_survives_its_quaternion(seed):
+  rotation = random_rotation(np.random.default_rng(seed))
+  q = algebra.rotation_to_quaternion(rotation)
+  assert q[0] >= 0 and abs(np.linalg.norm(q) - 1) < 1e-12
+  np.testing.assert_allclose(algebra.quaternion_to_rotation(q), rotation, atol=1e-14)
+
+
+@pytest.mark.parametrize('angle', [0., np.pi / 2, np.pi, 3.])
+def test_quaternions_of_known_turns_about_z_including_a_half_turn(angle):
+  c, s = np.cos(angle), np.sin(angle)
+  rotation = np.array([[c, -s, 0.], [s, c, 0.], [0., 0., 1.]])
+  np.testing.assert_allclose(algebra.rotation_to_quaternion(rotation), [np.cos(angle / 2), 0., 0., np.sin(angle / 2)],
+                             atol=1e-15)
+
+
+def test_the_quaternion_of_a_float32_rotation_is_a_unit_one():
+  """Cameras are kept in float32, a little off orthogonal: their quaternions (viser's frustums, COLMAP's files) are
+  still of unit length."""
+  rng = np.random.default_rng(7)
+  for _ in range(50):
+    q = algebra.rotation_to_quaternion(random_rotation(rng).astype(np.float32))
+    assert abs(np.linalg.norm(q) - 1.) < 1e-15
+
+
 def test_recenter_and_rescale():
   rng = np.random.default_rng(4)
   poses = np.stack([np.concatenate([random_rotation(rng), rng.normal(size=(3, 1)) * 5.], 1) for _ in range(7)])
-  centred = cameras.recenter_poses(poses)
-  np.testing.assert_allclose(cameras.poses_avg(centred), np.eye(3, 4), atol=1e-12)
-  relative = lambda p: np.linalg.inv(cameras.to_homogeneous(p[0])) @ cameras.to_homogeneous(p)
+  centred = algebra.recenter_poses(poses)
+  np.testing.assert_allclose(algebra.poses_avg(centred), np.eye(3, 4), atol=1e-12)
+  relative = lambda p: np.linalg.inv(algebra.to_homogeneous(p[0])) @ algebra.to_homogeneous(p)
   np.testing.assert_allclose(relative(centred), relative(poses), atol=1e-9)   # A rigid change of world frame.
-  scaled = cameras.rescale_poses(centred)
+  scaled = algebra.rescale_poses(centred)
   assert np.isclose(np.abs(scaled[:, :, 3]).max(), 1.)
   np.testing.assert_allclose(scaled[:, :, 3] * np.abs(centred[:, :, 3]).max(), centred[:, :, 3])
   np.testing.assert_allclose(scaled[:, :, :3], centred[:, :, :3])
@@ -135,11 +162,11 @@ def test_focus_point_and_dtu_spiral_look_at_it():
   rng = np.random.default_rng(5)
   target = np.array([.3, -.2, 1.5])
   positions = rng.normal(size=(9, 3)) * 2.
-  poses = np.stack([cameras.viewmatrix(target - p, np.array([0., -1., 0.]), p) for p in positions])
-  np.testing.assert_allclose(cameras.focus_point(poses), target, atol=1e-9)
-  path = cameras.spiral_path_dtu(poses, 12)
+  poses = np.stack([algebra.viewmatrix(target - p, np.array([0., -1., 0.]), p) for p in positions])
+  np.testing.assert_allclose(algebra.focus_point(poses), target, atol=1e-9)
+  path = algebra.spiral_path_dtu(poses, 12)
   assert path.shape == (12, 3, 4)
-  to_target = cameras.normalize(target - path[:, :, 3])
+  to_target = algebra.normalize(target - path[:, :, 3])
   np.testing.assert_allclose(path[:, :, 2], to_target, atol=1e-9)
   np.testing.assert_allclose(path[:, :, :3].transpose(0, 2, 1) @ path[:, :, :3], np.broadcast_to(np.eye(3),
                                                                                                   (12, 3, 3)),
@@ -149,21 +176,26 @@ def test_focus_point_and_dtu_spiral_look_at_it():
 def test_llff_spiral_faces_focal_point():
   rng = np.random.default_rng(6)
   poses = np.stack([np.concatenate([np.eye(3), rng.normal(size=(3, 1)) * .1], 1) for _ in range(5)])
-  poses = cameras.recenter_poses(poses)
+  poses = algebra.recenter_poses(poses)
   bounds = np.array([[1.5, 10.], [2., 12.]])
-  path = cameras.spiral_path_llff(poses, bounds, 240)
+  path = algebra.spiral_path_llff(poses, bounds, 240)
   focal = 1. / (.25 / (1.5 * .9) + .75 / (12. * 5.))
   focus = np.array([0., 0., -focal])  # The average pose is the identity after recentering.
   assert path.shape == (240, 3, 4)
-  np.testing.assert_allclose(path[:, :, 2], cameras.normalize(path[:, :, 3] - focus), atol=1e-9)
+  np.testing.assert_allclose(path[:, :, 2], algebra.normalize(path[:, :, 3] - focus), atol=1e-9)
 
 
 # ---------------------------------------------------------------- rays
 
+def camera_rays(c2w, pixtocam, space: RaySpace) -> Rays:
+  """Rays [H,W,...] of one camera in space (caster.image_rays)."""
+  return Rays(*[x[0] for x in caster.image_rays(Cameras(np.asarray(c2w)[None], np.asarray(pixtocam)[None]), space)])
+
+
 def test_pinhole_rays_opengl_closed_form():
   h, w, f = 4, 6, 5.
   c2w = np.concatenate([np.eye(3), [[1.], [2.], [3.]]], 1)
-  rays = raygen.pinhole_rays(c2w, cameras.focal_pixtocam(f, h, w), h, w, 2., 6., opengl=True)
+  rays = camera_rays(c2w, algebra.focal_pixtocam(f, h, w), RaySpace(opengl=True, near=2., far=6., height=h, width=w))
   x, y = np.meshgrid(np.arange(w), np.arange(h))
   expected = np.stack([(x + .5 - w / 2) / f, -(y + .5 - h / 2) / f, -np.ones_like(x, float)], -1)
   np.testing.assert_allclose(rays.directions, expected, atol=1e-6)
@@ -179,30 +211,26 @@ def test_pinhole_rays_at_integer_pixel_coordinates_of_a_rotated_camera():
   """pixel_offset 0: the released Blender code's R ((i - W/2)/f, -(j - H/2)/f, -1), by hand for two pixels."""
   rotation = np.array([[0., 0., 1.], [0., 1., 0.], [-1., 0., 0.]])  # 90 degrees about y: camera -z is world -x.
   c2w = np.concatenate([rotation, [[0.], [0.], [4.]]], 1)
-  rays = raygen.pinhole_rays(c2w, cameras.focal_pixtocam(2., 4, 4), 4, 4, 2., 6., opengl=True, pixel_offset=0.)
+  rays = camera_rays(c2w, algebra.focal_pixtocam(2., 4, 4),
+                     RaySpace(opengl=True, near=2., far=6., height=4, width=4, pixel_offset=0.))
   # Pixel (i, j) = (0, 0): camera (-1, 1, -1) -> world (-1, 1, 1); the principal point (2, 2): (0, 0, -1) -> -x.
   np.testing.assert_allclose(rays.directions[0, 0], [-1., 1., 1.], atol=1e-6)
   np.testing.assert_allclose(rays.directions[2, 2], [-1., 0., 0.], atol=1e-6)
 
 
-def test_row_radii_uses_row_neighbours():
-  dirs = np.zeros((3, 2, 3))
-  dirs[:, :, 0] = np.arange(2)[None, :] * 10.   # Column steps of 10 must not matter.
-  dirs[:, :, 1] = np.array([0., 1., 3.])[:, None]
-  radii = raygen.row_radii(dirs)[..., 0]
-  # Row distances [1, 2]; the last row repeats the second-to-last distance (1) as released.
-  np.testing.assert_allclose(radii, np.array([[1, 1], [2, 2], [1, 1]]) * 2. / np.sqrt(12.))
-
-
-def test_ndc_radii_pad_with_second_to_last_distance():
-  origins = np.zeros((3, 4, 3))
-  origins[..., 0] = np.array([0., 1., 3., 7.])[None, :]  # column distances 1, 2, 4
-  origins[..., 1] = np.array([0., 2., 5.])[:, None]      # row distances 2, 3
-  dx = np.array([2., 3., 2.])[:, None]
-  dy = np.array([1., 2., 4., 2.])[None, :]
-  np.testing.assert_allclose(raygen.ndc_radii(origins)[..., 0], .5 * (dx + dy) * 2. / np.sqrt(12.))
-  assert raygen.row_radii(np.zeros((2, 1, 3)) + [[[0., 0., 0.]], [[0., 3., 0.]]]).ravel().tolist() == \
-      [3. * 2. / np.sqrt(12.)] * 2  # A single distance is repeated.
+@pytest.mark.parametrize('released', [True, False])
+@pytest.mark.parametrize('height,width', [(3, 4), (2, 5)])
+def test_radii_neighbours_as_released_on_images_and_the_next_pixel_on_patches(released, height, width):
+  """An image's last row (column) takes the second-to-last distance again, as the released code's (a single
+  distance is repeated); RegNeRF's patches take the next pixel's everywhere."""
+  space = RaySpace(opengl=True, near=2., far=6., height=height, width=width, released_edges=released)
+  cameras = Cameras(np.eye(3, 4)[None], np.eye(3)[None])  # Camera direction of pixel (x, y): (x + .5, -y - .5, -1).
+  pixels = caster.image_pixels(0, height, width)
+  for axis, position, length in ((caster.ROW, pixels.y, height), (caster.COLUMN, pixels.x, width)):
+    ends = caster.neighbour_directions(cameras, pixels, space, axis, np)
+    coordinate = np.abs(ends[..., 1 - axis]) - .5  # The pixel row (column) of each end.
+    first = np.where((position < length - 1) | (not released), position, max(length - 3, 0))
+    np.testing.assert_array_equal(coordinate, np.stack([first, first + 1], -1))
 
 
 def test_dtu_rays_shifted_onto_plane_on_the_same_line():
@@ -211,7 +239,7 @@ def test_dtu_rays_shifted_onto_plane_on_the_same_line():
   c2w[:, 2] = np.sign(c2w[2, 2]) * c2w[:, 2]  # Cameras look towards +z world ...
   c2w[:, 0] = np.cross(c2w[:, 1], c2w[:, 2])  # ... keeping a proper rotation.
   pixtocam = np.linalg.inv(np.array([[30., 0., 8.], [0., 30., 6.], [0., 0., 1.]]))
-  rays = raygen.dtu_rays(c2w, pixtocam, 12, 16, .5, 3.5, near_origin=0.)
+  rays = camera_rays(c2w, pixtocam, RaySpace(opengl=False, near=.5, far=3.5, height=12, width=16, plane_z=0.))
   np.testing.assert_allclose(rays.origins[..., 2], 0., atol=1e-6)
   offset = rays.origins - c2w[:, 3]
   np.testing.assert_allclose(np.cross(offset, rays.directions), 0., atol=1e-5)
@@ -222,7 +250,8 @@ def test_dtu_rays_shifted_onto_plane_on_the_same_line():
 
 def test_ndc_closed_form_for_identity_camera():
   h, w, f = 4, 6, 3.
-  rays = raygen.llff_rays(np.eye(3, 4), cameras.focal_pixtocam(f, h, w), h, w, f)
+  rays = camera_rays(np.eye(3, 4), algebra.focal_pixtocam(f, h, w),
+                     RaySpace(opengl=True, near=0., far=1., height=h, width=w, ndc_focal=f))
   np.testing.assert_allclose(rays.origins[..., 2], -1., atol=1e-6)
   x = np.arange(w) + .5 - w / 2
   np.testing.assert_allclose(rays.origins[0, :, 0], 2. * x / w, atol=1e-6)
@@ -288,19 +317,19 @@ def test_batcher_shapes_correspondence_and_reproducibility(mode):
   data = encoded_dataset()
   config = Config(batching=mode, batch_size=512, np_rng_seed=11)
   batch = make_batcher(data, config)(7)
-  assert set(batch) == {'rays', 'rgb'} and isinstance(batch['rays'], Rays)
-  assert batch['rgb'].shape == (512, 3) and batch['rgb'].dtype == np.float32
-  for field in batch['rays']:
+  assert isinstance(batch.rays, Rays) and all(x is None for x in batch[2:])  # No other family asked for.
+  assert batch.rgb.shape == (512, 3) and batch.rgb.dtype == np.float32
+  for field in batch.rays:
     assert field.shape[0] == 512 and field.dtype == np.float32
-  np.testing.assert_allclose(batch['rays'].origins, batch['rgb'] * 10., atol=1e-5)
-  np.testing.assert_allclose(batch['rays'].viewdirs, batch['rgb'] * 10. + 2, atol=1e-5)
+  np.testing.assert_allclose(batch.rays.origins, batch.rgb * 10., atol=1e-5)
+  np.testing.assert_allclose(batch.rays.viewdirs, batch.rgb * 10. + 2, atol=1e-5)
   again = make_batcher(data, config)(7)
-  np.testing.assert_array_equal(again['rgb'], batch['rgb'])
-  assert not np.array_equal(make_batcher(data, config)(8)['rgb'], batch['rgb'])
+  np.testing.assert_array_equal(again.rgb, batch.rgb)
+  assert not np.array_equal(make_batcher(data, config)(8).rgb, batch.rgb)
   other_seed = Config(batching=mode, batch_size=512, np_rng_seed=12)
-  assert not np.array_equal(make_batcher(data, other_seed)(7)['rgb'], batch['rgb'])
-  images = np.unique(batch['rays'].origins[:, 0])
-  pixels = np.unique(batch['rays'].origins.reshape(-1, 3), axis=0)
+  assert not np.array_equal(make_batcher(data, other_seed)(7).rgb, batch.rgb)
+  images = np.unique(batch.rays.origins[:, 0])
+  pixels = np.unique(batch.rays.origins.reshape(-1, 3), axis=0)
   if mode == 'single_image':
     assert images.size == 1 and images[0] == np.random.default_rng([11, 7]).integers(3)
     assert len(pixels) == 20   # 512 draws with replacement cover all 20 pixels of the image.

@@ -184,7 +184,7 @@ def test_generated_render_path_and_batches(scenes):
   cos = (centre_dirs * to_origin).sum(-1) / np.linalg.norm(centre_dirs, axis=-1) / np.linalg.norm(to_origin, axis=-1)
   assert (cos > .999).all()   # The orbit faces the origin.
   batch = make_batcher(train, Config(batch_size=64))(0)
-  assert batch['rgb'].shape == (64, 3) and batch['rays'].near.shape == (64, 1)
+  assert batch.rgb.shape == (64, 3) and batch.rays.near.shape == (64, 1)
 
 
 @pytest.mark.parametrize('rig', ['object', 'forward'])
@@ -206,15 +206,15 @@ def test_depths_and_object_masks_are_read_only_when_asked(scenes, rig, monkeypat
 def test_forward_rig_random_poses_are_llffs_of_its_poses_file(scenes):
   path, train, _ = scenes['forward']
   config = gen_config(path, 'forward', n_input_views=9, n_random_poses=20, regnerf_fix_released_bugs=True)
-  poses, pixtocam, focal = loader.random_pose_cameras(train, config, np.random.default_rng(3))
+  cameras = loader.random_pose_cameras(train, config, np.random.default_rng(3))
   raw = np.load(path / 'poses_bounds.npy')
-  assert focal == raw[0, 14]  # Generated at factor 1: the file's focal.
-  np.testing.assert_allclose(pixtocam, train.pixtocams[0], rtol=1e-6)  # The loaded training views' intrinsics.
+  assert train.space.ndc_focal == raw[0, 14]  # Generated at factor 1: the file's focal, the space the poses share.
+  np.testing.assert_allclose(cameras.pixtocams, np.broadcast_to(train.pixtocams[0], (20, 3, 3)), rtol=1e-6)
   c2w, bounds, _ = llff.process_poses(raw)
-  np.testing.assert_array_equal(poses, random_poses.llff_random_poses(c2w, bounds, 20, np.random.default_rng(3),
-                                                                      False))
+  np.testing.assert_array_equal(cameras.camtoworlds, random_poses.llff_random_poses(c2w, bounds, 20,
+                                                                                    np.random.default_rng(3), False))
   tv = dataclasses.replace(config, depth_tvnorm_loss_mult=.1, batch_size=64, batch_size_random=128)
-  patches = make_batcher(train, tv)(2)['patch_rays']
+  patches = make_batcher(train, tv)(2).patch_rays
   assert patches.origins.shape == (2, 8, 8, 3) and (patches.near == 0.).all() and (patches.far == 1.).all()
 
 

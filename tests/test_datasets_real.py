@@ -8,7 +8,8 @@ import pytest
 from PIL import Image
 
 from internal.configs import Config
-from internal.datasets import DatasetError, cameras, dtu, llff, load_dataset, render_path_rays
+from internal.cameras import algebra
+from internal.datasets import DatasetError, dtu, llff, load_dataset, render_path_rays
 
 DATA = pathlib.Path(__file__).resolve().parents[2] / 'shared' / 'data'
 pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason=f'real scenes absent: {DATA} does not exist')
@@ -116,7 +117,7 @@ def test_fern_rays_through_one_point(fern):
 def test_fern_cameras_recentered_over_all_images(fern):
   train, test = fern
   c2w, bounds, focal = llff.process_poses(np.load(DATA / 'llff/fern/poses_bounds.npy'))
-  np.testing.assert_allclose(cameras.poses_avg(c2w), np.eye(3, 4), atol=1e-9)
+  np.testing.assert_allclose(algebra.poses_avg(c2w), np.eye(3, 4), atol=1e-9)
   assert np.isclose(bounds.min(), 1. / .75) and np.isclose(focal, 3260.526, atol=1e-3)
   np.testing.assert_allclose(train[9].camtoworlds, c2w[train[9].ids], atol=1e-6)
   np.testing.assert_allclose(test.camtoworlds, c2w[test.ids], atol=1e-6)
@@ -193,7 +194,7 @@ def test_dtu_cameras_recentered_and_rescaled_over_all_49(dtu24):
   _, _, projections = dtu.scan_setup(dtu_config())
   pixtocams, poses = dtu.normalized_cameras(projections, 4)
   assert len(poses) == 49
-  np.testing.assert_allclose(cameras.poses_avg(poses), np.eye(3, 4), atol=1e-9)
+  np.testing.assert_allclose(algebra.poses_avg(poses), np.eye(3, 4), atol=1e-9)
   assert np.isclose(np.abs(poses[:, :, 3]).max(), 1.)
   np.testing.assert_allclose(test.camtoworlds, poses[test.ids], atol=1e-6)
   np.testing.assert_allclose(train[9].pixtocams, pixtocams[train[9].ids], rtol=1e-6)

@@ -35,8 +35,13 @@ PIPELINE = ['Config.n_input_views = 0', 'Config.compute_lpips = False']
 
 
 def recorded() -> list:
-  """The per-seed records of results/demo, by seed."""
-  return demo_seeds.read_seeds(str(RESULTS))
+  """The per-seed records of results/demo of this machine's kind (the instruction set XLA compiles for), by seed;
+  where this kind has none, those of every kind."""
+  here = demo_seeds.kind_dir(str(RESULTS))
+  if os.path.isdir(here):
+    return demo_seeds.read_seeds(here)
+  return [r for kind in sorted(os.listdir(RESULTS)) if os.path.isdir(RESULTS / kind)
+          for r in demo_seeds.read_seeds(str(RESULTS / kind))]
 
 
 def accepted_range(values: list, reproduced: bool) -> tuple:
@@ -55,9 +60,10 @@ def accepted_range(values: list, reproduced: bool) -> tuple:
 
 
 def same_machine(record: dict) -> bool:
-  """Whether this machine and its versions are those that recorded a result (CPU, cores, jax, Python)."""
+  """Whether this machine and its versions compute as those that recorded a result: the instruction set XLA
+  compiles for, the cores (XLA's threads), jax and Python; not the CPU's name (one name spans several kinds)."""
   here = provenance.record([])['machine']
-  return all(record['provenance']['machine'][key] == here[key] for key in ('cpu', 'cpu_count', 'jax', 'python'))
+  return all(record['provenance']['machine'].get(key) == here[key] for key in ('isa', 'cpu_count', 'jax', 'python'))
 
 
 def check_against_recorded(psnr: float, key) -> None:
@@ -66,7 +72,8 @@ def check_against_recorded(psnr: float, key) -> None:
   low, high = accepted_range([key(r) for r in records], same_machine(records[0]))
   assert low <= psnr <= high, (f'{psnr:.2f} dB is outside [{low:.2f}, {high:.2f}] of results/demo (per seed '
                                f'{[round(key(r), 2) for r in records]}); if the demo changed on purpose, record it '
-                               'again: python -m tools.demo_seeds --seeds ' + ' '.join(str(r['seed']) for r in records))
+                               'again: python -m tools.demo_seeds --seeds ' + ' '.join(str(r['seed']) for r in records)
+                               + ' (a folder per machine kind: results/demo/README.md)')
 
 
 def test_shown_positions_spread_over_the_test_split():
@@ -191,12 +198,17 @@ def test_the_accepted_range_is_the_recorded_run_here_and_the_seeds_spread_elsewh
   assert accepted_range([25.97, 22.40, 21.78], False) == pytest.approx((21.78 - spread, 25.97 + spread))
   record = {'provenance': provenance.record([])}
   assert same_machine(record)
-  record['provenance']['machine']['cpu'] = 'another CPU'
+  record['provenance']['machine']['cpu'] = 'another CPU'   # The same kind under another name computes alike.
+  assert same_machine(record)
+  record['provenance']['machine']['isa'] = 'SSE4_2'
+  assert not same_machine(record)
+  del record['provenance']['machine']['isa']               # A record that does not say its kind is another's.
   assert not same_machine(record)
 
 
-def test_the_recorded_results_are_the_demo_over_several_seeds():
-  records = recorded()
+@pytest.mark.parametrize('kind', sorted(k.name for k in RESULTS.iterdir() if k.is_dir()))
+def test_the_recorded_results_are_the_demo_over_several_seeds(kind):
+  records = demo_seeds.read_seeds(str(RESULTS / kind))
   seeds = [r['seed'] for r in records]
   assert len(seeds) >= 2 and demo_seeds.DEFAULT_SEED in seeds, seeds
   for record in records:  # Made by the demo's own commands, with no setting but the seed changed.
@@ -206,7 +218,10 @@ def test_the_recorded_results_are_the_demo_over_several_seeds():
     assert '+dirty' not in record['provenance']['commit'] and '--gin_bindings' not in record['provenance']['command']
     means = record['demo']['means']
     assert means['FreeNeRF']['psnr'] > means['NeRF']['psnr'], record['seed']  # FreeNeRF leads on every seed.
-  assert json.loads((RESULTS / demo_seeds.SUMMARY).read_text()) == json.loads(json.dumps(demo_seeds.summary(records)))
+    assert record['provenance']['machine']['isa'] == kind
+  assert json.loads((RESULTS / kind / demo_seeds.SUMMARY).read_text()) == json.loads(
+      json.dumps(demo_seeds.summary(records)))
+  assert (RESULTS / demo_seeds.README).read_text() == demo_seeds.index(str(RESULTS))
 
 
 @pytest.mark.slow

@@ -2,6 +2,7 @@
 
 import json
 import os
+import pathlib
 import statistics
 import sys
 
@@ -9,6 +10,7 @@ import pytest
 
 from internal import cli
 from internal import demo
+from internal import environment
 from internal.evaluation import learning_curve
 from tools import demo_seeds
 
@@ -16,11 +18,11 @@ from tools import demo_seeds
 def _record(seed: int, nerf: float, free: float, all_views: float, seconds: float) -> dict:
   means = lambda psnr: {'psnr': psnr, 'ssim': psnr / 100, 'lpips': None, 'depth_mae': 1.}
   return {'seed': seed, 'step': 700,
-          'demo': {'command': 'python train.py', 'seconds': seconds, 'means': {'NeRF': means(nerf),
-                                                                             'FreeNeRF': means(free)}},
+          'demo': {'command': 'python train.py', 'seconds': seconds, 'load_average': [0.5, 1.25],
+                   'means': {'NeRF': means(nerf), 'FreeNeRF': means(free)}},
           'all_views': {'commands': [], 'seconds': 100., 'means': means(all_views)},
           'provenance': {'command': 'python -m tools.demo_seeds --seeds 1', 'commit': 'abc', 'date': 'today',
-                         'machine': {'cpu_count': 2, 'cpu': 'X', 'jax': '0.1'}}}
+                         'machine': {'cpu_count': 2, 'cpu': 'X', 'jax': '0.1', 'isa': 'AVX2'}}}
 
 
 def test_the_demo_seed_runs_plain_train_py_and_another_seed_binds_it():
@@ -37,24 +39,39 @@ def test_the_demo_seed_runs_plain_train_py_and_another_seed_binds_it():
 
 
 def test_summary_and_readme_over_the_seeds(tmp_path):
+  kind = tmp_path / 'AVX2'
+  kind.mkdir()
   for record in (_record(2, 16., 19.5, 22., 300.), _record(1, 18., 21., 26., 320.)):
-    (tmp_path / f'seed_{record["seed"]}.json').write_text(json.dumps(record))
-  table = demo_seeds.write_summary(str(tmp_path))
+    (kind / f'seed_{record["seed"]}.json').write_text(json.dumps(record))
+  table = demo_seeds.write_summary(str(kind))
   assert list(table['rows']) == ['1', '2']
   assert table['rows']['2']['FreeNeRF lead psnr'] == pytest.approx(3.5)
   lead = table['over_seeds']['FreeNeRF lead psnr']
   assert (lead['n'], lead['mean'], lead['min'], lead['max']) == (2, 3.25, 3., 3.5)
   assert lead['std'] == pytest.approx(statistics.stdev([3., 3.5]))
   assert 'NeRF lpips' not in table['rows']['1']  # Not measured: no column.
-  readme = (tmp_path / demo_seeds.README).read_text()
+  readme = (kind / demo_seeds.README).read_text()
+  assert readme.startswith('# The demo over seeds: AVX2 machines')
   assert '| 1 | 18.00 | 21.00 | 0.180 | 0.210 | 1.000 | 1.000 | 3.00 | 26.00 | 320 | 100 |' in readme
-  assert '| std | 1.41 | 1.06 |' in readme and '- seed 2: commit abc, today, 2 CPUs (X), jax 0.1;' in readme
-  assert json.loads((tmp_path / demo_seeds.SUMMARY).read_text()) == json.loads(json.dumps(table))
+  assert '| std | 1.41 | 1.06 |' in readme
+  assert ('- seed 2: commit abc, today, 2 CPUs (X), XLA for AVX2, jax 0.1, load average 0.5 before and 1.25 after '
+          'the demo;') in readme
+  assert json.loads((kind / demo_seeds.SUMMARY).read_text()) == json.loads(json.dumps(table))
+  (tmp_path / 'notes').mkdir()  # A folder without a summary is no kind.
+  index = demo_seeds.index(str(tmp_path))
+  assert index.count('\n| ') == 2 and '| AVX2 | 2 | 17.00 | 20.25 | 3.00 | 310 | [AVX2/](AVX2/README.md) |' in index
+
+
+def test_records_go_to_the_folder_of_the_machine_kind_xla_compiles_for(tmp_path, monkeypatch):
+  monkeypatch.setenv('XLA_FLAGS', '--xla_cpu_max_isa=AVX2')
+  assert environment.cpu_isa() in ('AVX2', 'AVX', 'SSE4_2') or not environment.cpu_isa().startswith(('AVX', 'SSE'))
+  assert demo_seeds.kind_dir(str(tmp_path)) == str(tmp_path / environment.cpu_isa())
 
 
 def test_a_recorded_seed_or_a_used_work_folder_is_refused(tmp_path, monkeypatch, capsys):
-  (tmp_path / 'out').mkdir()
-  (tmp_path / 'out' / 'seed_3.json').write_text('{}')
+  recorded = pathlib.Path(demo_seeds.kind_dir(str(tmp_path / 'out')))
+  recorded.mkdir(parents=True)
+  (recorded / 'seed_3.json').write_text('{}')
   (tmp_path / 'work' / 'seed_4').mkdir(parents=True)
   for seed, what in ((3, 'seed 3 is recorded'), (4, 'its runs would resume')):
     monkeypatch.setattr(sys, 'argv', ['demo_seeds', '--seeds', str(seed), '--out', str(tmp_path / 'out'),
@@ -62,7 +79,7 @@ def test_a_recorded_seed_or_a_used_work_folder_is_refused(tmp_path, monkeypatch,
     assert cli.run(demo_seeds.main) == 2
     err = capsys.readouterr().err
     assert err.startswith('error: ') and what in err and err.count('\n') == 1, err
-  assert (tmp_path / 'out' / 'seed_3.json').read_text() == '{}'
+  assert (recorded / 'seed_3.json').read_text() == '{}'
 
 
 def test_a_failed_command_names_itself_and_its_log(tmp_path):
@@ -97,5 +114,6 @@ def test_a_seed_records_each_methods_learning_curve(tmp_path, monkeypatch):
   monkeypatch.setattr(demo_seeds, 'run_timed', trained)
   monkeypatch.setattr(demo_seeds, 'means', lambda run, step: {'psnr': 17.})
   record = demo_seeds.run_seed(7, str(tmp_path))
+  assert len(record['demo']['load_average']) == 2 and min(record['demo']['load_average']) >= 0
   assert record['demo']['learning_curves'] == {name: [{'step': 50, 'psnr': 19.4 + i, 'seconds': 1.5}]
                                                for i, name in enumerate(demo.METHODS)}

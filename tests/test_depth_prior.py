@@ -6,7 +6,9 @@ import dataclasses
 import os
 import subprocess
 import sys
+import warnings
 
+import jax.numpy as jnp
 import numpy as np
 import png
 from PIL import Image
@@ -14,8 +16,10 @@ import pytest
 
 from internal import config_loader
 from internal.configs import Config
+from internal.cameras import algebra
 from internal.datasets import DatasetError, colmap_model as cm, depth_prior, load_dataset, sfm_depth
 from internal.datasets import capture as capture_loader
+from internal.losses import depth_pearson, depth_ranking
 from tests.conftest import SHARED_DATA
 from tests.test_datasets_capture import _capture_from
 from tests.test_datasets_dtu_layouts import config as dtu_config, synthetic_projections, write_idr
@@ -85,8 +89,10 @@ def _check_loader(config, tmp_path, png_first=False):
   written = _write_maps(tmp_path / 'priors', train, png_first=png_first)
   maps = depth_prior.load_maps(train, config)
   assert maps.shape == (len(train.ids), train.height, train.width) and maps.dtype == np.float32
-  for got, values in zip(maps, written):
-    np.testing.assert_allclose(got, values.reshape(train.height, 2, train.width, 2).mean((1, 3)), rtol=1e-6)
+  for got, values in zip(maps, written):  # Rescaled by a power of two, its largest value in [1, 2).
+    np.testing.assert_allclose(got, depth_prior.rescaled(values).reshape(train.height, 2, train.width, 2).mean((1, 3)),
+                               rtol=1e-6)
+    assert 2**-1 < got.max() < 2
 
 
 def test_generated_object_and_forward_scenes(tmp_path, scene_dir):
@@ -148,6 +154,51 @@ def test_bad_maps_are_one_line_naming_the_file(prior_setup, write, message):
   _bad(config, train, message)
 
 
+def _prior_patches(maps):
+  """Each map [N, H, W] as one patch [N, H * W]."""
+  return jnp.asarray(maps.reshape(len(maps), -1))
+
+
+@pytest.mark.parametrize('scale', [1e40, 1e300, 1e-40])
+def test_a_map_in_units_float32_does_not_hold_trains_as_the_same_map(prior_setup, scale):
+  config, train, first = prior_setup
+  plain = depth_prior.load_maps(train, config)
+  for path in first.parent.glob('*.npy'):
+    np.save(path, np.load(path).astype(np.float64) * scale)
+  with warnings.catch_warnings():
+    warnings.simplefilter('error')  # Not even numpy's 'overflow encountered in cast'.
+    scaled = depth_prior.load_maps(train, config)
+  assert np.isfinite(scaled).all() and np.all(np.abs(scaled).max((1, 2)) < 2)
+  np.testing.assert_allclose(scaled / scaled.max((1, 2), keepdims=True), plain / plain.max((1, 2), keepdims=True),
+                             rtol=1e-6)
+  rendered = jnp.asarray(np.random.default_rng(0).uniform(1., 2., (len(plain), plain[0].size)), jnp.float32)
+  for loss in (depth_pearson.pearson_loss, lambda r, p: depth_ranking.ranking_loss(r, p, 1e-4, True)):
+    assert float(loss(rendered, _prior_patches(scaled))) == pytest.approx(float(loss(rendered, _prior_patches(plain))),
+                                                                          rel=1e-5)
+    assert float(loss(rendered, _prior_patches(plain))) > .1
+
+
+def test_a_map_scaled_by_a_power_of_two_loads_and_trains_bit_for_bit_alike(prior_setup):
+  config, train, first = prior_setup
+  plain = depth_prior.load_maps(train, config)
+  for path in first.parent.glob('*.npy'):
+    np.save(path, np.load(path) * 2.**-20)  # Exactly the same map, in other units: the same float32 map loads.
+  np.testing.assert_array_equal(depth_prior.load_maps(train, config), plain)
+  rendered = jnp.asarray(np.random.default_rng(0).uniform(1., 2., (len(plain), plain[0].size)), jnp.float32)
+  for scale in (2.**-9, 2.**7):  # So the rescaling leaves the losses of maps in ordinary units exactly as they were.
+    for loss in (depth_pearson.pearson_loss, lambda r, p: depth_ranking.ranking_loss(r, p, 1e-4, False)):
+      assert float(loss(rendered, _prior_patches(plain * np.float32(scale)))) == float(loss(rendered,
+                                                                                            _prior_patches(plain)))
+
+
+def test_a_map_spanning_more_than_float32_holds_is_named(prior_setup):
+  config, train, first = prior_setup
+  values = np.load(first).astype(np.float64)
+  values[:len(values) // 2] *= 1e-50  # Its top half would train as 0, "no prior", even rescaled.
+  np.save(first, values)
+  _bad(config, train, r"img0\d\.npy' holds values from 1e-50 to 12 \(in magnitude\), a wider span than float32 holds")
+
+
 def test_a_png_that_is_not_16_bit_grey_is_named(prior_setup):
   config, train, first = prior_setup
   os.remove(first)
@@ -169,8 +220,6 @@ def test_a_missing_folder_and_a_pack_without_names(prior_setup):
     (["Config.depth_prior_dir = '/tmp'", "Config.depth_prior_kind = 'depth'", 'Config.depth_rank_loss_mult = 1.',
       'Config.depth_patch_size = 1'], 'Config.depth_patch_size = 1 and Config.depth_prior_rays = 512'),
     (['Config.sfm_depth_loss_mult = 1.'], "needs a capture.*Config.dataset_loader = 'generated'"),
-    (["Config.depth_prior_dir = '/tmp'", "Config.depth_prior_kind = 'depth'", 'Config.depth_rank_loss_mult = 1.',
-      'Config.optimize_cameras = True'], 'optimize_cameras = True with a depth prior .* not supported'),
 ])
 def test_settings_that_cannot_work_are_refused_naming_them(bindings, message):
   with pytest.raises(ValueError, match=message):
@@ -236,7 +285,7 @@ def _capture_with_points(tmp_path, scene_dir, n_points=150, **settings):
       continue
     rows, cols = np.nonzero(data.depths[k] > 0)
     pick = rng.choice(len(rows), n_points // 4, replace=False)
-    rotation = cm.qvec_to_rotmat(image.qvec)
+    rotation = algebra.quaternion_to_rotation(image.qvec)
     camera = model.cameras[image.camera_id]
     z = data.depths[k][rows[pick], cols[pick]].astype(np.float64)
     local = np.stack([(cols[pick] + .5 - camera.params[2]) / camera.params[0] * z,
@@ -246,7 +295,7 @@ def _capture_with_points(tmp_path, scene_dir, n_points=150, **settings):
   tracks = [[] for _ in xyz]
   for k, image in enumerate(model.images.values()):
     camera = model.cameras[image.camera_id]
-    pixel, z = _project(cm.qvec_to_rotmat(image.qvec), image.tvec, camera, xyz)
+    pixel, z = _project(algebra.quaternion_to_rotation(image.qvec), image.tvec, camera, xyz)
     col, row = np.floor(pixel[:, 0]).astype(int), np.floor(pixel[:, 1]).astype(int)
     inside = (row >= 0) & (row < data.height) & (col >= 0) & (col < data.width) & (z > 0)
     exact = np.where(inside, data.depths[k][np.clip(row, 0, data.height - 1), np.clip(col, 0, data.width - 1)], 0.)
@@ -277,7 +326,7 @@ def _brute_prior(model, names, height, width, scale, keep):
       for x, y, point_id in image.points2d:
         if point_id != point.point_id:
           continue
-        z = (cm.qvec_to_rotmat(image.qvec) @ point.xyz + image.tvec)[2]
+        z = (algebra.quaternion_to_rotation(image.qvec) @ point.xyz + image.tvec)[2]
         row, col = int(y * height // camera.height), int(x * width // camera.width)
         w = np.exp(-(point.error / mean_error)**2)
         if w > weight[view, row, col]:
@@ -326,13 +375,14 @@ def test_the_strict_form_reads_a_model_of_the_training_photos_in_its_own_frame(s
   train = load_dataset('train', config)
   names = {capture_loader.read_capture(config).names[i] for i in train.ids}
   # Structure-from-motion on the training photos: another frame (a similarity), only their images and points.
-  rotation = cm.qvec_to_rotmat([.9, .1, -.3, .2])
+  rotation = algebra.quaternion_to_rotation([.9, .1, -.3, .2])
   scale, shift = 3.7, np.array([1., -2., .5])
   images = {}
   for image_id, image in model.images.items():
     if image.name in names:
-      r = cm.qvec_to_rotmat(image.qvec) @ rotation.T
-      images[image_id] = dataclasses.replace(image, qvec=cm.rotmat_to_qvec(r), tvec=scale * image.tvec - r @ shift)
+      r = algebra.quaternion_to_rotation(image.qvec) @ rotation.T
+      images[image_id] = dataclasses.replace(image, qvec=algebra.rotation_to_quaternion(r),
+                                             tvec=scale * image.tvec - r @ shift)
   points = {j: dataclasses.replace(p, xyz=scale * rotation @ p.xyz + shift) for j, p in model.points.items()}
   cm.write_binary(cm.Model(model.cameras, images, points), str(tmp_path / 'strict'))
   strict = dataclasses.replace(config, sfm_depth_model=str(tmp_path / 'strict'))
@@ -359,14 +409,14 @@ def test_the_strict_form_reads_a_model_of_the_training_photos_in_its_own_frame(s
     sfm_depth.training_prior(train, dataclasses.replace(config, sfm_depth_model=str(tmp_path / 'nowhere')))
 
 
-def test_the_similarity_is_recovered_exactly():
-  rng = np.random.default_rng(3)
-  source = rng.normal(size=(6, 3))
-  rotation = cm.qvec_to_rotmat(rng.normal(size=4))
-  found = sfm_depth.similarity(source, 2.5 * source @ rotation.T + [1., 2., 3.])
-  assert found.scale == pytest.approx(2.5)
-  np.testing.assert_allclose(found.rotation, rotation, atol=1e-12)
-  np.testing.assert_allclose(found.translation, [1., 2., 3.], atol=1e-12)
+def test_the_similarity_carries_the_models_cameras_onto_the_captures(sfm_capture):
+  model, _, folder = sfm_capture
+  capture = capture_loader.read_capture(_sfm_config(folder))
+  found = sfm_depth.align(model, capture, 'model')  # The loader's frame: centred, scaled, z up.
+  by_name = {image.name: image for image in model.images.values()}
+  cameras = np.stack([cm.camtoworld(by_name[name]) for name in capture.names])
+  assert found.scale != pytest.approx(1.)
+  np.testing.assert_allclose(found.cameras(cameras), capture.camtoworlds, atol=1e-9)
 
 
 def test_evaluation_depths_hold_every_point_a_test_view_observed(sfm_capture):
@@ -402,7 +452,7 @@ def test_a_forward_captures_prior_is_the_ndc_t_where_each_pixels_ray_reaches_its
   names = [capture.names[i] for i in train.ids]
   by_name = {image.name: image for image in model.images.values()}
   def depth_of(view, row, col, point_id):  # The NDC t at which the pixel's ray reaches the point's world z.
-    world_z = (found.scale * found.rotation @ model.points[int(point_id)].xyz + found.translation)[2]
+    world_z = (found.scale * found.rotation @ model.points[int(point_id)].xyz + found.shift)[2]
     origin, direction = train.rays.origins[view, row, col], train.rays.directions[view, row, col]
     return (1. + 2. / world_z - origin[2]) / direction[2]
 

@@ -5,14 +5,19 @@ import dataclasses
 import os
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax import random
 
-from internal.datasets import batching, load_dataset, raygen, sfm_depth
+from internal import config_loader
+from internal.cameras import caster, corrections
+from internal.cameras.records import Cameras
+from internal.datasets import batching, load_dataset, sfm_depth
 from internal.evaluation import evaluate
+from internal.losses import depth_pearson
 from internal.pipeline import loop
-from internal.training import prior_losses
+from internal.training import camera_refinement
 from internal.training import train_step
 from test_checkpoints import tiny_config
 from test_depth_prior import _capture_with_points
@@ -68,22 +73,22 @@ def test_prior_patches_are_real_training_pixels_with_their_maps_and_depend_only_
   batcher = batching.make_batcher(data, config)
   batch = batcher(5)
   size = config.depth_patch_size
-  assert batch['prior_rays'].origins.shape == (128 // size**2, size**2, 3) and batch['prior'].shape == (2, 64)
+  assert batch.prior_rays.origins.shape == (128 // size**2, size**2, 3) and batch.prior.shape == (2, 64)
   for p in range(2):
-    patch = jax.tree.map(lambda x, p=p: x[p], batch['prior_rays'])
-    assert _find_patch(data, maps, patch, batch['prior'][p], size) is not None
+    patch = jax.tree.map(lambda x, p=p: x[p], batch.prior_rays)
+    assert _find_patch(data, maps, patch, batch.prior[p], size) is not None
     assert patch.origins.dtype == np.float32
   again = batcher(5)
-  np.testing.assert_array_equal(again['prior'], batch['prior'])
-  assert not np.array_equal(batcher(6)['prior'], batch['prior'])
-  assert 'prior_rays' not in batching.make_batcher(data, dataclasses.replace(config, depth_rank_loss_mult=0.))(5)
+  np.testing.assert_array_equal(again.prior, batch.prior)
+  assert not np.array_equal(batcher(6).prior, batch.prior)
+  assert batching.make_batcher(data, dataclasses.replace(config, depth_rank_loss_mult=0.))(5).prior_rays is None
 
 
 @pytest.mark.slow
 def test_the_prior_terms_enter_the_loss_only_when_their_weight_is_positive(forward_priors):
   config, data = forward_priors
   batch = batching.make_batcher(data, config)(1)
-  model, state = train_step.create_train_state(config, random.PRNGKey(0), batch['rays'])
+  model, state = train_step.create_train_state(config, random.PRNGKey(0), batch.rays)
   key = random.PRNGKey(1)
   off = dataclasses.replace(config, depth_rank_loss_mult=0.)
   base, stats = train_step.compute_loss(off, model, state.params, batch, key, 1)
@@ -99,17 +104,42 @@ def test_the_prior_terms_enter_the_loss_only_when_their_weight_is_positive(forwa
   assert max(jax.tree.leaves(difference)) > 0
 
 
+def test_a_depth_prior_trains_with_refinement_its_patches_from_the_corrected_cameras(forward_priors):
+  """Refinement corrects every family of training-view rays once, before the terms: the prior's patches too (NDC
+  rays of the forward rig) are the rays of the corrected cameras; the step trains, and the cameras move."""
+  config, data = forward_priors
+  config = dataclasses.replace(config, optimize_cameras=True, camera_lr_init=1e-2, camera_lr_final=1e-3)
+  config_loader.validate(config)  # No refusal of a depth prior with refinement.
+  batch = batching.make_batcher(data, config)(1)
+  assert batch.prior_pixels.view.shape == batch.prior.shape
+  cameras = camera_refinement.init(config, data)
+  free = np.zeros((len(data.ids), 6), np.float32)
+  free[0], free[1] = [.02, -.01, .03, .01, .02, -.01], [-.02, .01, -.03, -.01, -.02, .01]
+  corrected = camera_refinement.corrected_batch(cameras, jnp.asarray(free), batch)
+  rotations, shifts = (np.asarray(x, np.float64) for x in camera_refinement.view_corrections(free, cameras.centres))
+  moved = corrections.corrected_cameras(data.camtoworlds, rotations, shifts)
+  expected = caster.cast(Cameras(moved, data.pixtocams), batch.prior_pixels, data.space)
+  for field in ('origins', 'directions', 'viewdirs', 'radii'):
+    np.testing.assert_allclose(getattr(corrected.prior_rays, field), getattr(expected, field), rtol=1e-4, atol=1e-5,
+                               err_msg=field)
+  assert not np.allclose(corrected.prior_rays.origins, batch.prior_rays.origins, atol=1e-3)
+  model, state = train_step.create_train_state(config, random.PRNGKey(0), batch.rays, cameras)
+  new, stats = train_step.make_train_step(config, model)(state, batch, random.PRNGKey(1))
+  assert np.isfinite(float(stats['loss_depth_rank'])) and not bool(stats['skipped'])
+  assert np.abs(np.asarray(camera_refinement.gauge_fixed(new.cameras.free, new.cameras.centres))).max() > 0
+
+
 def test_ndc_disparity_is_one_minus_t():
   """On an NDC ray, 1 - t is the near plane's distance over the world depth: affine in disparity (Pearson)."""
   origins, directions = np.zeros((5, 3)), np.array([[.1 * i, -.05 * i, -1.] for i in range(5)])
-  ndc_o, ndc_d = raygen.convert_to_ndc(origins, directions, 30., 24, 32)
+  ndc_o, ndc_d = caster.convert_to_ndc(origins, directions, 30., 24, 32)
   depths = np.array([1.5, 2., 4., 9., 40.])
   points = origins + depths[:, None] * directions  # World z = -depth.
   z_ndc = 1. + 2. / points[:, 2]
   t = (z_ndc - ndc_o[:, 2]) / ndc_d[:, 2]
-  np.testing.assert_allclose(prior_losses.pearson_values(t, 'disparity', True), 1. / depths, rtol=1e-9)
-  np.testing.assert_allclose(prior_losses.pearson_values(t, 'depth', True), depths, rtol=1e-9)
-  np.testing.assert_allclose(prior_losses.pearson_values(depths, 'disparity', False), 1. / depths)
+  np.testing.assert_allclose(depth_pearson.pearson_values(t, 'disparity', True), 1. / depths, rtol=1e-9)
+  np.testing.assert_allclose(depth_pearson.pearson_values(t, 'depth', True), depths, rtol=1e-9)
+  np.testing.assert_allclose(depth_pearson.pearson_values(depths, 'disparity', False), 1. / depths)
 
 
 @pytest.mark.slow
@@ -130,11 +160,11 @@ def test_a_capture_trains_with_its_sfm_prior_and_reports_depth_at_its_points(tmp
   data = load_dataset('train', config)
   batch = batching.make_batcher(data, config)(2)
   depth, weight = sfm_depth.training_prior(data, config)
-  assert batch['sfm_rays'].origins.shape == (64, 3) and np.all(batch['sfm_weight'] > 0)
+  assert batch.sfm_rays.origins.shape == (64, 3) and np.all(batch.sfm_weight > 0)
   for k in range(64):  # Each ray is a training pixel with a point, carrying that pixel's depth and weight.
-    match = np.nonzero(np.all(data.rays.directions == batch['sfm_rays'].directions[k], axis=-1) & (weight > 0))
-    assert len(match[0]) == 1 and depth[match][0] == batch['sfm_depth'][k] and weight[match][0] == (
-        batch['sfm_weight'][k])
+    match = np.nonzero(np.all(data.rays.directions == batch.sfm_rays.directions[k], axis=-1) & (weight > 0))
+    assert len(match[0]) == 1 and depth[match][0] == batch.sfm_depth[k] and weight[match][0] == (
+        batch.sfm_weight[k])
   result = loop.train(config)
   assert int(result.state.step) == 3 and result.skipped == 0
   record = evaluate.evaluate(config)

@@ -129,6 +129,15 @@ def test_a_full_disk_while_writing_a_settings_file_is_one_line_naming_it(tmp_pat
   assert os.listdir(tmp_path) == []
 
 
+def _train_script(run, scene_dir, *bindings, timeout: float) -> subprocess.CompletedProcess:
+  """train.py on the tiny demo config in run; a hang longer than timeout seconds fails the test (TimeoutExpired)."""
+  env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=JAX_CACHE, JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS='0')
+  env.pop(cli.DEBUG_ENV, None)
+  return subprocess.run([sys.executable, 'train.py', '--gin_configs', DEMO, '--gin_bindings', *TINY, *bindings,
+                         f"Config.data_dir = '{scene_dir}'", f"Config.checkpoint_dir = '{run}'"], cwd=ROOT, env=env,
+                        capture_output=True, text=True, check=False, timeout=timeout)
+
+
 def test_a_full_disk_during_a_save_prints_no_traceback(small_disk, scene_dir):
   run = small_disk / 'run'
   bindings = ['Config.max_steps = 6', 'Config.checkpoint_every = 3']
@@ -136,11 +145,7 @@ def test_a_full_disk_during_a_save_prints_no_traceback(small_disk, scene_dir):
   checkpoint_bytes = sum(f.stat().st_size for f in (run / 'checkpoints' / '3').rglob('*') if f.is_file())
   free = shutil.disk_usage(small_disk).free
   (small_disk / 'filler').write_bytes(b'\1' * (free - checkpoint_bytes // 2))  # Room for half a checkpoint.
-  env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=JAX_CACHE, JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS='0')
-  env.pop(cli.DEBUG_ENV, None)
-  done = subprocess.run([sys.executable, 'train.py', '--gin_configs', DEMO, '--gin_bindings', *TINY, *bindings,
-                         f"Config.data_dir = '{scene_dir}'", f"Config.checkpoint_dir = '{run}'"], cwd=ROOT, env=env,
-                        capture_output=True, text=True, check=False)
+  done = _train_script(run, scene_dir, *bindings, timeout=180)
   assert done.returncode == cli.DISK_FULL_STATUS, done.stderr[-3000:]
   assert 'Traceback' not in done.stderr and 'ERROR' not in done.stderr, done.stderr[-3000:]
   last = done.stderr.strip().splitlines()[-1]
@@ -192,3 +197,30 @@ def test_a_checkpoint_save_on_a_full_disk_keeps_the_previous_one_and_exits_4(sma
   _, state = checkpoints.restore_model(config, str(small_disk / 'run'), random_rays(0, 8))
   for a, b in zip(kept, jax.tree.leaves(jax.device_get(state))):
     np.testing.assert_array_equal(a, b)
+
+
+def test_tensorboard_events_on_a_full_disk_end_training_in_one_line_instead_of_a_hang(small_disk, scene_dir):
+  # tensorboardX's writer thread died on the full disk and the loop waited for its queue forever.
+  run = small_disk / 'run'
+  bindings = ['Config.max_steps = 200', 'Config.checkpoint_every = 3']
+  loop.train(tiny_config(scene_dir, run, *bindings), stop_at_step=3)
+  # Room for the lock and the rewritten config.gin, not for a few previews' images in the event file.
+  (small_disk / 'filler').write_bytes(b'\1' * (shutil.disk_usage(small_disk).free - 12288))
+  done = _train_script(run, scene_dir, *bindings, 'Config.train_render_every = 1', timeout=180)
+  assert done.returncode == cli.DISK_FULL_STATUS, done.stderr[-3000:]
+  assert 'Traceback' not in done.stderr and 'ERROR' not in done.stderr, done.stderr[-3000:]
+  _one_error_line(done.stderr, f"no space left on the device while writing '{run / 'tensorboard'}{os.sep}events.",
+                  'the newest intact checkpoint, step 3, is kept', 'run the same command again to resume')
+  (small_disk / 'filler').unlink()
+  assert checkpoints.latest_step(str(run)) == 3
+
+
+def test_a_full_disk_names_the_file_of_any_training_write(tmp_path):
+  clock, folder = str(tmp_path / 'learning_curve_clock.json'), str(tmp_path / 'checkpoints')
+  checkpoint = f'saving a checkpoint in {folder!r}'
+  for written, said in [(clock, f'writing {clock!r}'), (folder + '/6.orbax-checkpoint-tmp/x', checkpoint),
+                        (None, checkpoint)]:  # Orbax's errors name no file.
+    with pytest.raises(disk_full.DiskFullError) as stopped:
+      with disk_full.stop_when_disk_full(str(tmp_path)):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), *([written] if written else []))
+    assert str(stopped.value).startswith(f'no space left on the device while {said}; no earlier checkpoint exists.')

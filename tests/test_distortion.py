@@ -3,7 +3,14 @@
 import numpy as np
 import pytest
 
-from internal.datasets import distortion
+from internal.cameras import caster, distortion
+from internal.cameras.records import Cameras
+
+
+def camera_directions(params: np.ndarray, height: int, width: int) -> np.ndarray:
+  """[H, W, 3] OpenCV camera-frame directions (z = 1) of the pixel centres of a camera of COLMAP's params [8]."""
+  camera = Cameras(np.eye(3, 4)[None], np.eye(3)[None], params[None])
+  return caster.camera_directions(camera, caster.image_pixels(0, height, width), opengl=False)
 
 # An OPENCV camera with a phone's distortion: barrel k1, k2 and a little tangential.
 OPENCV = np.array([500., 510., 320.5, 240.25, -.12, .03, 1e-3, -5e-4])
@@ -39,7 +46,7 @@ def test_undistort_inverts_distort_over_the_image(params):
 
 def test_pixel_directions_project_back_onto_their_pixels():
   """Each direction (u, v, 1), distorted and mapped by the intrinsics, lands on its pixel centre."""
-  directions = distortion.camera_directions(OPENCV, 48, 64)
+  directions = camera_directions(OPENCV, 48, 64)
   ud, vd = distortion.distort(OPENCV, directions[..., 0], directions[..., 1])
   x, y = OPENCV[0] * ud + OPENCV[2], OPENCV[1] * vd + OPENCV[3]
   np.testing.assert_allclose(x, np.broadcast_to(np.arange(64) + .5, (48, 64)), atol=1e-9)
@@ -49,12 +56,12 @@ def test_pixel_directions_project_back_onto_their_pixels():
 
 def test_pinhole_directions_are_the_inverse_intrinsics():
   params = distortion.opencv_params('PINHOLE', [100., 90., 30., 20.])
-  directions = distortion.camera_directions(params, 2, 3)
+  directions = camera_directions(params, 2, 3)
   assert directions[1, 2] == pytest.approx([(2.5 - 30.) / 100., (1.5 - 20.) / 90., 1.])
 
 
 def test_downscaling_keeps_pixel_centres_on_the_same_rays():
   """A pixel of the image downsampled by 4 covers 4 x 4 pixels: its centre's ray is their centre's ray."""
-  coarse = distortion.camera_directions(distortion.scaled(OPENCV, 4.), 12, 16)
+  coarse = camera_directions(distortion.scaled(OPENCV, 4.), 12, 16)
   u, v = distortion.pixel_to_normalized(OPENCV, np.array(4 * 3 + 2.), np.array(4 * 5 + 2.))
   assert coarse[5, 3, :2] == pytest.approx([u, v], abs=1e-12)

@@ -12,8 +12,8 @@ DEMO = ['configs/demo.gin']
 FORWARD = DEMO + ['configs/demo_forward.gin']
 # (gin files) -> (max_steps, T) as they resolved when the files gave T in steps.
 CONFIGS = {
-    ('configs/demo.gin',): (700, 350), tuple(FORWARD): (700, 630),
-    tuple(FORWARD + ['configs/demo_nerf.gin']): (700, 0),
+    ('configs/demo.gin',): (700, 350), tuple(FORWARD): (500, 450),
+    tuple(FORWARD + ['configs/demo_nerf.gin']): (500, 0),
     ('configs/mini/blender.gin',): (2000, 1000), ('configs/mini/dtu3_freenerf.gin',): (2000, 1800),
     ('configs/mini/llff3_freenerf.gin',): (2000, 1800), ('configs/mini/capture3_freenerf.gin',): (2000, 1800),
     ('configs/mini/capture6_freenerf.gin',): (2000, 1400), ('configs/mini/capture9_freenerf.gin',): (2000, 1000),
@@ -44,7 +44,12 @@ STUDIES = {
     'mini_dtu_long': {'freenerf__dtu_scan24': LONG},
     'mini_llff_long': {'freenerf__fern': LONG},
     'capture_cup': {'freenerf__cup': MINI, 'freenerf_nerf__cup': MINI},
+    'depth_prior_cup': {'freenerf__cup': (700, 630), 'freenerf_sfm__cup': (700, 630)},
+    'cameras_cup': {f'freenerf__cup__cameras={c}': (800, 560) for c in ('allphoto', 'sfm6', 'sfm6_refine')},
+    'depth_prior_cup_9views': {f'{m}__cup': (700, 350) for m in ('freenerf', 'freenerf_sfm', 'freenerf_sfm_strict')},
 }
+# Study files that once bound T in steps by hand (issue 59): T is now their method's gin fraction of the steps.
+FRACTION_STUDIES = ('depth_prior_cup', 'cameras_cup', 'depth_prior_cup_9views')
 
 
 def resolved(configs, bindings=()) -> tuple:
@@ -67,13 +72,29 @@ def test_a_step_count_in_the_bindings_wins_over_a_fraction_from_the_files():
   assert config_loader.load_config(DEMO, ['Config.freq_reg_end = 123']).freq_reg_end_fraction is None
 
 
+def test_of_steps_and_fraction_the_later_binding_wins_across_files_includes_and_bindings(tmp_path):
+  steps, fraction = tmp_path / 'steps.gin', tmp_path / 'fraction.gin'
+  steps.write_text('Config.freq_reg_end = 3\n')
+  fraction.write_text('Config.freq_reg_end_fraction = 0.25\n')
+  assert resolved(DEMO + [str(steps)]) == (700, 3)  # A later file's steps over demo.gin's fraction.
+  assert resolved(DEMO + [str(steps), str(fraction)]) == (700, 175)
+  including = tmp_path / 'including.gin'  # An include binds where it stands in its file.
+  including.write_text(f"include '{fraction}'\nConfig.freq_reg_end = 5\n")
+  assert resolved(DEMO + [str(including)]) == (700, 5)
+  including.write_text(f"Config.freq_reg_end = 5\ninclude '{fraction}'\n")
+  assert resolved(DEMO + [str(including)]) == (700, 175)
+  assert resolved(DEMO, ['Config.freq_reg_end = 9', 'Config.freq_reg_end_fraction = 0.5']) == (700, 350)
+  assert resolved(DEMO, ['Config.freq_reg_end_fraction = 0.5', 'Config.freq_reg_end = 9']) == (700, 9)
+  assert resolved(DEMO, ['Config.freq_reg_end_fraction = 0.5\nConfig.freq_reg_end = 9']) == (700, 9)
+  assert resolved(DEMO + [str(steps)], ['Config.freq_reg_end_fraction = 0.1']) == (700, 70)
+
+
 def test_the_released_files_keep_t_in_steps():
   assert resolved(['configs/freenerf/dtu3_freenerf.gin']) == (43945, 39550)
   assert resolved(['configs/freenerf/dtu3_freenerf.gin'], ['Config.freq_reg_end_fraction = 0.5']) == (43945, 21972)
 
 
 @pytest.mark.parametrize('bindings,message', [
-    (['Config.freq_reg_end = 9', 'Config.freq_reg_end_fraction = 0.5'], 'are both bound; expected one of them'),
     (['Config.freq_reg_end_fraction = -0.1'], r'freq_reg_end_fraction = -0.1; expected a finite number >= 0'),
     (["Config.freq_reg_end_fraction = 'half'"], "freq_reg_end_fraction = 'half'; expected a finite number"),
     (['Config.freq_reg_end_fraction = True'], 'freq_reg_end_fraction = True; expected a finite number'),
@@ -97,3 +118,13 @@ def test_each_study_cell_keeps_the_t_it_had_in_steps(name):
     if key not in found:  # The seeds of a setting bind nothing else.
       found[key] = resolved(*study_spec.cell_gin(study, cell, 'out', '../shared/data', 'out/cell'))
   assert {k: v for k, v in found.items() if v[1] or k in STUDIES[name]} == STUDIES[name]
+
+
+@pytest.mark.parametrize('name', FRACTION_STUDIES)
+def test_these_studies_take_t_from_the_fraction_of_their_gin(name):
+  study = study_spec.load(f'studies/{name}.toml')
+  for cell in study_spec.cells(study):
+    gin.clear_config()
+    config = config_loader.load_config(*study_spec.cell_gin(study, cell, 'out', '../shared/data', 'out/cell'))
+    assert config.freq_reg_end_fraction is not None, f'{name}: {cell.cell_id} binds T in steps'
+    assert config.freq_reg_end == round(config.freq_reg_end_fraction * config.max_steps)

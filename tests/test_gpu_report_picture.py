@@ -69,7 +69,8 @@ def test_the_picture_labels_rows_and_columns_and_shows_the_ground_truth_first(tm
   _renders(out, 'freenerf_bfloat16', 0.8)
   _renders(out, 'mipnerf_bfloat16', 0.1)
   gpu_report.write_truth(_scene(tmp_path), str(out))
-  picture = np.asarray(Image.open(gpu_report.picture(str(out), ['freenerf_bfloat16', 'mipnerf_bfloat16'])))
+  drawn = gpu_report.picture(str(out), ['freenerf_bfloat16', 'mipnerf_bfloat16'])
+  picture = np.asarray(Image.open(drawn).convert('RGB'))
   rows = ['ground truth', 'freenerf_bfloat16 colour', 'freenerf_bfloat16 depth', 'mipnerf_bfloat16 colour',
           'mipnerf_bfloat16 depth']
   expected = [0.4, 0.8, 1., 0.1, 1.]                                     # View 9's column, top to bottom.
@@ -85,6 +86,6 @@ def test_the_picture_labels_rows_and_columns_and_shows_the_ground_truth_first(tm
 
 def test_without_the_ground_truth_the_runs_rows_come_first(tmp_path):
   _renders(tmp_path, 'freenerf_bfloat16', 0.8)
-  picture = np.asarray(Image.open(gpu_report.picture(str(tmp_path), ['freenerf_bfloat16'])))
+  picture = np.asarray(Image.open(gpu_report.picture(str(tmp_path), ['freenerf_bfloat16'])).convert('RGB'))
   assert int(_tile(picture, ['freenerf_bfloat16 colour', 'freenerf_bfloat16 depth'], 0, 0)[0]) == _byte(0.8)
   assert gpu_report.picture(str(tmp_path), ['none']) == ''

@@ -127,3 +127,157 @@ def test_ctrl_c_while_a_script_or_tool_imports_is_one_line(script, tmp_path):
                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL), check=False)
   assert result.returncode == -signal.SIGINT, result.stderr  # Stopped by SIGINT: 130 in a shell.
   assert result.stderr == interrupt.MESSAGE + '\n'
+
+
+def _command(module: str, tmp_path) -> list:
+  """A command line of module (a script or tool) that reads a run which does not exist (it ends at once after its
+  imports: a Ctrl-C it missed shows)."""
+  command = [module] if module.endswith('.py') else ['-m', module]
+  return [sys.executable, *command, '--gin_configs', DEMO, '--gin_bindings',
+          f"Config.checkpoint_dir = '{tmp_path / 'no_run'}'"]
+
+
+def _run_with_sitecustomize(command, site: str, tmp_path, **kwargs) -> subprocess.Popen:
+  """command started with site as its sitecustomize.py and SIGINT at its default (see _interrupt)."""
+  (tmp_path / 'sitecustomize.py').write_text(site)
+  env = dict(os.environ, PYTHONPATH=str(tmp_path))
+  env.pop(cli.DEBUG_ENV, None)
+  return subprocess.Popen(command, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL), **kwargs)
+
+
+def _assert_stopped_in_one_line(proc: subprocess.Popen) -> None:
+  """proc ends with the one interrupted line: by SIGINT (Python's exit after a KeyboardInterrupt) or with status 130
+  (cli.run's), both 130 in a shell."""
+  _, errout = proc.communicate(timeout=120)
+  assert proc.returncode in (-signal.SIGINT, cli.signal_status(signal.SIGINT)), errout
+  assert errout == interrupt.MESSAGE + '\n'
+
+
+# As sitecustomize.py: Ctrl-C while jax is imported, its KeyboardInterrupt then turned into another exception (as a
+# compiled module's initialization does), swallowed (a library's `except ImportError:` fallback) or dropped by a
+# callback that Python reports as unraisable (a garbage collection callback's).
+INTERRUPTED_IMPORT = '''
+import os, signal, sys, time
+
+HOW = {how!r}
+
+class Unraisable:
+  def __del__(self):
+    os.kill(os.getpid(), signal.SIGINT)
+
+class InterruptedImport:
+  def find_spec(self, name, path=None, target=None):
+    if name != 'jax':
+      return None
+    sys.meta_path.remove(self)
+    if HOW == 'dropped':
+      Unraisable()
+      return None
+    try:
+      os.kill(os.getpid(), signal.SIGINT)
+      time.sleep(10)
+    except KeyboardInterrupt:
+      if HOW == 'turned':
+        raise ImportError('Encountered an error while initializing the extension.') from None
+    return None
+
+sys.meta_path.insert(0, InterruptedImport())
+'''
+
+
+@pytest.mark.parametrize('how', ['turned', 'swallowed', 'dropped'])
+@pytest.mark.parametrize('module', ['tools.mesh', 'eval.py'])
+def test_ctrl_c_during_an_import_is_one_line_whatever_the_import_makes_of_it(module, how, tmp_path):
+  _assert_stopped_in_one_line(_run_with_sitecustomize(_command(module, tmp_path),
+                                                      INTERRUPTED_IMPORT.format(how=how), tmp_path))
+
+
+# As sitecustomize.py: creates the file READY at the first import once the script set up its Ctrl-C handling.
+SAYS_READY = '''
+import signal, sys
+
+class SaysReady:
+  def find_spec(self, name, path=None, target=None):
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler or sys.excepthook is not sys.__excepthook__:
+      sys.meta_path.remove(self)
+      open({ready!r}, 'w').close()
+    return None
+
+sys.meta_path.insert(0, SaysReady())
+'''
+
+
+@pytest.mark.parametrize('delay', [0., 0.05, 0.1, 0.2, 0.35, 0.5])
+def test_ctrl_c_at_any_moment_of_a_tools_imports_is_one_line(delay, tmp_path):
+  ready = tmp_path / 'ready'
+  proc = _run_with_sitecustomize(_command('tools.mesh', tmp_path), SAYS_READY.format(ready=str(ready)), tmp_path)
+  deadline = time.time() + 60
+  while not ready.exists() and proc.poll() is None and time.time() < deadline:
+    time.sleep(0.005)
+  time.sleep(delay)
+  assert proc.poll() is None, proc.communicate()
+  proc.send_signal(signal.SIGINT)
+  _assert_stopped_in_one_line(proc)
+
+
+@pytest.fixture
+def python_sigint(monkeypatch):
+  """SIGINT handled by Python's default handler for the test (as in a script), not ignored."""
+  monkeypatch.setattr(sys, 'unraisablehook', sys.unraisablehook)
+  previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+  monkeypatch.delenv(cli.DEBUG_ENV, raising=False)
+  yield
+  signal.signal(signal.SIGINT, previous)
+
+
+def _ctrl_c() -> None:
+  """Sends this process SIGINT and waits for its KeyboardInterrupt."""
+  os.kill(os.getpid(), signal.SIGINT)
+  time.sleep(10)
+  raise AssertionError('no KeyboardInterrupt')
+
+
+def test_any_exception_after_ctrl_c_is_the_interruption(python_sigint, capsys):
+  def main():
+    try:
+      _ctrl_c()
+    except KeyboardInterrupt:
+      raise ImportError("Failed to import 'zlib.decompress' - cannot initialise module strings") from None
+  assert cli.run(main) == 130
+  assert capsys.readouterr().err == interrupt.MESSAGE + '\n'
+  assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN  # As after a KeyboardInterrupt: ignored to the exit.
+
+
+def test_without_ctrl_c_exceptions_keep_their_meaning(python_sigint, capsys):
+  with pytest.raises(ImportError):
+    cli.run(lambda: exec('raise ImportError("a bug")'))
+  assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # Put back as it was.
+
+
+def test_a_ctrl_c_that_the_imports_swallowed_stops_the_script_before_main(python_sigint, capsys):
+  recorder = interrupt.Recorder()
+  assert recorder.install()  # As a script's first statement does.
+  try:
+    try:
+      _ctrl_c()
+    except KeyboardInterrupt:
+      pass  # A library's fallback.
+    assert cli.run(lambda: pytest.fail('main ran')) == 130
+  finally:
+    recorder.uninstall()
+  assert capsys.readouterr().err == interrupt.MESSAGE + '\n'
+
+
+class _SigintWhenCollected:
+  def __del__(self):
+    os.kill(os.getpid(), signal.SIGINT)
+
+
+def test_a_ctrl_c_that_a_callback_dropped_still_stops_the_command(python_sigint, capsys):
+  def main():
+    _SigintWhenCollected()  # Its KeyboardInterrupt is raised in __del__, which Python only reports.
+    time.sleep(10)
+    return 0
+  assert cli.run(main) == 130
+  assert capsys.readouterr().err == interrupt.MESSAGE + '\n'  # Without Python's 'Exception ignored in ...'.

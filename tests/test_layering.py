@@ -50,9 +50,10 @@ def test_internal_does_not_import_tools(path):
 
 
 # The pipeline's stages in order (docs/design.md). Every module of internal/ belongs to one and imports only its
-# own stage and earlier ones: the run infrastructure after the step it checkpoints and before the evaluation that
+# own stage and earlier ones: the cameras and how rays follow from them before the datasets that load them, the run
+# infrastructure after the step it checkpoints and before the evaluation that
 # reads its runs, the training loop (pipeline/) above training and evaluation, the entry points on top.
-STAGES = ('records', 'datasets', 'models', 'losses', 'training', 'run', 'evaluation', 'geometry', 'pipeline',
+STAGES = ('records', 'cameras', 'datasets', 'models', 'losses', 'training', 'run', 'evaluation', 'geometry', 'pipeline',
           'entry')
 # The modules directly under internal/: plain data and utilities that import nothing of internal/, and the entry
 # points of the scripts (the command line, the demo, config loading that validates every stage's settings).
@@ -111,6 +112,54 @@ def test_stages_import_only_earlier_stages(path):
   assert not later, f'{name} ({STAGES[own]}) imports later stages: {sorted(later)}'
 
 
+def module_name(path: pathlib.Path) -> str:
+  """The dotted name of a file of the repository ('internal/datasets/__init__.py' -> 'internal.datasets')."""
+  return path.relative_to(ROOT).as_posix().removesuffix('.py').removesuffix('/__init__').replace('/', '.')
+
+
+def import_cycle(graph: dict) -> list:
+  """A cycle [a, b, ..., a] of the graph {module: modules it imports}, or [] when it has none (depth-first)."""
+  done, path = set(), []
+
+  def visit(node):
+    if node in path:
+      return path[path.index(node):] + [node]
+    if node in done:
+      return []
+    path.append(node)
+    found = next((cycle for child in sorted(graph.get(node, ())) for cycle in [visit(child)] if cycle), [])
+    path.pop()
+    done.add(node)
+    return found
+  return next((cycle for node in sorted(graph) for cycle in [visit(node)] if cycle), [])
+
+
+def test_import_cycle_finds_a_cycle_and_none_in_a_tree():
+  assert import_cycle({'a': {'b'}, 'b': {'c'}, 'c': {'a'}, 'd': {'a'}}) == ['a', 'b', 'c', 'a']
+  assert import_cycle({'a': {'b', 'c'}, 'b': {'c'}, 'c': set()}) == []
+
+
+def imported_files(path: pathlib.Path, modules: set) -> set:
+  """The modules of internal/ (dotted names in modules) a file imports: `from internal.x import y` gives
+  'internal.x.y' where y is a module, else 'internal.x' (a package's names, its __init__.py)."""
+  names = set()
+  for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    if isinstance(node, ast.Import):
+      names.update(a.name for a in node.names)
+    elif isinstance(node, ast.ImportFrom) and node.level == 0:
+      names.update(f'{node.module}.{a.name}' if f'{node.module}.{a.name}' in modules else node.module
+                   for a in node.names)
+  return names & modules
+
+
+def test_internal_has_no_import_cycles():
+  """No module of internal/ imports itself through others (a package's __init__.py importing its own modules is no
+  cycle: they import its modules, not the package)."""
+  modules = {module_name(p): p for p in _modules('internal')}
+  graph = {name: imported_files(path, set(modules)) for name, path in modules.items()}
+  assert not import_cycle(graph), ' -> '.join(import_cycle(graph))
+
+
 def test_every_module_is_checked():
   checked = {p.relative_to(ROOT).as_posix() for p in _modules('internal') + _modules('tools')}
   assert {'internal/pipeline/loop.py', 'internal/evaluation/evaluate.py', 'internal/evaluation/render_path.py',
@@ -133,6 +182,6 @@ def dataset_imports(path: pathlib.Path) -> set:
   return names
 
 
-@pytest.mark.parametrize('name', ['packed', 'random_poses', 'base', 'cameras', 'raygen', 'image_io'])
+@pytest.mark.parametrize('name', ['packed', 'random_poses', 'base', 'image_io'])
 def test_shared_dataset_modules_import_no_loader(name):
   assert not dataset_imports(ROOT / 'internal' / 'datasets' / f'{name}.py') & LOADER_MODULES

@@ -163,8 +163,8 @@ def test_a_bad_ledger_is_named(tmp_path, text, message):
 def _lease(tmp_path, name, ledger, data, results, **env):
   """Runs bash bench/lease.sh into tmp_path/name; returns (OUT, the lease's output)."""
   out = tmp_path / name
-  env = dict(os.environ, OUT=str(out), PYTHON=sys.executable, LEASE_WORK=str(tmp_path / f'{name}_work'),
-             LEDGER=ledger.path, RESULTS=str(results), DATA=data, **env)
+  env = {**os.environ, 'OUT': str(out), 'PYTHON': sys.executable, 'LEASE_WORK': str(tmp_path / f'{name}_work'),
+         'LEDGER': ledger.path, 'RESULTS': str(results), 'DATA': data, 'LEASE_ON_CPU': '1', **env}
   result = subprocess.run(['bash', 'bench/lease.sh'], cwd=ROOT, env=env, text=True, capture_output=True, timeout=900)
   assert result.returncode == 0, result.stdout + result.stderr
   assert (out / 'lease.log').read_text() == result.stdout  # Everything it printed comes back.
@@ -206,8 +206,9 @@ def test_the_lease_resumes_through_budget_cuts_to_the_uninterrupted_runs_paramet
   reference_curve = learning_curve.read_rows(str(tmp_path / 'uninterrupted' / learning_curve.CSV_FILE))
   _committed_style(ledger, run, data, results, tmp_path, 8)
 
-  # A window too short to train: the committed checkpoint goes back as it came, the window is recorded.
-  out, printed = _lease(tmp_path, 'starved', ledger, data, results, BUDGET='125')
+  # A window too short to train (its plan and `next` fit, training's 60 s do not, beside the reserve and the
+  # grace): the committed checkpoint goes back as it came, the window is recorded.
+  out, printed = _lease(tmp_path, 'starved', ledger, data, results, BUDGET='165')
   assert '== train_tiny: skipped' in printed and 'Next: train tiny from step 8 of 30 until the budget' in printed
   ledger_commit.unpack(ledger, str(out), str(results))
   assert ledger_lib.state(str(results), run)['windows'][-1]['to_step'] == 8
@@ -274,7 +275,7 @@ def test_a_finished_runs_model_is_a_run_folder_eval_reads(tiny, tmp_path):
 
 def test_the_preparation_counts_what_travels_and_prints_the_one_call():
   call = prepare_lease.device_call()
-  assert call == "run(command=\"bash bench/lease.sh\", carry=['.whl', '.devdata'], timeout_s=600)" and len(call) < 2000
+  assert call == "run(command=\"bash bench/lease.sh\", carry=['.whl', '.devdata'], timeout_s=590)" and len(call) < 2000
   sizes = prepare_lease.travelling()
   assert sizes['tree'] > 10 * 2**20 and set(sizes) == {'tree', '.whl', '.devdata'}
   assert prepare_lease.pinned('tensorboardX') == 'tensorboardX==2.6.5'
@@ -299,3 +300,52 @@ def test_a_new_run_whose_variant_fails_goes_again_with_base_and_a_resumed_one_ke
   assert not ledger_lib.retry_base(ledger, str(work), data)  # Base failed too: nothing left to try.
   ledger_lib.write_json(str(work / 'outcomes.json'), {run.name: {**done[run.name], 'from_step': 8}})
   assert not ledger_lib.retry_base(ledger, str(work), data)
+
+
+# The lease's python in the worst case: a variant's training fails at once; any other training (stopped at a step by
+# STOP_AT_STEP, its checkpoint saved) then outlasts its limit and the grace (SIGKILL); packing a run or the window
+# outlasts its limit.
+WORST_CASE_PYTHON = """#!/usr/bin/env bash
+case " $* " in
+  *" train.py "*folded_bias*) echo 'this variant fails'; exit 1;;
+  *" train.py "*) "{python}" "$@" & trap '' TERM; wait $!; sleep 600;;
+  *" bench.ledger pack"*) trap '' TERM; sleep 600;;
+  *) exec "{python}" "$@";;
+esac
+"""
+
+
+@pytest.mark.slow
+def test_the_worst_case_window_ends_within_its_budget_and_keeps_what_it_trained(tmp_path):
+  (tmp_path / 'ledger.toml').write_text(TINY_LEDGER.replace('steps = 30', 'steps = 100000').replace(
+      'curve_every = 10', 'curve_every = 100000'))
+  ledger, data = ledger_lib.load(str(tmp_path / 'ledger.toml')), str(tmp_path / 'data')
+  assert prepare_lease.make_packs(ledger, str(tmp_path), data) == 0
+  results, run = tmp_path / 'results', ledger.runs[0]
+  # A new run takes the fastest correct variant timed for this code on this machine: folded_bias, as timed here.
+  key = f'cpu/{ledger_lib.code_hash()}'
+  ledger_lib.write_json(str(results / ledger_lib.TIMED), {key: {'folder': 'variants/cpu'}})
+  ledger_lib.write_json(str(results / 'variants' / 'cpu' / 'step_variants.json'), {'platform': 'cpu', 'results': {
+      'float32': {'base': {'step_seconds': 2.0, 'loss': 1.0},
+                  'folded_bias': {'step_seconds': 1.0, 'loss_difference': 0.0, 'gradient_relative_l2': 0.0,
+                                  'gradient_worst_relative_l2': 0.0}}}})
+  python = tmp_path / 'python'
+  python.write_text(WORST_CASE_PYTHON.format(python=sys.executable))
+  python.chmod(0o755)
+  budget = 220  # Plan, `next` and the retry (about 30 s), training (about 110 s), 5 s of grace, the reserve (75 s).
+
+  out, printed = _lease(tmp_path, 'worst', ledger, data, results, BUDGET=str(budget), GRACE='5', PYTHON=str(python),
+                        STOP_AT_STEP='5')
+  assert '== train_tiny: status 1 after' in printed  # The variant failed: not a cut.
+  assert 'tiny: training with variant folded_bias failed; again from step 0 with base' in printed
+  assert printed.count('== retry_tiny:') == 2  # Its start and its end: the one retry.
+  assert '== train_tiny_base: status 137 after' in printed and ': cut by the budget' in printed
+  assert '== pack tiny failed: the run folder as it is' in printed
+  assert int(printed.split('== lease done after ')[1].split('s:')[0]) <= budget
+  assert sorted(os.listdir(out)) == ['lease.log', 'run_tiny.tar.gz', 'window.tar.gz']
+
+  ledger_commit.unpack(ledger, str(out), str(results))
+  record = ledger_lib.state(str(results), run)
+  assert record['step'] == 5 and record['variant'] == 'base', printed
+  assert (results / run.name / ledger_lib.CHECKPOINT).is_file()
+  assert [(w['from_step'], w['to_step']) for w in record['windows']] == [(0, 5)]

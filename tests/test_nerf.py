@@ -12,6 +12,7 @@ from test_datasets_core import encoded_dataset
 from internal import config_loader
 from internal.configs import Config
 from internal.datasets import batching
+from internal.datasets.batching import Batch
 from internal.evaluation import evaluate
 from internal.losses import occlusion
 from internal.models import encoding
@@ -155,7 +156,7 @@ def test_occlusion_loss_sees_the_first_20_of_the_fine_passs_192_sorted_samples()
   model, params = _tiny_model()
   rays = random_rays(2, 4)
   config = Config(model='nerf', randomized=False, occ_reg_loss_mult=0.01, occ_reg_range=20, batch_size=4)
-  batch = {'rays': rays, 'rgb': np.full((4, 3), 0.5, np.float32)}
+  batch = Batch(rays=rays, rgb=np.full((4, 3), 0.5, np.float32))
   _, stats = train_step.compute_loss(config, model, params, batch, random.PRNGKey(0), 1)
   _, history = model.apply({'params': params}, None, rays)
   density = np.asarray(history[1]['density'])
@@ -257,11 +258,11 @@ def test_batches_of_the_warm_up_steps_come_from_the_central_crop(mode):
   config = Config(batching=mode, batch_size=400, precrop_steps=3, precrop_frac=0.5)
   batcher = batching.make_batcher(data, config)
   for step in (1, 3):
-    rows, cols = batcher(step)['rays'].origins[:, 1], batcher(step)['rays'].origins[:, 2]
+    rows, cols = batcher(step).rays.origins[:, 1], batcher(step).rays.origins[:, 2]
     assert set(rows.tolist()) == {2., 3., 4., 5.} and set(cols.tolist()) == {3., 4., 5., 6.}
-  assert len(set(batcher(4)['rays'].origins[:, 1].tolist())) == 8  # After the warm-up: every row.
+  assert len(set(batcher(4).rays.origins[:, 1].tolist())) == 8  # After the warm-up: every row.
   plain = batching.make_batcher(data, Config(batching=mode, batch_size=400))
-  np.testing.assert_array_equal(plain(4)['rgb'], batcher(4)['rgb'])  # Same draws as without the crop.
+  np.testing.assert_array_equal(plain(4).rgb, batcher(4).rgb)  # Same draws as without the crop.
 
 
 def test_unknown_model_and_bad_crop_are_errors_naming_the_setting():

@@ -11,13 +11,17 @@ import pytest
 
 from internal import cli
 from internal.configs import Config
-from internal.datasets import cameras, load_dataset, raygen, scene_generator
+from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
+from internal.datasets import load_dataset, scene_generator
 from internal.datasets import capture as capture_loader
 from internal.geometry import mesh_scores, ply
 from internal.geometry import points as points_lib
 from internal.pipeline import loop
+from internal.rays import Rays
 from internal.run import out_of_memory
 from test_checkpoints import DEMO, TINY, tiny_config
+from test_read_only import read_only
 from tools import points as points_tool
 
 
@@ -72,7 +76,9 @@ def test_a_lone_view_has_no_points_and_min_views_one_keeps_them_all(object_views
 def test_ndc_depths_come_back_to_the_world():
   c2w = np.array([[1., 0., 0., .1], [0., 1., 0., -.2], [0., 0., 1., .3]])  # OpenGL, looking down -z.
   focal, height, width = 30., 12, 16
-  rays = raygen.llff_rays(c2w, cameras.focal_pixtocam(focal, height, width), height, width, focal)
+  space = RaySpace(opengl=True, near=0., far=1., height=height, width=width, ndc_focal=focal)
+  camera = Cameras(c2w[None], algebra.focal_pixtocam(focal, height, width)[None])
+  rays = Rays(*[x[0] for x in caster.image_rays(camera, space)])
   depth = np.random.default_rng(0).uniform(1.5, 9., (height, width))  # World t along viewdirs (camera z = 1).
   world = c2w[:, 3] + depth[..., None] * rays.viewdirs
   ndc_t = (1. + 2. / world[..., 2] - rays.origins[..., 2]) / rays.directions[..., 2]
@@ -106,7 +112,7 @@ def _tool(*argv):
   return points_tool.main(list(argv))
 
 
-def test_the_tool_writes_a_ply_and_a_colmap_model_of_a_trained_run_and_refuses_to_replace_them(tmp_path):
+def test_the_tool_writes_a_ply_and_a_colmap_model_of_a_trained_run_and_refuses_to_replace_them(tmp_path, capsys):
   bindings = [f"Config.data_dir = '{tmp_path / 'scene'}'", f"Config.checkpoint_dir = '{tmp_path / 'run'}'",
               'Config.max_steps = 20', 'Config.n_input_views = 4', 'Config.curve_every = 0',
               'Config.freq_reg_end = 10', 'Config.generated_size = (24, 32)']
@@ -127,6 +133,17 @@ def test_the_tool_writes_a_ply_and_a_colmap_model_of_a_trained_run_and_refuses_t
   with pytest.raises(FileExistsError, match='--colmap .*colmap.* holds files'):
     _tool(*common, '--out', str(tmp_path / 'other.ply'), '--colmap', str(folder))
   assert cli.run(lambda: _tool(*common, '--out', str(tmp_path / 'x.ply'), '--max_points', '0')) == 2
+  (tmp_path / 'shared').mkdir()
+  capsys.readouterr()
+  with read_only(tmp_path / 'shared'):  # Named before the views render, nothing written.
+    for flags, named in ((['--out', str(tmp_path / 'shared' / 'p.ply')], f"--out '{tmp_path / 'shared' / 'p.ply'}'"),
+                         (['--out', str(tmp_path / 'p.ply'), '--colmap', str(tmp_path / 'shared' / 'model')],
+                          f"--colmap '{tmp_path / 'shared' / 'model'}'")):
+      assert cli.run(lambda f=flags: _tool(*common, *f)) == 2
+      err = capsys.readouterr().err
+      assert err == (f"error: {named} cannot be written: Read-only file system ('{tmp_path / 'shared'}'); choose a "
+                     'folder you can write to\n'), err
+  assert not os.listdir(tmp_path / 'shared') and not (tmp_path / 'p.ply').exists()
 
 
 def test_memory_is_checked_first_naming_max_points(monkeypatch):
@@ -148,3 +165,15 @@ def test_host_bytes_bound_the_measured_peak(object_views):
   pixels = data.height * data.width
   kept = sum(int((v.acc > .5).sum()) for v in views)
   assert peak <= points_lib.host_bytes(len(views), pixels, pixels, kept), peak
+
+
+@pytest.mark.parametrize('seen, z, agrees', [
+    (100., 101., True),    # 1% apart: agree at 2%, though 1 unit is far more than 0.02.
+    (.5, .515, False),     # 3% apart: disagree at 2%, though 0.015 is less than 0.02.
+    (.5, .509, True),
+])
+def test_the_depth_agreement_is_relative(seen, z, agrees):
+  view = points_lib.View(points=None, rgb=None, acc=None, normals=None, camtoworld=np.eye(3, 4),
+                         intrinsics=np.array([[10., 0., 2.], [0., 10., 2.], [0., 0., 1.]]))
+  found, _ = points_lib.agreement([view], [np.full((4, 4), seen)], np.array([[0., 0., z]]), .02)
+  assert found.tolist() == [[agrees]]

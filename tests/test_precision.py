@@ -12,6 +12,7 @@ from jax import random
 from conftest import random_rays
 from internal import config_loader
 from internal import configs
+from internal.datasets.batching import Batch
 from internal.models import mip_nerf
 from internal.models import precision
 from internal.run import run_dir
@@ -68,7 +69,7 @@ def test_train_step_runs_and_keeps_float32_params(name):
   config = _config(name)
   rays = random_rays(0, 64)
   model, state = ts.create_train_state(config, random.PRNGKey(0), rays)
-  batch = {'rays': rays, 'rgb': np.random.default_rng(0).uniform(size=(64, 3)).astype(np.float32)}
+  batch = Batch(rays=rays, rgb=np.random.default_rng(0).uniform(size=(64, 3)).astype(np.float32))
   before = jax.tree.map(np.asarray, state.params)
   new, stats = ts.make_train_step(config, model)(state, batch, random.PRNGKey(1))
   assert bool(stats['grads_finite']) and np.isfinite(float(stats['loss']))

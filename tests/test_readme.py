@@ -2,13 +2,14 @@
 
 Each block runs in bash in a copy of the repository, with one scene per loop (the README's scene-list variables)
 and a `python` on PATH that appends tiny model and data bindings to train.py / eval.py / render.py and to the
-tools that take them (tools.study, tools.pack_scene, tools.mesh, tools.points, tools.synthetic_depth): the shared
-scenes instead of data/, 2 steps, a small model, low resolution (tools.mesh: a 16^3 grid at a level a 2-step field
-crosses; tools.points: every pixel's point; a paper table's study: its first cell; tools.capture: 18 of the
-shared cup's photos as the `photos` folder, at half size). It turns `python -m pytest` into a collection run (the
-suite is not run inside itself). `python3 -m venv`, `. .venv/bin/activate` and `pip install` steps are dropped:
-the test runs in the installed environment (the GPU install, `pip install -r requirements-gpu.txt`, cannot run on
-a CPU machine; tests/test_gpu_install.py checks that it resolves).
+tools that take them (tools.study, tools.pack_scene, tools.mesh, tools.points, tools.synthetic_depth, tools.view):
+the shared scenes instead of data/, 2 steps, a small model, low resolution (tools.mesh: a 16^3 grid at a level a
+2-step field crosses; tools.points: every pixel's point; a paper table's study: its first cell; tools.capture: 18 of
+the shared cup's photos as the `photos` folder, at half size; tools.view, a server: a free port, and Ctrl-C once it
+serves, its way out). It turns `python -m pytest` into a collection run (the suite is not run inside itself).
+`python3 -m venv`, `. .venv/bin/activate` and `pip install` steps are dropped: the test runs in the installed
+environment (the GPU install, `pip install -r requirements-gpu.txt`, cannot run on a CPU machine;
+tests/test_gpu_install.py checks that it resolves).
 """
 
 import importlib.util
@@ -64,7 +65,7 @@ SHIM = '''#!{python}
 import json, subprocess, sys
 args = sys.argv[1:]
 TAKES_BINDINGS = (['-m', 'tools.study'], ['-m', 'tools.pack_scene'], ['-m', 'tools.mesh'],
-                  ['-m', 'tools.points'], ['-m', 'tools.synthetic_depth'])
+                  ['-m', 'tools.points'], ['-m', 'tools.synthetic_depth'], ['-m', 'tools.view'])
 if args[:1] in (['train.py'], ['eval.py'], ['render.py']) or args[:2] in (TAKES_BINDINGS):
   configs = ' '.join(a for a in args if 'configs/' in a or 'studies/' in a)
   args += ['--gin_bindings'] + {tiny!r} + [x for name, extra in {data!r}.items() if name in configs for x in extra]
@@ -78,7 +79,20 @@ elif args[:2] == ['-m', 'tools.capture']:  # Structure-from-motion at half size.
   args += ['--max_size', '400']
 elif args[:2] == ['-m', 'pytest']:
   args += ['--collect-only']
-status = subprocess.call([{python!r}] + args)
+if args[:2] == ['-m', 'tools.view']:  # A server: on a free port, stopped by Ctrl-C (its way out) once it serves.
+  import signal, socket
+  with socket.socket() as probe:
+    probe.bind(('127.0.0.1', 0))
+    port = probe.getsockname()[1]
+  proc = subprocess.Popen([{python!r}] + args + ['--port', str(port)], stdout=subprocess.PIPE, text=True)
+  for line in proc.stdout:
+    print(line, end='')
+    if line.startswith('viewing '):
+      proc.send_signal(signal.SIGINT)
+  status = proc.wait()
+  status = 0 if status == 128 + signal.SIGINT else status
+else:
+  status = subprocess.call([{python!r}] + args)
 with open({log!r}, 'a') as f:
   f.write(json.dumps({{'argv': sys.argv[1:], 'status': status}}) + '\\n')
 sys.exit(status)
@@ -146,3 +160,11 @@ def test_readme_block_runs_as_written(index, block, sandbox):
   assert proc.returncode == 0 and all(c['status'] == 0 for c in calls), report
   ran = {c['argv'][1] if c['argv'][0] == '-m' else c['argv'][0] for c in calls}
   assert ran == called(block), report
+
+
+def test_ci_runs_the_readme_test_command_word_for_word_then_the_slow_tests():
+  readme_tests = next(line for block in bash_blocks(README) for line in block.splitlines()
+                      if line.endswith('python -m pytest -q'))
+  commands = [line for line in (ROOT / '.ci' / 'run').read_text().splitlines()
+              if line.strip() and not line.startswith(('#', 'set ', 'cd '))]
+  assert commands == [readme_tests, 'python -m pytest -q -m slow']

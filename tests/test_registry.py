@@ -25,7 +25,8 @@ MASKED = ('psnr_masked', 'ssim_masked', 'lpips_masked', 'avg_error_masked')
 DEPTH = ('depth_mae', 'depth_within_1pct', 'depth_within_5pct')
 PSEUDO = ('pseudo_depth_mae', 'pseudo_depth_within_1pct', 'pseudo_depth_within_5pct')
 SFM = ('sfm_depth_mae', 'sfm_depth_within_1pct', 'sfm_depth_within_5pct')
-CAMERAS = ('camera_rotation_deg', 'camera_translation')
+CAMERAS = ('camera_rotation_deg', 'camera_translation', 'camera_rotation_deg_unaligned',
+           'camera_translation_unaligned')
 
 
 def _written_metrics(tmp_path, monkeypatch) -> set:
@@ -44,7 +45,7 @@ def _written_metrics(tmp_path, monkeypatch) -> set:
   monkeypatch.setattr(depth_metrics.sfm_depth, 'evaluation_depths', lambda test_set, config: depth)
   keys |= set(depth_metrics.sfm_scorer(test_set, False, None)(0, depth[0]))
   summary = {'rotation_deg_median': 1., 'translation_median': .01}
-  keys |= set(camera_evaluation.metrics({'final_vs_reference': summary}))
+  keys |= set(camera_evaluation.metrics({'final_vs_reference': summary, 'final_vs_reference_unaligned': summary}))
   return keys
 
 

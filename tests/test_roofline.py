@@ -11,6 +11,7 @@ from jax import random
 
 from bench import common
 from bench import roofline
+from internal.datasets.batching import Batch
 from internal.models import registry
 from internal.training import flops
 from internal.training import train_step as ts
@@ -43,7 +44,7 @@ def test_the_hand_count_is_xlas_count_of_the_traced_paper_step_within_its_elemen
   config = common.gin_config([roofline.PAPER_CONFIG], [], batch_size=64)
   rays = random_rays(0, 64)
   model, state = ts.create_train_state(config, random.PRNGKey(0), rays)
-  batch = {'rays': rays, 'rgb': jax.numpy.zeros((64, 3))}
+  batch = Batch(rays=rays, rgb=jax.numpy.zeros((64, 3)))
   xla = flops.lowered_flops(ts.make_train_step(config, model), state, batch, random.PRNGKey(1))
   hand = sum(layer.flops() for layer in roofline.step_layers(config, registry.build('mipnerf')))
   assert hand / 64 == pytest.approx(0.909e9, rel=1e-3)  # docs/benchmarks.md's roofline section.

@@ -21,6 +21,7 @@ from internal.pipeline import loop
 from tools import provenance
 from tools import tables
 from tools.study import cells_file
+from tools.study import export as study_export
 from tools.study import plots as study_plots
 from tools.study import runner as study_lib
 from tools.study import spec as study_spec
@@ -170,7 +171,9 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
     assert texts['learning_curve.csv'] == (run / 'learning_curve.csv').read_bytes().decode()
     evaluated = run / f'test_preds_step_{record["step"]}'
     assert texts['metrics.csv'] == (evaluated / 'metrics.csv').read_bytes().decode()
-    assert texts['metrics.json'] == (evaluated / 'metrics.json').read_text()
+    written = json.loads((evaluated / 'metrics.json').read_text())  # Its run folder as the spec names it.
+    assert written['run_dir'] == str(run.resolve()) and texts['metrics.json'] == json.dumps(
+        dict(written, run_dir=f'{{out}}/mini/{cell}/run'), indent=1)
   assert (dest / 'psnr_vs_step.png').is_file()
   table = (dest / 'table.md').read_text().splitlines()
   assert table[0].startswith('| method | scene | views | step | psnr |') and len(table) == 2 + 4
@@ -185,10 +188,11 @@ def test_export_copies_results_metrics_pictures_and_provenance(ran, tmp_path):
       assert left0 == demo.label_width(['depth'] + [f'test view {i}' for i in range(10)])
       assert picture.size[1] == demo.HEADER + 4 * (h + demo.GAP)
       pixels = np.asarray(picture.convert('RGB'))
-    depth_row = pixels[demo.HEADER + h + demo.GAP + h // 2]                # Blank under the truth, coloured beside.
-    truth_column = slice(left0, left0 + w)
-    render_columns = slice(left0 + w + demo.GAP, None)
-    assert (depth_row[truth_column] == 255).all() and (depth_row[render_columns] != 255).any(axis=-1).mean() > 0.5
+    depth_row = pixels[demo.HEADER + h + demo.GAP + h // 2]                # The exact depth under the truth (the
+    truth_column = slice(left0, left0 + w)                                 # generated scene has one), the renders'
+    render_columns = slice(left0 + w + demo.GAP, None)                     # beside it.
+    assert (depth_row[truth_column] != 255).any(axis=-1).mean() > 0.5
+    assert (depth_row[render_columns] != 255).any(axis=-1).mean() > 0.5
 
 
 def test_tables_gather_the_study(ran, tmp_path):
@@ -269,8 +273,8 @@ def test_pictures_come_from_the_first_seed_whose_cells_kept_their_renders(tmp_pa
   cells = [{'cell': f'{m}_{s}', 'step': 20, 'labels': {study_spec.SEED_AXIS: s}} for s in ('1', '2') for m in 'ab']
   kept = {'a_1': True, 'b_1': False, 'a_2': True, 'b_2': True}           # b_1 was imported from an export.
   paths = {c['cell']: _cell_folder(tmp_path, c['cell'], kept[c['cell']]) for c in cells}
-  assert study_lib.study_export._picture_cells(cells, paths, ['1', '2']) == cells[2:]
-  assert study_lib.study_export._picture_cells(cells, paths, ['1']) == []
+  assert study_export._picture_cells(cells, paths, ['1', '2']) == cells[2:]
+  assert study_export._picture_cells(cells, paths, ['1']) == []
 
 
 def test_export_without_renders_warns_and_draws_no_picture(ran, tmp_path, capsys):
@@ -292,7 +296,7 @@ def test_an_export_that_fails_half_way_leaves_no_folder_and_the_retry_succeeds(r
   def fail(*_):
     raise ValueError('Config.data_dir = \'x\' does not exist')
   with monkeypatch.context() as patched:                    # Fails at the pictures, after the csv and cells.
-    patched.setattr(study_lib.study_export, '_scene_picture', fail)
+    patched.setattr(study_export, '_scene_picture', fail)
     with pytest.raises(ValueError, match='does not exist'):
       study_lib.main([str(path), '--out', out, '--plots-only', '--export', str(dest)])
   assert sorted(os.listdir(tmp_path)) == []                 # Neither dest nor its staging folder.
@@ -313,10 +317,10 @@ def test_reuse_takes_the_exported_cells_with_the_same_settings(ran, tmp_path, ca
   assert pick(_rows(fresh / 'mini' / 'results.csv')) == pick(_rows(pathlib.Path(out, 'mini', 'results.csv')))
   assert (fresh / 'mini' / 'psnr_vs_step.png').is_file()                 # The learning curves came along.
   cell = study_spec.cells(study_spec.load(path))[0].cell_id
-  for name in ('metrics.csv', 'metrics.json'):                           # Placed as the run wrote them.
-    placed = fresh / 'mini' / cell / study_lib.RUN_SUBDIR / f'test_preds_step_{STEPS}' / name
-    assert placed.read_bytes() == (pathlib.Path(out, 'mini', cell, study_lib.RUN_SUBDIR, placed.parent.name,
-                                                name).read_bytes())
+  for name in ('metrics.csv', 'metrics.json'):                           # Placed as the run wrote them (its run
+    placed = fresh / 'mini' / cell / study_lib.RUN_SUBDIR / f'test_preds_step_{STEPS}' / name  # folder templated).
+    ran = pathlib.Path(out, 'mini', cell, study_lib.RUN_SUBDIR, placed.parent.name, name).read_text()
+    assert placed.read_text() == ran.replace(str(pathlib.Path(out).resolve()), '{out}')
   renamed = tmp_path / 'mini_again.toml'                                 # Another study taking the same cells:
   renamed.write_text(path.read_text().replace('name = "mini"', 'name = "mini_again"'))
   again = tmp_path / 'again'                                             # its export refers to the first one.

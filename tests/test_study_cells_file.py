@@ -2,15 +2,23 @@
 file comes back byte for byte), refuses what it could not give back, refers to another study's export instead of
 copying its cell; and every export committed under results/ is in that layout."""
 
+import contextlib
+import hashlib
 import json
 import pathlib
+import re
+import subprocess
 
 import pytest
 
+from internal import cli
 from internal.evaluation import evaluate
 from internal.evaluation import learning_curve
+from test_read_only import read_only
+from test_study import TINY_STUDY
 from tools.study import cells_file
 from tools.study import reuse
+from tools.study import runner as study_lib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PER_IMAGE = [{'id': 1, 'psnr': 10.251645574334333, 'ssim': 0.1712803298432899, 'lpips': None},
@@ -140,3 +148,100 @@ def test_every_committed_export_holds_its_cells_in_one_file(export):
   dirty = [c for c, e in entries.items() if (e.line['record'].get('commit') or '').endswith('+dirty')]
   assert not dirty or 'uncommitted changes' in readme.read_text(), (
       f'{readme} does not say that {len(dirty)} cells ran from a tree with uncommitted changes: {dirty[:3]}')
+
+
+def _convert_one_line(capsys, export) -> str:
+  """The stderr line of `python -m tools.study.cells_file export` as the module runs it; asserts status 2 and one
+  line."""
+  status = cli.run(lambda: cells_file.main([str(export)]))
+  err = capsys.readouterr().err
+  assert status == cli.USAGE_ERROR_STATUS and len(err.strip().splitlines()) == 1 and err.startswith('error: '), err
+  return err
+
+
+@contextlib.contextmanager
+def _immutable(folder):
+  """folder immutable (chattr +i: not even root changes it) for the block; skips where the file system has no such
+  attribute."""
+  made = subprocess.run(['chattr', '+i', str(folder)], capture_output=True, text=True, check=False)
+  if made.returncode:
+    pytest.skip(f'chattr +i is not available here: {made.stderr.strip()}')
+  try:
+    yield
+  finally:
+    subprocess.run(['chattr', '-i', str(folder)], check=True)
+
+
+@pytest.mark.parametrize('lock, expected', [
+    (lambda export: read_only(export), 'Read-only file system'),
+    (lambda export: _immutable(export / 'b__cup__seed=0'), 'Operation not permitted'),
+])
+def test_an_export_it_cannot_change_is_one_line_and_left_as_it_was(tmp_path, capsys, lock, expected):
+  export = _export(tmp_path / 'cup', 'cup', {'a__cup__seed=0': ('cup', 0.), 'b__cup__seed=0': ('cup', 1.)})
+  before = _snapshot(export)
+  with lock(export):
+    err = _convert_one_line(capsys, export)
+  assert f'{export}: cannot be converted: {expected}' in err and '(nothing was converted)' in err
+  assert _snapshot(export) == before and sorted(p.name for p in export.iterdir()) == sorted(
+      ['a__cup__seed=0', 'b__cup__seed=0', 'provenance.json', 'results.csv'])
+
+
+def _linked(export):
+  """The cell folder moved beside the export, a symbolic link to it in its place."""
+  (export / 'a__cup__seed=0').rename(export.parent / 'elsewhere')
+  (export / 'a__cup__seed=0').symlink_to(export.parent / 'elsewhere')
+
+
+@pytest.mark.parametrize('spoil, message', [
+    (lambda export: (export / 'a__cup__seed=0' / 'plots').mkdir(), 'a__cup__seed=0/plots: a folder'),
+    (_linked, 'a__cup__seed=0: a symbolic link'),
+])
+def test_a_cell_folder_with_a_folder_or_that_is_a_link_is_one_line_and_nothing_is_converted(tmp_path, capsys, spoil,
+                                                                                            message):
+  export = _export(tmp_path / 'cup', 'cup', {'a__cup__seed=0': ('cup', 0.)})
+  spoil(export)
+  before = _snapshot(export)
+  err = _convert_one_line(capsys, export)
+  assert message in err and '(nothing was converted)' in err
+  assert _snapshot(export) == before and (export / 'a__cup__seed=0' / 'cell.json').is_file()
+
+
+@pytest.mark.parametrize('text, message', [
+    ('{"cell": "a", "record": "done"}', '{export}/cells.jsonl line 1: "record" is a string; expected an object'),
+    ('{"cell": "a", "record": {}, "evaluation": [1]}',
+     '{export}/cells.jsonl line 1: "evaluation" is an array; expected an object'),
+    ('{"cell": 3, "record": {}}', '{export}/cells.jsonl line 1: "cell" is a number; expected a string'),
+    ('{"cell": "a", "same_as": "."}', '{export}/cells.jsonl line 1: cell a is the same as in {export}, which leads back '
+                                      'here (a loop of references)'),
+    ('{"cell": "a", "same_as": "../other"}', '{other}/cells.jsonl line 2: cell a is the same as in {export}, which '
+                                             'leads back here'),
+])
+def test_a_line_of_the_wrong_shape_or_a_loop_of_references_is_one_line_naming_it(tmp_path, capsys, text, message):
+  export, other = tmp_path / 'export', tmp_path / 'other'
+  export.mkdir()
+  other.mkdir()
+  (export / 'cells.jsonl').write_text(text + '\n')
+  (other / 'cells.jsonl').write_text('{"cell": "b", "record": {}}\n{"cell": "a", "same_as": "../export"}\n')
+  message = message.format(export=export, other=other)
+  with pytest.raises(ValueError, match=re.escape(message)):
+    cells_file.read(str(export))
+  study = tmp_path / 'mini.toml'
+  study.write_text(TINY_STUDY)
+  (export / 'provenance.json').write_text(json.dumps({'study_file': {
+      'path': str(study), 'sha256': hashlib.sha256(TINY_STUDY.encode()).hexdigest()}}))
+  status = cli.run(lambda: study_lib.main([str(study), '--out', str(tmp_path / 'out'), '--reuse', str(export),
+                                           '--list']))
+  err = capsys.readouterr().err
+  assert status == cli.USAGE_ERROR_STATUS and err == f'error: {message}' + err.split(message, 1)[1], err
+  assert len(err.strip().splitlines()) == 1
+
+
+def test_references_between_two_exports_each_way_are_no_loop(tmp_path):
+  """Export a took cell x from b, and b took cell y from a: each line leads to a line with the record."""
+  (tmp_path / 'a').mkdir()
+  (tmp_path / 'b').mkdir()
+  (tmp_path / 'a' / 'cells.jsonl').write_text('{"cell": "x", "same_as": "../b"}\n{"cell": "y", "record": {"n": 1}}\n')
+  (tmp_path / 'b' / 'cells.jsonl').write_text('{"cell": "x", "record": {"n": 2}}\n{"cell": "y", "same_as": "../a"}\n')
+  for export in ('a', 'b'):
+    entries = cells_file.read(str(tmp_path / export))
+    assert {c: e.line['record']['n'] for c, e in entries.items()} == {'x': 2, 'y': 1}

@@ -8,6 +8,9 @@ import pytest
 
 from internal import cli
 from test_study import TINY_STUDY
+from tools.study import export as study_export
+from tools.study import looks as study_looks
+from tools.study import reuse
 from tools.study import runner as study_lib
 from tools.study import spec as study_spec
 
@@ -104,3 +107,36 @@ def test_a_merge_conflicted_cell_json_is_one_line_naming_it(capsys, tmp_path):
   (tmp_path / 'out' / 'mini' / CELL / 'cell.json').write_text(conflicted)
   err = _one_line_error(capsys, [export / 'mini.toml', '--out', tmp_path / 'out', '--plots-only'])
   assert f'{tmp_path / "out" / "mini" / CELL / "cell.json"}: not valid JSON' in err and study.name == 'mini'
+
+
+def test_reuse_of_an_export_of_the_same_study_takes_its_looks_along(capsys, tmp_path):
+  export = _export(tmp_path, json.dumps(RECORD), METRICS)
+  (export / study_looks.FILE).write_text('{"seed_counts": [2, 3]}\n')
+  assert study_lib.main([str(export / 'mini.toml'), '--out', str(tmp_path / 'out'), '--reuse', str(export),
+                         '--list']) == 0
+  assert study_looks.recorded(str(tmp_path / 'out' / 'mini')) == [2, 3] and f'reused {CELL}' in capsys.readouterr().out
+
+
+def test_reuse_finds_a_study_file_recorded_by_its_path_in_another_worktree(capsys, tmp_path, monkeypatch):
+  """An export written by another worktree's checkout names '../wt-x/studies/<file>'; the file of that SHA-256 under
+  the same path here is the one."""
+  export = _export(tmp_path, json.dumps(RECORD), METRICS)
+  (tmp_path / 'repo' / 'studies').mkdir(parents=True)
+  (tmp_path / 'repo' / 'studies' / 'mini.toml').write_text(TINY_STUDY)
+  monkeypatch.setattr(study_export, 'REPO', str(tmp_path / 'repo'))
+  provenance = json.loads((export / 'provenance.json').read_text())
+  provenance['study_file']['path'] = '../wt-gone/studies/mini.toml'
+  (export / 'provenance.json').write_text(json.dumps(provenance))
+  assert reuse.exported_study(str(export)).name == 'mini'
+  provenance['study_file']['sha256'] = '0' * 64
+  (export / 'provenance.json').write_text(json.dumps(provenance))
+  with pytest.raises(study_spec.StudyError, match='it ran ../wt-gone/studies/mini.toml of SHA-256 000000000000'):
+    reuse.exported_study(str(export))
+
+
+def test_an_export_names_its_study_file_by_its_path_in_its_own_checkout(tmp_path):
+  (tmp_path / 'wt-x' / 'studies').mkdir(parents=True)
+  (tmp_path / 'wt-x' / '.git').write_text('gitdir: elsewhere\n')  # A worktree's .git is a file.
+  (tmp_path / 'wt-x' / 'studies' / 'mini_dtu.toml').write_text(TINY_STUDY)
+  assert study_export.checkout_path(str(tmp_path / 'wt-x' / 'studies' / 'mini_dtu.toml')) == 'studies/mini_dtu.toml'
+  assert study_export.checkout_path('studies/depth_prior_cup.toml') == 'studies/depth_prior_cup.toml'

@@ -1,6 +1,7 @@
 """tools.study's executors on one tiny 4-cell study: one process, two processes sharing the folder, and Ray (a real
 cluster started with `ray start --head`; skipped without the cluster extra); each cell trained once and the same
-results.csv to the last digit (training is deterministic). Also a Ray worker killed mid-cell, then Ctrl-C."""
+results.csv to the last digit (training is deterministic). Also a Ray worker killed mid-cell, then Ctrl-C; and SIGTERM
+to a driver of either executor."""
 
 import csv
 import http.server
@@ -190,6 +191,26 @@ def test_a_killed_worker_is_retried_from_its_checkpoint_and_ctrl_c_stops_cleanly
   stopped_at = _stopped_cleanly(cell)
   assert stopped_at > killed_at, (stopped_at, killed_at)
   _resumed_from(command, cell, stopped_at)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('executor', ['ray', 'local'])
+def test_sigterm_to_a_driver_stops_its_cells_as_ctrl_c_does(request, tmp_path, executor):
+  """A scheduler's SIGTERM to the driver: its running cell saves a checkpoint and releases its claim before the
+  driver exits (143), rather than training on after the driver is gone (Ray's own handler just exited)."""
+  path = _study(tmp_path, steps=4000, every=100, one_cell=True)
+  out, cell = tmp_path / 'out', tmp_path / 'out' / 'mini' / 'freenerf__object'
+  flags = ['--executor', 'ray', '--address', request.getfixturevalue('cluster')] if executor == 'ray' else []
+  command = _study_command(path, out, *flags)
+  driver = subprocess.Popen(command, cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+  _wait_for(lambda: (_latest_step(cell / 'run') or 0) >= 100, 'the first checkpoint')
+  driver.send_signal(signal.SIGTERM)
+  output = driver.communicate(timeout=300)[0]
+  assert driver.returncode == 128 + signal.SIGTERM and output.rstrip().endswith(
+      'terminated: stopped by SIGTERM before the command finished; its cells saved their checkpoints, what it wrote '
+      'is kept, and the same command run again finishes the work'), output[-3000:]
+  assert 'Traceback' not in output and not (cell / 'cell.json').exists(), output[-3000:]
+  assert 100 <= _stopped_cleanly(cell) < 4000
 
 
 STOPPED = re.compile(r'stopped by signal 2 at step (\d+) with a checkpoint saved; the study run again resumes it$')

@@ -1,6 +1,9 @@
 """tools.study.stats and the seed axis of study files: statistics checked on constructed results with known values."""
 
+import csv
+import json
 import math
+import pathlib
 import re
 
 import matplotlib.pyplot as plt
@@ -8,10 +11,13 @@ import numpy as np
 from PIL import Image
 import pytest
 
+from tools.study import looks as study_looks
+from tools.study import reuse
 from tools.study import runner as study_lib
 from tools.study import plots as study_plots
 from tools.study import spec as study_spec
 from tools.study import stats as study_stats
+from tools.study import time_budgets
 
 SEEDED = '''
 name = "seeded"
@@ -25,6 +31,7 @@ configs = ["configs/demo.gin"]
 [plot]
 metrics = ["psnr", "lpips"]
 '''
+ROOT = pathlib.Path(__file__).resolve().parents[1]
 T_975 = {3: 3.182446305284263, 4: 2.7764451051977987}  # Student's t quantiles from a table (df: value).
 
 
@@ -162,3 +169,102 @@ def test_two_rows_of_one_setting_and_seed_are_refused_naming_them(study, use):
                                        'expected one row per setting and seed'):
     use(study, rows + [twice], 'psnr')
   assert use(study, rows + [dict(twice, psnr='')], 'psnr')  # An unfinished row has no value to count twice.
+
+
+def test_looking_at_3_seeds_then_5_errs_near_9_percent_and_the_corrected_looks_at_most_5():
+  """A null paired difference read at 3 seeds and, undecided, at 5: at 95% a look declares a difference 8.7% of the
+  time; with the study's looks = [3, 5] each interval is at 97.5% and both looks together err at most 5%."""
+  study = study_spec.parse(SEEDED.replace('seeds = 3', 'seeds = 5\nlooks = [3, 5]'), 'seeded.toml')
+  assert study_stats.looks(study) == (3, 5) and study_stats.look_level(study) == pytest.approx(.975)
+  differences = np.random.default_rng(0).normal(0., 1., (5000, 5))
+
+  def declares(sample, level):
+    return any(not low <= 0. <= high for _, low, high in (study_stats.t_interval(list(sample[:n]), level)
+                                                          for n in (3, 5)))
+
+  plain = np.mean([declares(s, study_stats.LEVEL) for s in differences])
+  corrected = np.mean([declares(s, study_stats.look_level(study)) for s in differences])
+  assert .075 < plain < .1 and corrected <= .05, (plain, corrected)
+
+
+def _decided_at_95_only(study):
+  """Rows of SEEDED whose psnr comparison excludes 0 at 95% but not at 97.5% (6 pairs, t = 2.87)."""
+  rows = _rows(((1.5, -.1, 1.6), (.2, 1.7, .6)))
+  difference = [1.5, -.1, 1.6, .2, 1.7, .6]
+  t = np.mean(difference) / (np.std(difference, ddof=1) / math.sqrt(6))
+  assert 2.571 < t < 3.163, t  # Student's t at 95% and 97.5% per look, 5 degrees of freedom.
+  return rows
+
+
+def test_a_study_read_at_several_seed_counts_corrects_every_interval_and_says_so(study, tmp_path):
+  rows = _decided_at_95_only(study)
+  comparison, = study_stats.compare(study, rows, 'psnr')
+  assert comparison.verdict == 'freenerf better'
+  looked = study_spec.parse(SEEDED.replace('seeds = 3', 'seeds = 3\nlooks = [2, 3]'), 'seeded.toml')
+  comparison, = study_stats.compare(looked, rows, 'psnr')
+  assert comparison.verdict == 'UNDECIDED: the 97.5% interval contains 0' and comparison.level == .975
+  study_lib.write_statistics(looked, rows, str(tmp_path))
+  markdown = (tmp_path / 'comparisons.md').read_text()
+  assert 'corrected for 2 looks: read at 2 and 3 seeds' in markdown and '| 97.5% interval |' in markdown
+  study_lib.write_statistics(study, rows, str(tmp_path))
+  assert 'one look: read at 3 seeds only' in (tmp_path / 'comparisons.md').read_text()
+  assert time_budgets.selection_level(3, looks=2) == pytest.approx(1. - .05 / 3 / 2)  # 3 pairs of settings, 2 looks.
+
+
+def test_the_runner_records_a_look_at_each_finished_seed_count_and_corrects_for_it(study, tmp_path):
+  rows = [dict(r, status='done') for r in _decided_at_95_only(study)]
+  study_looks.record_if_finished(study, str(tmp_path), rows[:-1] + [dict(rows[-1], status='missing')])
+  assert not (tmp_path / study_looks.FILE).exists()           # Not finished: no look recorded.
+  study_looks.record_if_finished(study, str(tmp_path), rows)
+  assert json.loads((tmp_path / study_looks.FILE).read_text()) == {'seed_counts': [3]}
+  more = study_spec.parse(SEEDED.replace('seeds = 3', 'seeds = 5'), 'seeded.toml')  # Seeds added after looking.
+  assert study_stats.looks(study_looks.with_recorded(more, str(tmp_path))) == (3, 5)
+  assert study_stats.looks(study_looks.with_recorded(study, str(tmp_path))) == (3,)
+  declared = study_spec.parse(SEEDED.replace('seeds = 3', 'seeds = 3\nlooks = [2, 3]'), 'seeded.toml')
+  study_looks.record_if_finished(declared, str(tmp_path), rows)  # Kept with the record, so that exports carry it.
+  assert study_looks.recorded(str(tmp_path)) == [2, 3]
+  (tmp_path / study_looks.FILE).write_text('{"seed_counts": "3"}')
+  with pytest.raises(ValueError, match=r'looks.json: .*expected \{"seed_counts": \[n, ...\]\}'):
+    study_looks.recorded(str(tmp_path))
+
+
+@pytest.mark.parametrize('extra, message', [
+    ('looks = [3, 2]', 'looks: [3, 2]; expected increasing seed counts >= 1'),
+    ('looks = [2]', "looks: [2]; expected increasing seed counts >= 1 at which the comparisons were read, the last "
+                    "the study's 3 seeds"),
+    ('looks = [0, 3]', 'looks: [0, 3]; expected increasing'),
+    ('looks = "3"', "looks: '3'; expected increasing"),
+])
+def test_bad_looks_name_the_key(extra, message):
+  with pytest.raises(study_spec.StudyError, match=re.escape(message)):
+    study_spec.parse(SEEDED.replace('seeds = 3', f'seeds = 3\n{extra}'), 'bad.toml')
+  with pytest.raises(study_spec.StudyError, match='looks: the study has no seeds'):
+    study_spec.parse(SEEDED.replace('seeds = 3', 'looks = [3]'), 'bad.toml')
+
+
+def _committed_comparisons():
+  """The committed exports with comparisons (results/**/comparisons.csv's folders)."""
+  return sorted(p.parent for p in ROOT.glob('results/**/comparisons.csv'))
+
+
+@pytest.mark.parametrize('export', _committed_comparisons(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_committed_comparison_is_its_study_files_interval_for_its_looks(export):
+  """Each interval of an export's comparisons.csv is the one the study file it ran (provenance.json) gives its
+  results.csv, corrected for its looks (the study file's and looks.json)."""
+  study = study_looks.with_recorded(reuse.exported_study(str(export)), str(export))
+  with open(export / 'results.csv', newline='') as f:
+    rows = list(csv.DictReader(f))
+  found = {(c.metric, c.a, c.b): c for m in study.plot.metrics for c in study_stats.compare(study, rows, m)}
+  with open(export / 'comparisons.csv', newline='') as f:
+    for row in csv.DictReader(f):
+      comparison = found[(row['metric'], row['a'], row['b'])]
+      assert row['verdict'] == comparison.verdict and row['ci_low'] == ('' if comparison.low is None else
+                                                                         str(comparison.low)), row
+
+
+def test_the_cup_depth_prior_study_added_seeds_after_looking_and_says_so():
+  export = ROOT / 'results' / 'studies' / 'depth_prior_cup'
+  assert study_stats.looks(study_looks.with_recorded(reuse.exported_study(str(export)), str(export))) == (3, 5)
+  with open(export / 'comparisons.csv', newline='') as f:
+    psnr = next(r for r in csv.DictReader(f) if r['metric'] == 'psnr')
+  assert psnr['verdict'] == 'UNDECIDED: the 97.5% interval contains 0'

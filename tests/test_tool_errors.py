@@ -6,10 +6,13 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from internal import cli
 from test_bad_inputs import ROOT
 from test_run_dir_errors import _one_error_line
 from tools import pack_scene
+from tools import synthetic_depth
 from tools import tables
 
 # Each tool's __main__ in one interpreter (one start-up of jax), its exit status printed after its stderr.
@@ -38,7 +41,7 @@ def test_each_tool_run_as_a_module_ends_a_bad_input_in_one_line(tmp_path):
                    f"error: --out {str(tmp_path / 'scene.zip')!r}: expected a file name ending in .npz", 'status 2',
                    'error: --level nan: expected a positive finite density (the density is >= 0)', 'status 2',
                    'error: --max_points 0, --path_views 0, --min_views 2: expected >= 1, >= 0, >= 1', 'status 2',
-                   'error: --gamma 0.0, --blur 1.0, --noise 0.02: expected > 0, >= 0, >= 0', 'status 2',
+                   'error: --gamma 0.0: expected a finite number > 0', 'status 2',
                    f"error: study file {str(tmp_path / 'absent.toml')!r} does not exist", 'status 2'], \
       result.stderr
   assert 'Traceback' not in result.stderr
@@ -67,3 +70,29 @@ def test_pack_scene_refuses_an_existing_out_and_a_missing_scene_in_one_line(tmp_
   status = cli.run(lambda: pack_scene.main(['--gin_bindings', *bindings, '--out', str(tmp_path / 'new.npz')]))
   assert status == cli.USAGE_ERROR_STATUS and not (tmp_path / 'new.npz').exists()
   _one_error_line(capsys.readouterr().err, f"Config.data_dir = {str(tmp_path / 'absent')!r} does not exist")
+
+
+@pytest.fixture(scope='module')
+def small_scene_dir(tmp_path_factory):
+  """A generated scene of this module's own (the session's shared one may hold another rig or size)."""
+  return tmp_path_factory.mktemp('small_generated_scene')
+
+
+SEED_EXPECTED = "expected a whole number in [0, 2^63) (a seed of jax's and numpy's random generators)"
+
+
+@pytest.mark.parametrize('flags, line', [
+    (['--blur', '1e400'], '--blur inf: expected a finite number >= 0 (pixels)'),
+    (['--gamma', 'nan'], '--gamma nan: expected a finite number > 0'),
+    (['--noise', '-1'], '--noise -1.0: expected a finite number >= 0 (of the range)'),
+    (['--seed', '-1'], f'--seed -1: {SEED_EXPECTED}'),
+    (['--seed', str(2**63)], f'--seed {2**63}: {SEED_EXPECTED}'),
+    (['--blur', '41'], "--blur 41.0: expected at most the images' longer side, 40 pixels"),
+    (['--noise', '1e38'], '--noise 1e+38: the maps overflow float32; expected a smaller noise (of the range)')])
+def test_synthetic_depth_names_the_flag_out_of_its_range_in_one_line(tmp_path, small_scene_dir, capsys, flags, line):
+  bindings = [f"Config.data_dir = '{small_scene_dir}'", 'Config.generated_size = (32, 40)']
+  argv = ['--gin_bindings', *bindings, '--out', str(tmp_path / 'maps'), *flags]
+  assert cli.run(lambda: synthetic_depth.main(argv)) == cli.USAGE_ERROR_STATUS
+  err = capsys.readouterr().err
+  assert err.splitlines()[-1:] == [f'error: {line}'] and 'warning' not in err and err.count('error') == 1, err
+  assert not (tmp_path / 'maps').exists()

@@ -12,10 +12,12 @@ centre and its viewing ray out to the depth of the scene's middle, so that a few
 apart; the title gives the median errors before and after.
 --study: a study's results.csv (tools.study); writes DIR/targets.md with provenance: per method and seed, the
 median camera errors on the noisy cameras and the share of the baseline's noise cost in PSNR (clean - noisy) that
-the method recovers on the noisy cameras, (method - baseline) / (baseline clean - baseline noisy), with its mean;
-where the study's run folders sit beside the results.csv, also each refining run's rotation error without a
-similarity and the mean turn of its given cameras, which that error keeps (unaligned_errors).
-Bad input is one line (exit status 2).
+the method recovers on the noisy cameras, (method - baseline) / (baseline clean - baseline noisy), with its mean.
+The camera errors of the targets are after the similarity (camera_rotation_deg, camera_translation): a similarity
+explains part of any error, so a target on them is met only under that alignment; where the results hold the
+errors without it (cameras in the reference's frame: *_unaligned), their means follow.
+Bad input is one line (exit status 2), before anything is written: a study without the --axis column, a --clean,
+--noisy or --baseline that no finished row has, two --runs whose pictures would have one name.
 """
 
 import argparse
@@ -27,12 +29,11 @@ import sys
 import gin
 import matplotlib.figure
 import numpy as np
-from scipy.spatial import transform as spatial_transform
 
 from internal import cli
 from internal import config_loader
 from internal import datasets
-from internal.datasets import camera_alignment, loader
+from internal.cameras import alignment
 from internal.evaluation import camera_evaluation
 from internal.run import camera_export
 from tools import provenance
@@ -49,8 +50,9 @@ def run_name(run_dir: str) -> str:
   return os.path.basename(os.path.dirname(path) if os.path.basename(path) == 'run' else path)
 
 
-def _saved_cameras(run_dir: str) -> tuple:
-  """(cameras.json's record, the run's Config, its training split) of a run that refined its cameras."""
+def run_cameras(run_dir: str) -> dict:
+  """{'reference', 'given', 'refined'}: [N,3,4] cameras of a run's training views, the given and refined ones
+  carried onto the reference by their best similarity; 'distance': the reference's camera distance; 'forward'."""
   path = os.path.join(run_dir, camera_export.FOLDER, 'cameras.json')
   if not os.path.isfile(path):
     raise ValueError(f'{path!r} does not exist: {run_dir!r} is not a run that refined its cameras '
@@ -59,37 +61,14 @@ def _saved_cameras(run_dir: str) -> tuple:
     record = json.load(f)
   gin.clear_config()  # Each run's own settings, not the previous run's.
   config = config_loader.load_config([os.path.join(run_dir, 'config.gin')], [])
-  return record, config, datasets.load_dataset('train', config)
-
-
-def run_cameras(run_dir: str) -> dict:
-  """{'reference', 'given', 'refined'}: [N,3,4] cameras of a run's training views, the given and refined ones
-  carried onto the reference by their best similarity; 'distance': the reference's camera distance; 'forward'."""
-  record, config, train_set = _saved_cameras(run_dir)
-  reference, distance = camera_evaluation.reference_cameras(config, train_set)
+  train_set = datasets.load_dataset('train', config)
+  reference, distance, _ = camera_evaluation.reference_cameras(config, train_set)
   cameras = {'reference': reference, 'distance': distance, 'opengl': record['axes'] == 'OpenGL',
-             'forward': bool(loader.ray_space(config, train_set).ndc_focal)}
+             'forward': bool(train_set.space.ndc_focal)}
   for name in ('given', 'refined'):
     c2w = np.array(record[name])
-    cameras[name] = camera_alignment.fit(c2w, reference).cameras(c2w)
+    cameras[name] = alignment.fit(c2w, reference).cameras(c2w)
   return cameras
-
-
-def turns(cameras: np.ndarray, reference: np.ndarray) -> np.ndarray:
-  """[N,3] rotation vectors (radians, world axes) that turn the reference's orientations [N,3,4] into cameras'."""
-  relative = np.asarray(cameras, np.float64)[:, :, :3] @ np.swapaxes(np.asarray(reference)[:, :, :3], 1, 2)
-  return spatial_transform.Rotation.from_matrix(relative).as_rotvec()
-
-
-def unaligned_errors(run_dir: str) -> dict:
-  """Without a similarity (where the reference is exact, the generated scene): {'rotation_deg': the median angle
-  of a run's refined training cameras from the reference, 'common_turn_deg': the angle of the mean turn of its given
-  cameras, which refinement keeps (its corrections have mean zero: training/camera_refinement.py's gauge)}."""
-  record, config, train_set = _saved_cameras(run_dir)
-  reference, _ = camera_evaluation.reference_cameras(config, train_set)
-  refined, given = (turns(np.array(record[name]), reference) for name in ('refined', 'given'))
-  return {'rotation_deg': float(np.rad2deg(np.median(np.linalg.norm(refined, axis=1)))),
-          'common_turn_deg': float(np.rad2deg(np.linalg.norm(given.mean(0))))}
 
 
 def draw(path: str, cameras: dict, title: str) -> None:
@@ -112,7 +91,7 @@ def draw(path: str, cameras: dict, title: str) -> None:
   axes[0].legend(loc='upper right', fontsize=8)
   views = np.arange(len(reference))
   for offset, (name, colour, _, legend) in zip((-.2, .2), SETS[1:]):
-    values = camera_alignment.errors(cameras[name], reference, cameras['distance'])['rotation_deg']
+    values = alignment.errors(cameras[name], reference, cameras['distance'])['rotation_deg']
     axes[2].bar(views + offset, values, width=.4, color=colour, label=legend)
   axes[2].set_xlabel('training view')
   axes[2].set_ylabel('rotation error (degrees)')
@@ -125,7 +104,7 @@ def errors_title(name: str, cameras: dict) -> str:
   """The picture's title: the run and the median rotation and translation errors before and after."""
   parts = []
   for label in ('given', 'refined'):
-    values = camera_alignment.errors(cameras[label], cameras['reference'], cameras['distance'])
+    values = alignment.errors(cameras[label], cameras['reference'], cameras['distance'])
     parts.append(f'{label} {np.median(values["rotation_deg"]):.2f} deg, {np.median(values["translation"]):.3f}')
   return f'{name}: median errors against the reference, ' + '; '.join(parts) + ' (of the camera distance)'
 
@@ -136,9 +115,26 @@ def _rows(path: str) -> list:
     return [row for row in csv.DictReader(f) if row.get('status') == 'done']
 
 
-def targets(rows: list, axis: str, clean: str, noisy: str, baseline: str, unaligned=None) -> list:
-  """[(method, seed, camera_rotation_deg, camera_translation, psnr, recovered share, rotation without a similarity,
-  the common turn it keeps)] on the noisy cameras; unaligned: {cell: unaligned_errors} (nan where absent)."""
+def check_study(rows: list, path: str, axis: str, clean: str, noisy: str, baseline: str) -> None:
+  """ValueError naming the flag whose column or label the study's finished rows lack (a study without the noise
+  axis, a noise label or baseline that no row has), or naming the file when no row finished."""
+  if not rows:
+    raise ValueError(f'--study {path!r}: no finished row (status done); expected a study\'s results.csv')
+  if axis not in rows[0]:
+    raise ValueError(f'--axis {axis!r}: --study {path!r} has no such column; expected the study axis of the camera '
+                     f'noise among its columns {sorted(rows[0])}')
+  missing = [c for c in ('method', 'seed', 'psnr') if c not in rows[0]]
+  if missing:
+    raise ValueError(f'--study {path!r} has no column {missing[0]!r}; expected a study with seeds whose results '
+                     'give method, seed and psnr')
+  labels, methods = sorted({r[axis] for r in rows}), sorted({r['method'] for r in rows})
+  for flag, value, known in (('--clean', clean, labels), ('--noisy', noisy, labels), ('--baseline', baseline, methods)):
+    if value not in known:
+      raise ValueError(f'{flag} {value!r}: no finished row of --study {path!r} has it; expected one of {known}')
+
+
+def targets(rows: list, axis: str, clean: str, noisy: str, baseline: str) -> list:
+  """[(method, seed, camera_rotation_deg, camera_translation, psnr, recovered share)] on the noisy cameras."""
   psnr = {(r['method'], r[axis], r['seed']): float(r['psnr']) for r in rows}
   out = []
   for r in rows:
@@ -147,42 +143,54 @@ def targets(rows: list, axis: str, clean: str, noisy: str, baseline: str, unalig
     key = (baseline, noisy, r['seed'])
     cost = psnr.get((baseline, clean, r['seed']), np.nan) - psnr.get(key, np.nan)
     share = (float(r['psnr']) - psnr.get(key, np.nan)) / cost if cost else np.nan
-    frame = (unaligned or {}).get(r.get('cell'), {})
-    out.append((r['method'], int(r['seed']), float(r['camera_rotation_deg'] or 'nan'),
-                float(r['camera_translation'] or 'nan'), float(r['psnr']), share,
-                frame.get('rotation_deg', np.nan), frame.get('common_turn_deg', np.nan)))
+    out.append((r['method'], int(r['seed']), float(r.get('camera_rotation_deg') or 'nan'),
+                float(r.get('camera_translation') or 'nan'), float(r['psnr']), share))
   return sorted(out)
 
 
-def study_unaligned(results_csv: str, rows: list, axis: str, noisy: str) -> dict:
-  """{cell: unaligned_errors} of the refining runs on the noisy cameras whose run folders sit beside results_csv
-  (a study's folder: <cell>/run; an export has none)."""
-  found = {}
-  for r in rows:
-    run_dir = os.path.join(os.path.dirname(results_csv), r.get('cell', ''), 'run')
-    if r[axis] == noisy and os.path.isfile(os.path.join(run_dir, camera_export.FOLDER, 'cameras.json')):
-      found[r['cell']] = unaligned_errors(run_dir)
-  return found
+def check_runs(runs: list) -> None:
+  """ValueError naming two --runs whose pictures would have the same name (the second would replace the first)."""
+  seen = {}
+  for run_dir in runs:
+    name = run_name(run_dir)
+    if name in seen:
+      raise ValueError(f'--runs {seen[name]!r} and {run_dir!r} are both named {name!r} (a study cell\'s folder, or '
+                       f'the run\'s): both pictures would be cameras_{name}.png; give them in separate commands with '
+                       'another --out')
+    seen[name] = run_dir
 
 
-def targets_markdown(found: list, args, argv) -> str:
-  """targets.md: a row per method and seed, each method's means, and the provenance."""
-  lines = [f'On the {args.noisy!r} cameras of {args.study}; the share is (method - {args.baseline}) / '
-           f'({args.baseline} {args.clean} - {args.baseline} {args.noisy}) in PSNR, per seed. Camera errors are '
-           'medians over the training views after the similarity that best maps them onto the reference (the '
-           'target\'s); without it (the generated scene\'s frame is exact) the refined cameras keep the mean turn of '
-           'the given ones, which the corrections\' gauge leaves (nan: a run without refined cameras here).', '',
+def unaligned_means(rows: list, axis: str, noisy: str) -> dict:
+  """{method: (mean rotation error (deg), mean translation error)} without the similarity on the noisy cameras,
+  of the methods whose results hold them."""
+  out = {}
+  for method in sorted({r['method'] for r in rows}):
+    values = [(float(r['camera_rotation_deg_unaligned']), float(r['camera_translation_unaligned'])) for r in rows
+              if r['method'] == method and r[axis] == noisy and r.get('camera_rotation_deg_unaligned')]
+    if values:
+      out[method] = tuple(np.mean(values, 0))
+  return out
+
+
+def targets_markdown(found: list, args, argv, unaligned: dict) -> str:
+  """targets.md: a row per method and seed, each method's means (and unaligned_means'), and the provenance."""
+  lines = [f'On the {args.noisy!r} cameras of {cli.relative_paths(args.study)}; the share is (method - '
+           f'{args.baseline}) / ({args.baseline} {args.clean} - {args.baseline} {args.noisy}) in PSNR, per seed. '
+           'Camera errors are '
+           'medians over the training views against the reference after the similarity taking the cameras onto it '
+           '(camera_rotation_deg, camera_translation): the alignment the targets use.', '',
            '| method | seed | camera rotation error (deg, median) | camera translation error (median) | PSNR | '
-           'share of the noise cost recovered | rotation error without the similarity (deg, median) | '
-           'mean turn of the given cameras (deg) |', '|---|---|---|---|---|---|---|---|']
-  lines += [f'| {m} | {s} | {r:.3f} | {t:.4f} | {p:.3f} | {share:.2f} | {u:.3f} | {c:.3f} |'
-            for m, s, r, t, p, share, u, c in found]
-  lines += ['', '| method | mean rotation error (deg) | mean translation error | mean PSNR | mean share | '
-            'mean rotation error without the similarity (deg) | mean turn of the given cameras (deg) |',
-            '|---|---|---|---|---|---|---|']
+           'share of the noise cost recovered |', '|---|---|---|---|---|---|']
+  lines += [f'| {m} | {s} | {r:.3f} | {t:.4f} | {p:.3f} | {share:.2f} |' for m, s, r, t, p, share in found]
+  lines += ['', '| method | mean rotation error (deg) | mean translation error | mean PSNR | mean share |',
+            '|---|---|---|---|---|']
   for method in sorted({f[0] for f in found}):
     values = np.array([f[2:] for f in found if f[0] == method])
     lines.append(f'| {method} | ' + ' | '.join(f'{v:.3f}' for v in values.mean(0)) + ' |')
+  if unaligned:
+    lines += ['', 'Without the similarity (the cameras in the reference\'s frame):', '',
+              '| method | mean rotation error (deg) | mean translation error |', '|---|---|---|']
+    lines += [f'| {method} | {r:.3f} | {t:.4f} |' for method, (r, t) in unaligned.items()]
   return '\n'.join(lines + ['', '```json', json.dumps(provenance.record(['python', '-m', 'tools.camera_report',
                                                                          *argv]), indent=1), '```', ''])
 
@@ -198,6 +206,8 @@ def main(argv=None) -> int:
   parser.add_argument('--noisy', default='5deg', help='its label with the noise of the targets')
   parser.add_argument('--baseline', default='freenerf', help='the method without refinement')
   args = parser.parse_args(argv)
+  check_runs(args.runs)
+  rows = _study_rows(args)
   os.makedirs(args.out, exist_ok=True)
   for run_dir in args.runs:
     cameras = run_cameras(run_dir)
@@ -205,16 +215,23 @@ def main(argv=None) -> int:
     draw(path, cameras, errors_title(run_name(run_dir), cameras))
     print(path)
   if args.study:
-    if not os.path.isfile(args.study):
-      raise FileNotFoundError(f'--study {args.study!r} does not exist; expected a study\'s results.csv')
     path = os.path.join(args.out, 'targets.md')
-    rows = _rows(args.study)
-    unaligned = study_unaligned(args.study, rows, args.axis, args.noisy)
     with open(path, 'w', encoding='utf-8') as f:
-      f.write(targets_markdown(targets(rows, args.axis, args.clean, args.noisy, args.baseline, unaligned), args,
-                               argv))
+      f.write(targets_markdown(targets(rows, args.axis, args.clean, args.noisy, args.baseline), args, argv,
+                               unaligned_means(rows, args.axis, args.noisy)))
     print(path)
   return 0
+
+
+def _study_rows(args) -> list:
+  """The finished rows of --study, checked against --axis, --clean, --noisy and --baseline ([] without --study)."""
+  if not args.study:
+    return []
+  if not os.path.isfile(args.study):
+    raise FileNotFoundError(f'--study {args.study!r} does not exist; expected a study\'s results.csv')
+  rows = _rows(args.study)
+  check_study(rows, args.study, args.axis, args.clean, args.noisy, args.baseline)
+  return rows
 
 
 if __name__ == '__main__':

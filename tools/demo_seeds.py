@@ -1,4 +1,4 @@
-"""Runs the demo for several seeds and records what it measured, to be committed: results/demo/.
+"""Runs the demo for several seeds and records what it measured, per machine kind, to be committed: results/demo/.
 
   python -m tools.demo_seeds --seeds 20200823 1 [--out results/demo] [--work out/demo_seeds] [--gin_bindings B]
 
@@ -6,14 +6,17 @@ A seed is Config.jax_rng_seed (the models' initialization and sampling noise; 20
 own, run as plain `python train.py`). Per seed, each as its own process in <work>/seed_<seed>/, timed:
   the demo: `python train.py [--gin_bindings "Config.jax_rng_seed = <seed>"]`, both methods' test metrics;
   the all-views check (tests/test_demo.py): the demo's NeRF trained on every training view, evaluated without LPIPS.
-Writes <out>/seed_<seed>.json (the metrics, each method's learning curve (test PSNR of the curve views against the
-step, as demo_curves.png draws it), the commands and their seconds, provenance: commit, machine, date and this
-command), then <out>/summary.json and <out>/README.md over every seed_*.json in <out>: per seed and over the
-seeds (mean, standard deviation, range) each method's PSNR, SSIM, LPIPS and depth error, FreeNeRF's lead, the
-all-views PSNR and the wall times. Before any work, the seeds are checked (whole numbers, each once, seeds jax and
-numpy take), and a seed already recorded in <out> is refused, as is a work folder already there (its times would
-not be a whole run). --gin_bindings adds bindings to every run (e.g. a shorter schedule); the
-commands recorded show them.
+A machine kind is the instruction set XLA compiles for (environment.cpu_isa: AVX512, AVX2, ...): float32 results
+agree to the last digit only within a kind, so each kind has its own folder <out>/<kind>/ (XLA_FLAGS=
+--xla_cpu_max_isa=AVX2 records the AVX2 kind's digits on an AVX-512 machine, its times then being this machine's).
+Writes <out>/<kind>/seed_<seed>.json (the metrics, each method's learning curve (test PSNR of the curve views against
+the step, as demo_curves.png draws it), the commands and their seconds, the load average before and after the demo
+(other jobs on the machine slow it), provenance: commit, machine, date and this command), then <out>/<kind>/summary.json and README.md over every seed_*.json there: per seed and over the seeds
+(mean, standard deviation, range) each method's PSNR, SSIM, LPIPS and depth error, FreeNeRF's lead, the all-views
+PSNR and the wall times; and <out>/README.md, one line per kind. Before any work, the seeds are checked (whole
+numbers, each once, seeds jax and numpy take), and a seed already recorded for this kind is refused, as is a work
+folder already there (its times would not be a whole run). --gin_bindings adds bindings to every run (e.g. a
+shorter schedule); the commands recorded show them.
 """
 
 from internal import interrupt
@@ -31,6 +34,7 @@ import time
 from internal import atomic
 from internal import cli
 from internal import demo
+from internal import environment
 from internal.configs import Config
 from internal.evaluation import evaluate
 from internal.evaluation import learning_curve
@@ -45,7 +49,13 @@ METRICS = ('psnr', 'ssim', 'lpips', 'depth_mae')  # The columns of each method's
 SUMMARY, README = 'summary.json', 'README.md'
 
 
+def kind_dir(out: str, kind: str = '') -> str:
+  """<out>/<kind>: the records of one machine kind (this machine's by default)."""
+  return os.path.join(out, kind or environment.cpu_isa())
+
+
 def seed_file(out: str, seed: int) -> str:
+  """A seed's record in a machine kind's folder."""
   return os.path.join(out, f'seed_{seed}.json')
 
 
@@ -88,13 +98,15 @@ def run_seed(seed: int, work: str, extra=()) -> dict:
   cwd = os.path.join(work, f'seed_{seed}')
   os.makedirs(cwd)
   cmds, log = commands(seed, extra), os.path.join(cwd, 'log.txt')
+  load_before = os.getloadavg()[0]  # Other jobs on the machine: the wall times say little beside a high load.
   demo_seconds = run_timed([cmds['demo']], cwd, log)
+  load = [round(load_before, 2), round(os.getloadavg()[0], 2)]
   all_views_seconds = run_timed(cmds['all_views'], cwd, log)
   cfgs = demo.method_configs(extra)
   step = cfgs['FreeNeRF'].max_steps
   runs = {name: os.path.join(cwd, cfg.checkpoint_dir) for name, cfg in cfgs.items()}
   return {'seed': seed, 'step': step,
-          'demo': {'command': shown(cmds['demo']), 'seconds': demo_seconds,
+          'demo': {'command': shown(cmds['demo']), 'seconds': demo_seconds, 'load_average': load,
                    'means': {name: means(run, step) for name, run in runs.items()},
                    'learning_curves': {name: learning_curve.read_rows(learning_curve.csv_path(run))
                                        for name, run in runs.items()}},
@@ -140,33 +152,68 @@ def _cell(value, name: str) -> str:
   return f'{value:.0f}' if 'seconds' in name else f'{value:.2f}' if 'psnr' in name else f'{value:.3f}'
 
 
-def readme(records: list, table: dict) -> str:
-  """The README of results/demo: per seed and over the seeds, and where each seed was measured."""
+def readme(records: list, table: dict, kind: str) -> str:
+  """The README of a machine kind's folder of results/demo: per seed and over the seeds, and where each seed was
+  measured."""
   names = list(table['over_seeds'])
-  lines = ['# The demo over seeds', '', 'Written by `python -m tools.demo_seeds` (its docstring says what it runs); '
-           'every number below is in `seed_<seed>.json` and `summary.json`. Per seed (`Config.jax_rng_seed`) the '
-           'demo (`python train.py`, 2 views; its wall time from scratch) and the all-views check (the demo\'s NeRF '
-           'on every training view, without LPIPS; tests/test_demo.py compares against it). PSNR, SSIM and LPIPS over '
-           'the test views, depth MAE in world units, times in seconds.', '',
+  lines = [f'# The demo over seeds: {kind} machines', '', 'Written by `python -m tools.demo_seeds` (its docstring says '
+           'what it runs); every number below is in `seed_<seed>.json` and `summary.json`. Per seed '
+           '(`Config.jax_rng_seed`) the demo (`python train.py`, 2 views; its wall time from scratch) and the all-views '
+           'check (the demo\'s NeRF on every training view, without LPIPS; tests/test_demo.py compares against it). '
+           'PSNR, SSIM and LPIPS over the test views, depth MAE in world units, times in seconds. Measured where XLA '
+           f'compiles for {kind} (`environment.cpu_isa`), whose float32 digits these are.', '',
            '| seed | ' + ' | '.join(names) + ' |', '|---' * (len(names) + 1) + '|']
   lines += [f'| {seed} | ' + ' | '.join(_cell(row.get(n), n) for n in names) + ' |'
             for seed, row in table['rows'].items()]
   for stat in ('mean', 'std', 'min', 'max'):
     lines.append(f'| {stat} | ' + ' | '.join(_cell(table['over_seeds'][n][stat], n) for n in names) + ' |')
   lines += ['', 'Measured on:', '']
-  lines += [f'- seed {r["seed"]}: commit {r["provenance"]["commit"]}, {r["provenance"]["date"]}, '
-            f'{r["provenance"]["machine"]["cpu_count"]} CPUs ({r["provenance"]["machine"]["cpu"]}), '
-            f'jax {r["provenance"]["machine"]["jax"]}; `{r["provenance"]["command"]}`' for r in records]
+  lines += [f'- seed {r["seed"]}: {where(r)}{_load(r)}; `{r["provenance"]["command"]}`' for r in records]
   return '\n'.join(lines) + '\n'
 
 
-def write_summary(out: str) -> dict:
-  """(Re)writes out/summary.json and out/README.md from every seed record in out; the summary."""
-  records = read_seeds(out)
+def _load(record: dict) -> str:
+  """The 1-minute load average before and after the demo ran, in words ('' where not recorded)."""
+  load = record['demo'].get('load_average')
+  return f', load average {load[0]} before and {load[1]} after the demo' if load else ''
+
+
+def where(record: dict) -> str:
+  """Commit, date and machine of a record, in words."""
+  prov, machine = record['provenance'], record['provenance']['machine']
+  flags = next((w for w in prov['command'].split() if w.startswith('XLA_FLAGS=')), '')
+  return (f'commit {prov["commit"]}, {prov["date"]}, {machine["cpu_count"]} CPUs ({machine["cpu"]}), '
+          f'XLA for {machine.get("isa", "?")}{" (" + flags + ")" if flags else ""}, jax {machine["jax"]}')
+
+
+def write_summary(folder: str) -> dict:
+  """(Re)writes summary.json and README.md of a machine kind's folder from every seed record in it; the summary."""
+  records = read_seeds(folder)
   table = summary(records)
-  atomic.write_text(os.path.join(out, SUMMARY), json.dumps(table, indent=1) + '\n')
-  atomic.write_text(os.path.join(out, README), readme(records, table))
+  atomic.write_text(os.path.join(folder, SUMMARY), json.dumps(table, indent=1) + '\n')
+  atomic.write_text(os.path.join(folder, README), readme(records, table, os.path.basename(folder)))
   return table
+
+
+def index(out: str) -> str:
+  """The README of results/demo: one line per machine kind with a folder of records."""
+  lines = ['# The demo over seeds, per machine kind', '', 'Written by `python -m tools.demo_seeds`. A machine kind is '
+           'the instruction set XLA compiles for: float32 results agree to the last digit only within a kind, so '
+           'each kind has its records, and tests/test_demo.py pins the demo to those of the machine it runs on. '
+           'Means over the seeds; wall seconds of `python train.py` from scratch.', '',
+           '| kind | seeds | NeRF psnr | FreeNeRF psnr | smallest FreeNeRF lead psnr | demo seconds | folder |',
+           '|---|---|---|---|---|---|---|']
+  for kind in sorted(os.listdir(out)):
+    if not os.path.isfile(os.path.join(out, kind, SUMMARY)):
+      continue
+    with open(os.path.join(out, kind, SUMMARY)) as f:
+      over = json.load(f)['over_seeds']
+    cells = [over['NeRF psnr']['mean'], over['FreeNeRF psnr']['mean'], over['FreeNeRF lead psnr']['min'],
+             over['demo seconds']['mean']]
+    names = ('psnr', 'psnr', 'psnr', 'seconds')
+    lines.append(f'| {kind} | {over["NeRF psnr"]["n"]} | ' + ' | '.join(_cell(v, n) for v, n in zip(cells, names)) +
+                 f' | [{kind}/]({kind}/README.md) |')
+  return '\n'.join(lines) + '\n'
 
 
 def checked_seeds(texts: list, extra=()) -> list:
@@ -194,24 +241,29 @@ def main(argv=None) -> int:
   argv = sys.argv[1:] if argv is None else argv
   parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
   parser.add_argument('--seeds', nargs='+', required=True, help='values of Config.jax_rng_seed')
-  parser.add_argument('--out', default=os.path.join(ROOT, 'results', 'demo'), help='the folder to commit')
+  parser.add_argument('--out', default=os.path.join(ROOT, 'results', 'demo'),
+                      help='the folder to commit (a folder per machine kind in it)')
   parser.add_argument('--work', default=os.path.join('out', 'demo_seeds'), help='where the runs are trained')
   parser.add_argument('--gin_bindings', nargs='+', default=[], help='extra bindings of every run')
   args = parser.parse_args(argv)
   args.seeds = checked_seeds(args.seeds, args.gin_bindings)
+  folder = kind_dir(args.out)
   for seed in args.seeds:
-    if os.path.exists(seed_file(args.out, seed)):
-      raise FileExistsError(f'{seed_file(args.out, seed)!r} exists: seed {seed} is recorded; remove the file to '
-                            'measure it again')
+    if os.path.exists(seed_file(folder, seed)):
+      raise FileExistsError(f'{seed_file(folder, seed)!r} exists: seed {seed} is recorded for this machine kind; '
+                            'remove the file to measure it again')
     if os.path.exists(os.path.join(args.work, f'seed_{seed}')):
       raise FileExistsError(f'{os.path.join(args.work, f"seed_{seed}")!r} exists: its runs would resume and their '
                             'times would not be whole runs; remove it or choose --work')
-  os.makedirs(args.out, exist_ok=True)
+  os.makedirs(folder, exist_ok=True)
+  command = ([f'XLA_FLAGS={os.environ["XLA_FLAGS"]}'] if os.environ.get('XLA_FLAGS') else []) + [
+      'python', '-m', 'tools.demo_seeds', *argv]
   for seed in args.seeds:
     found = run_seed(seed, args.work, args.gin_bindings)
-    record = dict(found, provenance=provenance.record(['python', '-m', 'tools.demo_seeds', *argv]))
-    atomic.write_text(seed_file(args.out, seed), json.dumps(record, indent=1) + '\n')
-    table = write_summary(args.out)
+    atomic.write_text(seed_file(folder, seed), json.dumps(dict(found, provenance=provenance.record(command)),
+                                                          indent=1) + '\n')
+    table = write_summary(folder)
+    atomic.write_text(os.path.join(args.out, README), index(args.out))
     print(f'seed {seed}: ' + ', '.join(f'{k} {_cell(v, k)}' for k, v in table['rows'][str(seed)].items()))
   return 0
 

@@ -7,8 +7,10 @@ depths but not their overall offset, which the study's depth_mae mixes in. Per c
 newest evaluation's rendered depths (depth_<id>.npz, converted to world depths as depth_mae is) and the exact
 depths, and reports over the pixels that hit the scene: `corr`, the Pearson correlation of the two; `median_ratio`,
 rendered over exact median depth; `mae_affine`, the mean absolute error left after the least-squares scale and
-shift of the rendered depths onto the exact ones; `mae`, before it. A cell's value is the mean over its views; the
-study's [[compare]] entries pair them over seeds with Student's t intervals, as its comparisons.md does. Writes
+shift of the rendered depths onto the exact ones; `mae`, before it. A cell's value is the mean over the
+views its evaluation rendered (all test views, or those of Config.eval_test_ids); the study's [[compare]] entries pair
+them over seeds with Student's t intervals, corrected for the study's looks as its comparisons.md is
+(tools/study/looks.py). Writes
 DIR/depth_shape.csv (per cell and view), DIR/depth_shape.md (means per method and the comparisons) and
 DIR/depth_shape.json (provenance). --also: other studies' folders whose cells of the same name stand in for
 cells without renders here (cells a study reused from an export have none).
@@ -33,6 +35,7 @@ from internal import config_loader
 from internal.datasets import load_dataset, loader
 from internal.evaluation import depth_metrics
 from tools import provenance
+from tools.study import looks as study_looks
 from tools.study import runner
 from tools.study import spec as study_spec
 from tools.study import stats as study_stats
@@ -66,34 +69,50 @@ def cell_rows(folder: str, labels: dict) -> list:
   ndc = loader.REGISTRY[loader.filed_as(config)[0]].ndc(config)
   rows = []
   for i, view in enumerate(test.ids):
-    with np.load(depth_metrics.depth_file(newest, int(view))) as f:
-      rendered = depth_metrics.world_depth(test, i, f['distance'], ndc)
-    rows.append({**labels, 'view': int(view), **view_shape(rendered, test.depths[i])})
+    path = depth_metrics.depth_file(newest, int(view))
+    if os.path.isfile(path):  # Config.eval_test_ids: the evaluation rendered only some test views.
+      with np.load(path) as f:
+        rendered = depth_metrics.world_depth(test, i, f['distance'], ndc)
+      rows.append({**labels, 'view': int(view), **view_shape(rendered, test.depths[i])})
+  if not rows:
+    raise ValueError(f'{newest}: no depth_<id>.npz of the test views {[int(v) for v in test.ids]}; expected an '
+                     'evaluation that kept its rendered depths (evaluate the cell again with this version)')
   return rows
 
 
 def _table(study, rows: list) -> str:
-  """Markdown: the mean (std) over cells of each metric per method, then the paired comparisons."""
+  """Markdown: the test views, the mean (std) over cells of each metric per method, then the paired comparisons
+  (their intervals corrected for the study's looks)."""
   per_cell = {}
   for row in rows:
     per_cell.setdefault(row['cell'], []).append(row)
   cells = [{**group[0], **{m: statistics.fmean(r[m] for r in group) for m, _ in METRICS}}
            for group in per_cell.values()]
-  lines = ['| method | n | ' + ' | '.join(m for m, _ in METRICS) + ' |', '|---|---|' + '---|' * len(METRICS)]
+  views = {c: sorted(r['view'] for r in group) for c, group in per_cell.items()}
+  lines = [f'Test views (those each cell\'s evaluation rendered): {_views_text(views)}', '',
+           '| method | n | ' + ' | '.join(m for m, _ in METRICS) + ' |', '|---|---|' + '---|' * len(METRICS)]
   for method in study.methods:
     values = [c for c in cells if c['method'] == method.name]
     if values:
       lines.append(f'| {method.name} | {len(values)} | ' + ' | '.join(
           f'{statistics.fmean(c[m] for c in values):.3f} ({statistics.pstdev([c[m] for c in values]):.3f})'
           for m, _ in METRICS) + ' |')
-  comparisons = []
+  comparisons, level = [], study_stats.look_level(study)
   for metric, lower in METRICS:
     for entry in study.compare:
       differences = study_stats.pairs(study, cells, entry, metric)
       if differences and lower is not None:
         comparisons.append(study_stats.Comparison(entry.axis, entry.a, entry.b, metric, len(differences),
-                                                  *study_stats.t_interval(differences), lower))
-  return '\n'.join(lines) + '\n\n' + runner.comparisons_markdown(comparisons)
+                                                  *study_stats.t_interval(differences, level), lower, level))
+  return '\n'.join(lines) + '\n\n' + runner.comparisons_markdown(study, comparisons)
+
+
+def _views_text(views: dict) -> str:
+  """'[0, 1, 2] in every cell', or per cell its views when they differ (the means are then over other views)."""
+  if len({tuple(v) for v in views.values()}) == 1:
+    return f'{next(iter(views.values()))} in every cell'
+  return ('they differ, so the cells\' means are over different views: ' +
+          '; '.join(f'{cell} {v}' for cell, v in views.items()))
 
 
 def main(argv=None) -> int:
@@ -106,6 +125,7 @@ def main(argv=None) -> int:
   parser.add_argument('--also', nargs='*', default=[], help='other study folders to take renders of cells from')
   args = parser.parse_args(argv)
   study = study_spec.load(args.study)
+  study = study_looks.with_recorded(study, runner.study_dir(study, args.out))
   rows = []
   for cell in study_spec.cells(study):
     labels = {'cell': cell.cell_id, 'method': cell.method, 'scene': cell.scene, **cell.labels()}

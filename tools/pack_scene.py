@@ -13,6 +13,7 @@ from internal import interrupt
 interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while they load (seconds) is one line.
 
 import dataclasses
+import errno
 import os
 import sys
 
@@ -23,7 +24,12 @@ from internal import cli
 def pack(config, out: str) -> dict:
   """Writes the pack of Config's scene to out after checking it loads back equal; returns {split: Dataset}."""
   datasets = {split: load_dataset(split, config, ground_truth=True) for split in base.SPLITS}
-  packed.write_pack(out, loader.pack_arrays(config, datasets))
+  try:
+    packed.write_pack(out, loader.pack_arrays(config, datasets))
+  except OSError as err:
+    if err.errno == errno.ENOSPC:  # cli.run's one line names the file; exit status 4.
+      raise OSError(err.errno, err.strerror, out) from err
+    raise ValueError(f'--out {out!r} cannot be written ({err.strerror or err}); expected a writable folder') from err
   reloaded = dataclasses.replace(config, dataset_loader='packed', data_dir=out)
   for split, data in datasets.items():
     diff = packed.datasets_equal(packed.load_scene(split, reloaded), data)
@@ -43,6 +49,9 @@ def main(argv=None) -> int:
   if os.path.exists(args.out):
     raise FileExistsError(f'--out {args.out!r} exists; delete it or choose another name (a pack never replaces a '
                           'file)')
+  if not os.path.isdir(os.path.dirname(args.out) or '.'):
+    raise FileNotFoundError(f'--out {args.out!r}: its folder {os.path.dirname(args.out)!r} does not exist; make it '
+                            'first')
   config = cli.config_from_flags(args)
   datasets = pack(config, args.out)
   views = ', '.join(f'{split} {len(d.ids)} views {d.height}x{d.width}' for split, d in datasets.items())

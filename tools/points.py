@@ -16,15 +16,17 @@ DIR/sparse/0 (binary, or text with --colmap_text): a PINHOLE camera per training
 (the loader's intrinsics without distortion), its pose, the points with their tracks (the agreeing training views,
 observed at their projections), and copies of the training image files in DIR/images. It loads with this
 project's capture loader (Config.dataset_loader = 'capture', Config.data_dir = DIR) and is what splatting trainers
-read as their initialization. The host memory the views and --max_points need is checked before any work; nothing
-is replaced unless Config.overwrite = True. On the generated object scene --scores FILE also writes the cloud's
+read as their initialization. The host memory the views and --max_points need, and that every output can be
+written, are checked before any work; nothing is replaced unless Config.overwrite = True. On the generated object scene --scores FILE also writes the cloud's
 distances to the scene's exact surfaces per solid (as tools.mesh --scores); --picture a PNG of the cloud.
 """
 
+import errno
 import json
 import os
 import shutil
 import sys
+import tempfile
 import time
 
 import jax
@@ -85,9 +87,30 @@ def check_memory(n_train: int, train_pixels: int, view_pixels: int, max_points: 
                    f'available: {fits}')
 
 
+def check_writable(flag: str, path: str, is_folder: bool = False) -> None:
+  """ValueError naming flag when the file (or folder) path cannot be written (a read-only folder, a file where a
+  folder should be): a file is made and deleted in the nearest existing folder that would hold it, before minutes
+  of rendering; a full disk is left to show as one."""
+  folder = os.path.abspath(path if is_folder else os.path.dirname(os.path.abspath(path)))
+  while not os.path.exists(folder):
+    folder = os.path.dirname(folder)
+  try:
+    with tempfile.TemporaryFile(dir=folder):
+      pass
+  except OSError as err:
+    if err.errno == errno.ENOSPC:
+      raise
+    raise ValueError(f'{flag} {path!r} cannot be written: {err.strerror} ({folder!r}); choose a folder you can '
+                     'write to') from None
+
+
 def check_outputs(config, args) -> None:
-  """FileExistsError naming the flag when --out, --colmap or --scores would replace something (unless
-  Config.overwrite)."""
+  """ValueError naming the flag when --out, --colmap, --picture or --scores cannot be written; FileExistsError
+  when one would replace something (unless Config.overwrite)."""
+  for flag, path in (('--out', args.out), ('--colmap', args.colmap), ('--picture', args.picture),
+                     ('--scores', args.scores)):
+    if path:
+      check_writable(flag, path, is_folder=flag == '--colmap')
   if config.overwrite:
     return
   for flag, path in (('--out', args.out), ('--scores', args.scores), ('--picture', args.picture)):

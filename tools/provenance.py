@@ -84,9 +84,9 @@ def cpu_model(cpuinfo: str = '/proc/cpuinfo') -> str:
 
 
 def record(command_words) -> dict:
-  """{'command', 'commit' (HEAD, '+dirty' when tracked files differ), 'changed_files' (those files), 'machine'
-  (versions, CPU), 'date'}."""
+  """{'command' (its absolute paths relative to the repository), 'commit' (HEAD, '+dirty' when tracked files
+  differ), 'changed_files' (those files), 'machine' (versions, CPU), 'date'}."""
   commit, changed = code_state(ROOT)
-  return {'command': cli.quoted(command_words), 'commit': commit, 'changed_files': changed,
+  return {'command': cli.recorded_command(command_words), 'commit': commit, 'changed_files': changed,
           'machine': dict(machine(), cpu=cpu_model()),
           'date': datetime.datetime.now().isoformat(timespec='seconds')}

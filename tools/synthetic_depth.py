@@ -8,9 +8,10 @@ models err: the exact disparity normalized to [0, 1], raised to --gamma (a monot
 by a Gaussian of --blur pixels, plus Gaussian noise of --noise (of the range), then mapped by a random scale and
 shift (--seed). It writes <image stem>.npy (float32 disparity; 0 where the ray hits nothing) for each training
 view of the run's flags, and a PNG of them side by side with the exact depths (--picture). An existing --out
-folder holding files is refused, so no map is replaced.
+folder holding files is refused, so no map is replaced; so is a flag out of its range, in one line naming it.
 """
 
+import math
 import os
 import sys
 
@@ -19,6 +20,7 @@ import numpy as np
 from scipy import ndimage
 
 from internal import cli
+from internal import config_loader
 from internal.datasets import load_dataset
 from internal.evaluation import vis
 
@@ -53,6 +55,18 @@ def save_picture(path: str, exact: np.ndarray, maps: np.ndarray) -> None:
   fig.savefig(path, dpi=100)
 
 
+def check_flags(args) -> None:
+  """ValueError naming the first of --gamma, --blur, --noise, --seed out of its range."""
+  for flag, value, inside, expected in (('--gamma', args.gamma, args.gamma > 0, '> 0'),
+                                        ('--blur', args.blur, args.blur >= 0, '>= 0 (pixels)'),
+                                        ('--noise', args.noise, args.noise >= 0, '>= 0 (of the range)')):
+    if not (inside and math.isfinite(value)):
+      raise ValueError(f'{flag} {value}: expected a finite number {expected}')
+  expected = config_loader.seed_expected(args.seed)
+  if expected:
+    raise ValueError(f'--seed {args.seed}: expected {expected}')
+
+
 def main(argv=None) -> int:
   """CLI entry point; returns the exit status."""
   parser = cli.flag_parser(__doc__.splitlines()[0])
@@ -63,8 +77,7 @@ def main(argv=None) -> int:
   parser.add_argument('--seed', type=int, default=0, help='seed of the noise, scale and shift (default 0)')
   parser.add_argument('--picture', help='also a PNG of the exact depths above the maps')
   args = parser.parse_args(argv)
-  if not (args.gamma > 0 and args.blur >= 0 and args.noise >= 0):
-    raise ValueError(f'--gamma {args.gamma}, --blur {args.blur}, --noise {args.noise}: expected > 0, >= 0, >= 0')
+  check_flags(args)
   if os.path.isdir(args.out) and os.listdir(args.out):
     raise FileExistsError(f'--out {args.out!r} holds files already; choose a new or empty folder')
   config = cli.config_from_flags(args)
@@ -73,7 +86,13 @@ def main(argv=None) -> int:
                      'has the exact depths this tool distorts')
   data = load_dataset('train', config, ground_truth=True)
   rng = np.random.default_rng(args.seed)
-  maps = np.stack([monocular_like(depth, rng, args.gamma, args.blur, args.noise) for depth in data.depths])
+  if args.blur > max(data.height, data.width):  # A wider blur is flat over the image, and costs memory.
+    raise ValueError(f'--blur {args.blur}: expected at most the images\' longer side, {max(data.height, data.width)} '
+                     'pixels')
+  with np.errstate(over='ignore'):  # An overflow is one error below, naming --noise.
+    maps = np.stack([monocular_like(depth, rng, args.gamma, args.blur, args.noise) for depth in data.depths])
+  if not np.isfinite(maps).all():
+    raise ValueError(f'--noise {args.noise}: the maps overflow float32; expected a smaller noise (of the range)')
   os.makedirs(args.out, exist_ok=True)
   for path, values in zip(data.image_paths, maps):
     np.save(os.path.join(args.out, os.path.splitext(os.path.basename(path))[0] + '.npy'), values)

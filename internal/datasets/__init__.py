@@ -1,4 +1,4 @@
-"""Scene loaders (DTU, LLFF, Blender, generated), ray generation and training batches."""
+"""Scene loaders (DTU, LLFF, Blender, captures, packed and generated scenes) and training batches."""
 
 from internal.datasets.base import Dataset, DatasetError, DatasetNotFoundError
 from internal.datasets.batching import make_batcher

@@ -7,6 +7,7 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
+from internal.cameras.records import Cameras, RaySpace
 from internal.rays import Rays
 
 SPLITS = ('train', 'test')
@@ -23,7 +24,8 @@ class DatasetNotFoundError(DatasetError, FileNotFoundError):
 
 @dataclasses.dataclass
 class Dataset:
-  """One split of one scene: images f32 [N,H,W,3], cameras, rays [N,H,W,...] and optional masks/depths."""
+  """One split of one scene: images f32 [N,H,W,3], cameras, rays [N,H,W,...] cast from them in its RaySpace (set by
+  its loader) and optional masks/depths."""
   images: np.ndarray            # f32 [N,H,W,3] in [0,1].
   camtoworlds: np.ndarray       # f32 [N,3,4].
   pixtocams: np.ndarray         # f32 [N,3,3] (inverse intrinsics at the loaded resolution).
@@ -40,6 +42,25 @@ class Dataset:
   object_masks: Optional[np.ndarray] = None  # f32 [N,H,W] object coverage (generated scene).
   # The image file of each view, in load order (depth priors are named after them); None: a pack keeps none.
   image_paths: Optional[List[str]] = None
+  space: Optional[RaySpace] = None        # How its rays follow from its cameras (cameras/caster.py).
+  distortion: Optional[np.ndarray] = None  # f32 [N,8] COLMAP's camera parameters (captures), else None: pinholes.
+
+  @property
+  def cameras(self) -> Cameras:
+    """The cameras its rays were cast from (float32, as kept)."""
+    return Cameras(self.camtoworlds, self.pixtocams, self.distortion)
+
+
+def subset(data: Dataset, positions: Sequence[int]) -> Dataset:
+  """The views of data at positions (indices into its views), every per-view field with them."""
+  positions = list(positions)
+  take = lambda x: None if x is None else x[positions]
+  pick = lambda x: None if x is None else [x[p] for p in positions]
+  return dataclasses.replace(data, images=data.images[positions], camtoworlds=data.camtoworlds[positions],
+                             pixtocams=data.pixtocams[positions], ids=pick(data.ids), masks=take(data.masks),
+                             rays=Rays(*[x[positions] for x in data.rays]), depths=take(data.depths),
+                             object_masks=take(data.object_masks), image_paths=pick(data.image_paths),
+                             distortion=take(data.distortion))
 
 
 def check_split(split: str) -> None:
@@ -126,6 +147,24 @@ def check_finite(values: np.ndarray, path: str, what: str) -> None:
     bad = np.argwhere(~np.isfinite(values.reshape(len(values), -1)))[:, 0] if values.ndim else [0]
     raise DatasetError(f'{path!r}: {what} of entries {sorted(set(int(i) for i in bad))[:10]} are not finite '
                        '(NaN or Inf); expected finite numbers')
+
+
+# A camera's 3x3 part (rotation, or K R of a projection) whose smallest singular value is below this fraction of
+# its largest cannot be inverted to rays (a rotation has 1, DTU's projections 3e-4).
+SINGULAR_RATIO = 1e-8
+
+
+def check_cameras(matrices: np.ndarray, path: str, labels: Sequence[str], what: str = 'camera') -> None:
+  """Raises DatasetError naming path and labels[i] when camera i of [N,3,K] (K >= 3) holds NaN or Inf or when
+  its 3x3 part is singular (e.g. a zero column), so that no ray could be made from it."""
+  for matrix, label in zip(np.asarray(matrices, np.float64), labels):
+    if not np.isfinite(matrix).all():
+      raise DatasetError(f'{path!r}: the {what} of {label} holds NaN or Inf; expected finite numbers')
+    values = np.linalg.svd(matrix[:3, :3], compute_uv=False)
+    if values[-1] <= SINGULAR_RATIO * values[0]:
+      raise DatasetError(f'{path!r}: the {what} of {label} is degenerate: its 3x3 part (the rotation, or '
+                         f'K R of a projection) is singular (singular values '
+                         f'{np.array2string(values, precision=3)}); expected an invertible one')
 
 
 def render_factor(config) -> int:

@@ -5,7 +5,9 @@ import os
 
 import numpy as np
 
-from internal.datasets import base, cameras, image_io, raygen
+from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
+from internal.datasets import base, image_io
 
 DIETNERF_IDS = (26, 86, 2, 55, 75, 93, 16, 73)
 SPLIT_MODES = ('dietnerf', 'first_n')
@@ -29,7 +31,7 @@ def read_transforms(scene_dir: str, split: str) -> dict:
     raise base.DatasetError(f'cannot read camera file {path!r} (expected JSON with camera_angle_x and frames of '
                             f'file_path + 4x4 transform_matrix): {err!r}') from err
   labels = [f'frame {i} ({frame.get("file_path")!r})' for i, frame in enumerate(meta['frames'])]
-  cameras.check_cameras(matrices, path, labels, 'transform_matrix')
+  base.check_cameras(matrices, path, labels, 'transform_matrix')
   return meta
 
 
@@ -58,10 +60,17 @@ def composite(rgba: np.ndarray, white_background: bool) -> np.ndarray:
   return rgba[..., :3]
 
 
-def frame_rays(config, camtoworld, pixtocam, height: int, width: int):
-  """Rays [H,W,...] of one OpenGL camera through pixels + Config.pixel_offset, near/far from Config."""
-  return raygen.pinhole_rays(camtoworld, pixtocam, height, width, config.near, config.far, True,
-                             config.pixel_offset)
+def ray_space(config, height: int, width: int) -> RaySpace:
+  """The rays of a Blender-layout scene: OpenGL cameras, through pixels + Config.pixel_offset, Config's near and
+  far."""
+  return RaySpace(opengl=True, near=config.near, far=config.far, height=height, width=width,
+                  pixel_offset=config.pixel_offset)
+
+
+def frame_rays(config, camtoworlds, pixtocam, height: int, width: int):
+  """Rays [N,H,W,...] of OpenGL cameras [N,3,4] with one pixtocam [3,3] (ray_space)."""
+  cameras = Cameras(camtoworlds, np.broadcast_to(pixtocam, (len(camtoworlds), 3, 3)))
+  return caster.image_rays(cameras, ray_space(config, height, width))
 
 
 def load_blender(split: str, config, scene_dir: str, name: str, mode: str, test_stride: int) -> base.Dataset:
@@ -80,13 +89,13 @@ def load_blender(split: str, config, scene_dir: str, name: str, mode: str, test_
                                                          config.white_background))
   height, width = images.shape[1:3]
   focal = .5 * width / np.tan(.5 * float(meta['camera_angle_x']))
-  pixtocam = cameras.focal_pixtocam(focal, height, width)
+  pixtocam = algebra.focal_pixtocam(focal, height, width)
   c2w = np.array([meta['frames'][i]['transform_matrix'] for i in ids], np.float64)[:, :3, :4]
-  rays = raygen.stack_rays((frame_rays(config, p, pixtocam, height, width) for p in c2w), len(c2w))
   return base.Dataset(images=images.astype(np.float32), camtoworlds=c2w.astype(np.float32),
                       pixtocams=np.repeat(pixtocam[None], len(ids), 0).astype(np.float32), ids=list(ids),
-                      height=height, width=width, near=config.near, far=config.far, masks=None, rays=rays,
-                      split=split, name=name, image_paths=paths)
+                      height=height, width=width, near=config.near, far=config.far, masks=None,
+                      rays=frame_rays(config, c2w, pixtocam, height, width), split=split, name=name,
+                      image_paths=paths, space=ray_space(config, height, width))
 
 
 def render_cameras(scene_dir: str, factor: int):
@@ -97,7 +106,7 @@ def render_cameras(scene_dir: str, factor: int):
     raise base.DatasetNotFoundError(f'Blender render path: no test image of {scene_dir!r} exists to size the frames')
   full_h, full_w = image_io.image_size(present[0])
   height, width = full_h // factor, full_w // factor
-  pixtocam = cameras.focal_pixtocam(.5 * width / np.tan(.5 * float(meta['camera_angle_x'])), height, width)
+  pixtocam = algebra.focal_pixtocam(.5 * width / np.tan(.5 * float(meta['camera_angle_x'])), height, width)
   poses = np.array([f['transform_matrix'] for f in meta['frames']], np.float64)[:, :3, :4]
   return poses, pixtocam, height, width
 
@@ -130,8 +139,7 @@ def scene_render_path(config):
 def render_path_rays(config, scene_dir: str):
   """Rays [F,H,W,...] of an orbit at the test cameras' mean radius and height, facing the origin."""
   poses, pixtocam, height, width = render_cameras(scene_dir, base.render_factor(config))
-  path = cameras.orbit_path(poses, config.render_path_frames)
-  return raygen.stack_rays((frame_rays(config, p, pixtocam, height, width) for p in path), len(path))
+  return frame_rays(config, algebra.orbit_path(poses, config.render_path_frames), pixtocam, height, width)
 
 
 def camera_record(config, datasets: dict, scene_dir: str) -> dict:
@@ -141,7 +149,7 @@ def camera_record(config, datasets: dict, scene_dir: str) -> dict:
   for split, data in datasets.items():
     meta = read_transforms(scene_dir, split)
     focal = .5 * data.width / np.tan(.5 * float(meta['camera_angle_x']))
-    pixtocam = cameras.focal_pixtocam(focal, data.height, data.width)
+    pixtocam = algebra.focal_pixtocam(focal, data.height, data.width)
     c2w = np.array([meta['frames'][i]['transform_matrix'] for i in data.ids], np.float64)[:, :3, :4]
     record['arrays'].update({f'{split}/camtoworlds': c2w,
                              f'{split}/pixtocams': np.repeat(pixtocam[None], len(data.ids), 0)})

@@ -26,14 +26,15 @@ from typing import Dict, List
 
 import numpy as np
 
-from internal.datasets import base, cameras, colmap_model, distortion, image_io, llff, random_poses, raygen
+from internal.cameras import algebra, caster, distortion
+from internal.cameras.records import Cameras, RaySpace
+from internal.datasets import base, colmap_model, image_io, llff, random_poses
 
 RIGS = ('auto', 'inward', 'forward')
 # (Config field, its allowed values) of this loader's own settings, checked before any work.
 SETTING_CHOICES = (('capture_rig', RIGS),)
 FORWARD_SPREAD = 0.9   # 'auto': forward when the mean of the unit viewing directions is at least this long.
 CAMERA_DISTANCE = 1.   # Inward captures are scaled so that the median camera is this far from the centre.
-OPENCV_TO_OPENGL = np.diag([1., -1., -1.])
 
 
 @dataclasses.dataclass
@@ -79,7 +80,7 @@ def _is_forward(camtoworlds: np.ndarray, rig: str) -> bool:
   """Whether the capture is forward-facing: Config.capture_rig, or 'auto' by the spread of viewing directions."""
   if rig != 'auto':
     return rig == 'forward'
-  return bool(np.linalg.norm(cameras.normalize(camtoworlds[:, :, 2]).mean(0)) >= FORWARD_SPREAD)
+  return bool(np.linalg.norm(algebra.normalize(camtoworlds[:, :, 2]).mean(0)) >= FORWARD_SPREAD)
 
 
 def read_capture(config) -> Capture:
@@ -91,10 +92,8 @@ def read_capture(config) -> Capture:
   if not images:
     raise base.DatasetError(f'the COLMAP model in {model_dir!r} has no registered images')
   model_file = lambda name: os.path.join(model_dir, name + colmap_model.model_format(model_dir))
-  rotations = np.stack([colmap_model.qvec_to_rotmat(i.qvec) for i in images])
-  centres = np.stack([colmap_model.camera_center(i) for i in images])
-  c2w = np.concatenate([np.transpose(rotations, (0, 2, 1)), centres[..., None]], -1)
-  cameras.check_cameras(c2w, model_file('images'), [f'image {i.name!r}' for i in images], 'pose')
+  c2w = np.stack([colmap_model.camtoworld(i) for i in images])
+  base.check_cameras(c2w, model_file('images'), [f'image {i.name!r}' for i in images], 'pose')
   params = [_camera_params(model, i, model_file('cameras')) for i in images]
   bounds = colmap_model.depth_bounds(model, model_file('points3D'))
   cams = [model.cameras[i.camera_id] for i in images]
@@ -116,9 +115,9 @@ def _up_rotation(up: np.ndarray) -> np.ndarray:
 
 def _to_object_frame(capture: Capture) -> Capture:
   """The inward capture centred on the focus point of its optical axes, scaled, its mean up along +z."""
-  centre = cameras.focus_point(capture.camtoworlds)
+  centre = algebra.focus_point(capture.camtoworlds)
   scale = CAMERA_DISTANCE / np.median(np.linalg.norm(capture.camtoworlds[:, :, 3] - centre, axis=-1))
-  rotation = _up_rotation(cameras.normalize(-capture.camtoworlds[:, :, 1].mean(0)))
+  rotation = _up_rotation(algebra.normalize(-capture.camtoworlds[:, :, 1].mean(0)))
   c2w = np.concatenate([rotation @ capture.camtoworlds[:, :, :3],
                         (scale * (capture.camtoworlds[:, :, 3] - centre) @ rotation.T)[..., None]], -1)
   return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale,
@@ -131,8 +130,8 @@ def _to_forward_frame(capture: Capture) -> Capture:
   scale = 1. / (capture.bounds.min() * .75)
   c2w_gl = capture.camtoworlds @ np.diag([1., -1., -1., 1.])
   c2w_gl[:, :, 3] *= scale
-  to_frame = np.linalg.inv(cameras.to_homogeneous(cameras.poses_avg(c2w_gl)))  # What recenter_poses applies.
-  c2w = (to_frame @ cameras.to_homogeneous(c2w_gl))[:, :3, :4] @ np.diag([1., -1., -1., 1.])
+  to_frame = np.linalg.inv(algebra.to_homogeneous(algebra.poses_avg(c2w_gl)))  # What recenter_poses applies.
+  c2w = (to_frame @ algebra.to_homogeneous(c2w_gl))[:, :3, :4] @ np.diag([1., -1., -1., 1.])
   points = scale * capture.points @ to_frame[:3, :3].T + to_frame[:3, 3]
   return dataclasses.replace(capture, camtoworlds=c2w, bounds=capture.bounds * scale, points=points)
 
@@ -178,15 +177,21 @@ def _image_paths(capture: Capture, config, factor: int) -> tuple:
   return paths, extra
 
 
-def _rays(capture: Capture, index: int, height: int, width: int, near: float, far: float):
-  """Rays [H,W,...] of image index at the loaded size (distortion inverted per pixel)."""
-  params = distortion.scaled(capture.params[index], capture.sizes[index, 1] / width)
-  directions = distortion.camera_directions(params, height, width)
-  c2w = capture.camtoworlds[index]
-  if not capture.forward:
-    return raygen.camera_rays(c2w, directions, near, far)
-  return raygen.ndc_camera_rays(c2w @ np.diag([1., -1., -1., 1.]), directions @ OPENCV_TO_OPENGL,
-                                _ndc_focal(capture, width), height, width)
+def cameras_of(capture: Capture, rows, width: int) -> Cameras:
+  """The Cameras of images rows of capture at the loaded width: COLMAP's parameters (the rays invert their
+  distortion per pixel) and the pixtocams of their undistorted pinholes."""
+  factors = [capture.sizes[i, 1] / width for i in rows]
+  return Cameras(capture.camtoworlds[rows],
+                 np.stack([np.linalg.inv(_intrinsics(capture.params[i], f)) for i, f in zip(rows, factors)]),
+                 np.stack([distortion.scaled(capture.params[i], f) for i, f in zip(rows, factors)]))
+
+
+def ray_space(capture: Capture, height: int, width: int) -> RaySpace:
+  """A capture's rays: OpenCV cameras; LLFF's NDC of the first image's focal length for forward captures, else
+  world rays between near_far's bounds."""
+  near, far = near_far(capture)
+  return RaySpace(opengl=False, near=near, far=far, height=height, width=width,
+                  ndc_focal=_ndc_focal(capture, width) if capture.forward else 0.)
 
 
 def _ndc_focal(capture: Capture, width: int) -> float:
@@ -195,9 +200,9 @@ def _ndc_focal(capture: Capture, width: int) -> float:
 
 
 def near_far(capture: Capture) -> tuple:
-  """(near, far) of every ray: raygen's NDC range for forward captures, else the extremes of the image bounds."""
+  """(near, far) of every ray: the caster's NDC range for forward captures, else the extremes of the image bounds."""
   if capture.forward:
-    return raygen.NDC_NEAR_FAR
+    return caster.NDC_NEAR_FAR
   return float(capture.bounds[:, 0].min()), float(capture.bounds[:, 1].max())
 
 
@@ -242,13 +247,12 @@ def load_scene(split: str, config) -> base.Dataset:
   images = image_io.load_stack([paths[i] for i in ids], load)
   height, width = images.shape[1:3]
   source, rows = _camera_source(config, split, capture, ids)
-  near, far = near_far(source)
-  rays = raygen.stack_rays((_rays(source, i, height, width, near, far) for i in rows), len(rows))
-  pixtocams = [np.linalg.inv(_intrinsics(source.params[i], source.sizes[i, 1] / width)) for i in rows]
-  return base.Dataset(images=images, camtoworlds=source.camtoworlds[rows].astype(np.float32),
-                      pixtocams=np.stack(pixtocams).astype(np.float32), ids=list(ids), height=height,
-                      width=width, near=near, far=far, masks=None, rays=rays, split=split,
-                      name=f'capture/{scene_name(config)}', image_paths=[paths[i] for i in ids])
+  cameras, space = cameras_of(source, rows, width), ray_space(source, height, width)
+  return base.Dataset(images=images, camtoworlds=cameras.camtoworlds.astype(np.float32),
+                      pixtocams=cameras.pixtocams.astype(np.float32), ids=list(ids), height=height,
+                      width=width, near=space.near, far=space.far, masks=None, rays=caster.image_rays(cameras, space),
+                      split=split, name=f'capture/{scene_name(config)}', image_paths=[paths[i] for i in ids],
+                      space=space, distortion=cameras.distortion.astype(np.float32))
 
 
 def _camera_source(config, split: str, capture: Capture, ids) -> tuple:
@@ -301,22 +305,22 @@ def orbit_path(capture: Capture, n_frames: int) -> np.ndarray:
   sweep = np.concatenate([np.linspace(azimuth[0], azimuth[-1], (n_frames + 1) // 2),
                           np.linspace(azimuth[-1], azimuth[0], n_frames // 2)])
   positions = np.stack([radius * np.cos(sweep), radius * np.sin(sweep), np.full_like(sweep, height)], -1)
-  return np.stack([cameras.viewmatrix(-p, np.array([0., 0., -1.]), p) for p in positions])
+  return np.stack([algebra.viewmatrix(-p, np.array([0., 0., -1.]), p) for p in positions])
 
 
-def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> tuple:
-  """(RegNeRF's random poses [n,3,4], pixtocam [3,3], NDC focal or 0) of the capture: DTU's rule for inward
-  captures (OpenCV cameras in the box of the captured ones, looking at the centre; the training images' mean
-  intrinsics), LLFF's for forward ones (all n poses: no released code keeps only the last for captures)."""
+def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> Cameras:
+  """RegNeRF's random poses of the capture (OpenCV cameras without distortion): DTU's rule for inward captures (in
+  the box of the captured cameras, looking at the centre; the training images' mean intrinsics), LLFF's for
+  forward ones (all n poses: no released code keeps only the last for captures; the NDC focal length's pinhole)."""
   capture = read_capture(config)
   if not capture.forward:
     poses = random_poses.dtu_random_poses(capture.camtoworlds, config.n_random_poses, rng,
                                           config.random_pose_radius, config.random_pose_focusptjitter)
-    return poses, dataset.pixtocams.mean(0).astype(np.float64), 0.
-  focal = _ndc_focal(capture, dataset.width)
-  poses = random_poses.llff_random_poses(capture.camtoworlds @ np.diag([1., -1., -1., 1.]), capture.bounds,
-                                         config.n_random_poses, rng, keep_last_only=False)
-  return poses, cameras.focal_pixtocam(focal, dataset.height, dataset.width), focal
+    return Cameras(poses, np.broadcast_to(dataset.pixtocams.mean(0).astype(np.float64), (len(poses), 3, 3)))
+  opengl = random_poses.llff_random_poses(capture.camtoworlds @ np.diag([1., -1., -1., 1.]), capture.bounds,
+                                          config.n_random_poses, rng, keep_last_only=False)
+  pixtocam = algebra.focal_pixtocam(_ndc_focal(capture, dataset.width), dataset.height, dataset.width)
+  return Cameras(opengl @ np.diag([1., -1., -1., 1.]), np.broadcast_to(pixtocam, (len(opengl), 3, 3)))
 
 
 def mesh_bounds(config):
@@ -339,11 +343,10 @@ def scene_render_path(config):
   params = np.concatenate([capture.params[0, :4], np.zeros(4)])
   capture = dataclasses.replace(capture, params=params[None].repeat(len(capture.names), 0))
   if capture.forward:
-    poses = cameras.spiral_path_llff(capture.camtoworlds @ np.diag([1., -1., -1., 1.]), capture.bounds,
+    poses = algebra.spiral_path_llff(capture.camtoworlds @ np.diag([1., -1., -1., 1.]), capture.bounds,
                                      config.render_path_frames) @ np.diag([1., -1., -1., 1.])
   else:
     poses = orbit_path(capture, config.render_path_frames)
-  near, far = near_far(capture)
   path = dataclasses.replace(capture, camtoworlds=poses, sizes=capture.sizes[:1].repeat(len(poses), 0),
                              params=capture.params[:1].repeat(len(poses), 0))
-  return raygen.stack_rays((_rays(path, i, height, width, near, far) for i in range(len(poses))), len(poses))
+  return caster.image_rays(cameras_of(path, range(len(poses)), width), ray_space(path, height, width))

@@ -11,12 +11,11 @@ import struct
 from typing import Dict, List
 
 import numpy as np
-from scipy.spatial import transform as spatial_transform
-
+from internal.cameras import algebra
 from internal.datasets import base
 
 # COLMAP's camera models: id -> (name, number of parameters). The readers know them all (so that an unsupported
-# one is named); SUPPORTED are those whose projection internal/datasets/distortion.py inverts.
+# one is named); SUPPORTED are those whose projection internal/cameras/distortion.py inverts.
 CAMERA_MODELS = {0: ('SIMPLE_PINHOLE', 3), 1: ('PINHOLE', 4), 2: ('SIMPLE_RADIAL', 4), 3: ('RADIAL', 5),
                  4: ('OPENCV', 8), 5: ('OPENCV_FISHEYE', 8), 6: ('FULL_OPENCV', 12), 7: ('FOV', 5),
                  8: ('SIMPLE_RADIAL_FISHEYE', 4), 9: ('RADIAL_FISHEYE', 5), 10: ('THIN_PRISM_FISHEYE', 12)}
@@ -70,24 +69,14 @@ class Model:
   points: Dict[int, Point3D]
 
 
-def qvec_to_rotmat(qvec) -> np.ndarray:
-  """Rotation [3, 3] of a quaternion [4] (w, x, y, z), normalized first."""
-  w, x, y, z = np.asarray(qvec, np.float64) / np.linalg.norm(qvec)
-  return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                   [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                   [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-
-
-def rotmat_to_qvec(rotation) -> np.ndarray:
-  """Quaternion [4] (w, x, y, z; w >= 0) of a rotation [3, 3]."""
-  x, y, z, w = spatial_transform.Rotation.from_matrix(np.asarray(rotation, np.float64)).as_quat()
-  qvec = np.array([w, x, y, z])
-  return -qvec if w < 0 else qvec
-
-
 def camera_center(image: Image) -> np.ndarray:
   """The camera centre [3] in world coordinates, -R^T t."""
-  return -qvec_to_rotmat(image.qvec).T @ image.tvec
+  return -algebra.quaternion_to_rotation(image.qvec).T @ image.tvec
+
+
+def camtoworld(image: Image) -> np.ndarray:
+  """The camera-to-world [3, 4] of an image in COLMAP's (OpenCV) axes: [R^T | centre]."""
+  return np.concatenate([algebra.quaternion_to_rotation(image.qvec).T, camera_center(image)[:, None]], -1)
 
 
 def depth_bounds(model: Model, points_file: str = 'points3D', percentiles=(0.1, 99.9)) -> Dict[int, np.ndarray]:
@@ -106,7 +95,7 @@ def depth_bounds(model: Model, points_file: str = 'points3D', percentiles=(0.1, 
     if not seen[image_id]:
       raise ColmapError(f'image {image.name!r} sees none of the 3D points of {points_file!r}; its depth range is '
                         'unknown')
-    depths = (np.array(seen[image_id]) @ qvec_to_rotmat(image.qvec).T + image.tvec)[:, 2]
+    depths = (np.array(seen[image_id]) @ algebra.quaternion_to_rotation(image.qvec).T + image.tvec)[:, 2]
     bounds[image_id] = np.percentile(depths, percentiles)
     if not (np.isfinite(bounds[image_id]).all() and 0 < bounds[image_id][0] <= bounds[image_id][1]):
       raise ColmapError(f'{points_file!r}: the 3D points image {image.name!r} sees give it the depth range '

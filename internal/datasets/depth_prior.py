@@ -6,7 +6,10 @@ resampled to the training resolution (area average when it shrinks, bilinear whe
 values only, so a hole never bleeds into its neighbours. 0 and non-finite values are "no prior" there; a pixel
 keeps a prior where at least half of it is covered by valid values. Maps are read for the training views only.
 Config.depth_prior_kind says whether they hold depth or disparity; either is known only up to scale and shift,
-which the ranking and Pearson losses ignore. Every bad map is one DatasetError naming its file.
+which the ranking and Pearson losses ignore (the maps' only readers): so each map is rescaled by the power of two
+that brings its largest valid magnitude into [1, 2), which float32 holds whatever the map's units (a map of 1e40s
+trains as one of 1s; exactly so, a power of two scaling every step of the losses exactly). Every bad map is one
+DatasetError naming its file, as is one whose values span more than float32 holds.
 """
 
 import os
@@ -25,6 +28,11 @@ MIN_COVER = .5  # A resampled pixel keeps a prior where valid values cover at le
 def dense_losses_on(config) -> bool:
   """Whether a loss reads the maps of Config.depth_prior_dir (ranking or Pearson)."""
   return config.depth_rank_loss_mult > 0 or config.depth_pearson_loss_mult > 0
+
+
+def any_on(config) -> bool:
+  """Whether a depth-prior loss is on: a dense one or the structure-from-motion points'."""
+  return dense_losses_on(config) or config.sfm_depth_loss_mult > 0
 
 
 def check_settings(config) -> None:
@@ -49,10 +57,6 @@ def check_settings(config) -> None:
     raise ValueError(f'Config.sfm_depth_loss_mult = {config.sfm_depth_loss_mult} needs a capture\'s structure-'
                      "from-motion points (Config.dataset_loader = 'capture'); this Config.dataset_loader = "
                      f'{config.dataset_loader!r}. Other scenes can use depth maps (Config.depth_prior_dir)')
-  if config.optimize_cameras and (dense_losses_on(config) or config.sfm_depth_loss_mult > 0):
-    raise ValueError('Config.optimize_cameras = True with a depth prior (Config.depth_rank_loss_mult, '
-                     'depth_pearson_loss_mult or sfm_depth_loss_mult > 0) is not supported: the prior\'s rays are '
-                     'made from the given cameras, not the refined ones; turn one of them off')
   if config.sfm_depth_model and config.sfm_depth_loss_mult <= 0:
     warnings.warn(f'Config.sfm_depth_model = {config.sfm_depth_model!r} is not read: Config.sfm_depth_loss_mult '
                   'is 0', stacklevel=3)
@@ -113,12 +117,30 @@ def _axis_weights(src: int, dst: int) -> np.ndarray:
 
 
 def resample(values: np.ndarray, height: int, width: int) -> np.ndarray:
-  """f32 [height, width] of a map [h, w] over its valid values (finite, nonzero); 0 where too few cover a pixel."""
+  """f64 [height, width] of a map [h, w] over its valid values (finite, nonzero); 0 where too few cover a pixel."""
   valid = np.isfinite(values) & (values != 0)
   rows, cols = _axis_weights(values.shape[0], height), _axis_weights(values.shape[1], width)
   cover = rows @ valid @ cols.T
   total = rows @ np.where(valid, values, 0.) @ cols.T
-  return np.where(cover >= MIN_COVER, total / np.maximum(cover, 1e-12), 0.).astype(np.float32)
+  return np.where(cover >= MIN_COVER, total / np.maximum(cover, 1e-12), 0.)
+
+
+def rescaled(values: np.ndarray) -> np.ndarray:
+  """values [h, w] (some valid) times the power of two that brings their largest valid magnitude into [1, 2)."""
+  largest = np.abs(values[np.isfinite(values) & (values != 0)]).max()
+  return np.ldexp(values, 1 - np.frexp(largest)[1])
+
+
+def _to_float32(resampled: np.ndarray, values: np.ndarray, path: str) -> np.ndarray:
+  """f32 of a rescaled, resampled map [H, W]; DatasetError naming the file when a pixel with a prior would lose it
+  (below float32's normal numbers, which XLA flushes to 0): its values [h, w] span more than float32 holds."""
+  single = resampled.astype(np.float32)
+  if np.any((resampled != 0) & ~(np.abs(single) >= np.finfo(np.float32).tiny)):
+    magnitudes = np.abs(values[np.isfinite(values) & (values != 0)])
+    raise base.DatasetError(f'depth map {path!r} holds values from {magnitudes.min():.3g} to {magnitudes.max():.3g} '
+                            f'(in magnitude), a wider span than float32 holds ({1 / np.finfo(np.float32).tiny:.3g}) '
+                            'even rescaled; expected a map whose valid values span less')
+  return single
 
 
 def _check_aspect(values: np.ndarray, path: str, height: int, width: int) -> None:
@@ -145,7 +167,7 @@ def load_maps(dataset: base.Dataset, config) -> np.ndarray:
     _check_aspect(values, path, dataset.height, dataset.width)
     if not (np.isfinite(values) & (values != 0)).any():
       raise base.DatasetError(f'depth map {path!r} holds no value: every entry is 0 or not finite ("no prior")')
-    maps.append(resample(values, dataset.height, dataset.width))
+    maps.append(_to_float32(resample(rescaled(values), dataset.height, dataset.width), values, path))
     if not maps[-1].any():
       raise base.DatasetError(f'depth map {path!r}: its valid values cover no pixel at the training size '
                               f'{dataset.width} x {dataset.height}')

@@ -6,7 +6,9 @@ import zipfile
 
 import numpy as np
 
-from internal.datasets import base, cameras, image_io, random_poses, raygen
+from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
+from internal.datasets import base, image_io, random_poses
 
 TRAIN_IDS = (25, 22, 28, 40, 44, 48, 0, 8, 13)
 EXCLUDED_IDS = (3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 36, 37, 38, 39)
@@ -69,7 +71,7 @@ def read_projection_txt(path: str, camera: int) -> np.ndarray:
     raise base.DatasetError(f'cannot read camera file {path!r} (expected a 3x4 matrix of numbers): {err}') from err
   if proj.shape != (3, 4):
     raise base.DatasetError(f'camera file {path!r} holds shape {proj.shape}; expected a 3x4 projection matrix')
-  cameras.check_cameras(proj[None], path, [f'camera {camera}'], 'projection matrix')
+  base.check_cameras(proj[None], path, [f'camera {camera}'], 'projection matrix')
   return proj
 
 
@@ -92,7 +94,7 @@ def idr_projections(scan_dir: str, n_cameras: int) -> np.ndarray:
   if not mats or any(m.shape not in ((4, 4), (3, 4)) for m in mats):
     raise base.DatasetError(f'camera file {path!r}: expected world_mat_i arrays of shape 4x4 or 3x4')
   projections = np.stack([m[:3, :4] for m in mats])
-  cameras.check_cameras(projections, path, [f'camera {i} (world_mat_{i})' for i in range(count)], 'projection')
+  base.check_cameras(projections, path, [f'camera {i} (world_mat_{i})' for i in range(count)], 'projection')
   return projections
 
 
@@ -167,9 +169,9 @@ def load_masks(paths, factor: int, mode: str) -> np.ndarray:
 
 def normalized_cameras(projections: np.ndarray, factor: int) -> tuple:
   """(pixtocams [N,3,3], camtoworlds [N,3,4]) from P [N,3,4]: decompose, recenter, rescale (OpenCV axes)."""
-  decomposed = [cameras.projection_to_camtoworld(p) for p in projections]
-  intrinsics = np.stack([cameras.scale_intrinsics(k, factor) for k, _ in decomposed])
-  poses = cameras.rescale_poses(cameras.recenter_poses(np.stack([c2w for _, c2w in decomposed])))
+  decomposed = [algebra.projection_to_camtoworld(p) for p in projections]
+  intrinsics = np.stack([algebra.scale_intrinsics(k, factor) for k, _ in decomposed])
+  poses = algebra.rescale_poses(algebra.recenter_poses(np.stack([c2w for _, c2w in decomposed])))
   return np.linalg.inv(intrinsics), poses
 
 
@@ -209,13 +211,18 @@ def load_scene(split: str, config) -> base.Dataset:
   if split == 'test':
     masks = load_masks(mask_paths(config, scan_dir, layout, ids), factor, config.downsample_mode)
   images = image_io.load_stack(paths, lambda p: image_io.load_rgb(p, factor, config.downsample_mode))
-  height, width = images.shape[1:3]
-  rays = raygen.stack_rays((raygen.dtu_rays(poses[i], pixtocams[i], height, width, config.near, config.far,
-                                            config.near_origin) for i in ids), len(ids))
+  space = ray_space(config, *images.shape[1:3])
+  rays = caster.image_rays(Cameras(poses[ids], pixtocams[ids]), space)
   return base.Dataset(images=images, camtoworlds=poses[ids].astype(np.float32),
-                      pixtocams=pixtocams[ids].astype(np.float32), ids=list(ids), height=height, width=width,
-                      near=config.near, far=config.far, masks=masks, rays=rays, split=split,
-                      name=f'dtu/{config.dtu_scan}', image_paths=list(paths))
+                      pixtocams=pixtocams[ids].astype(np.float32), ids=list(ids), height=space.height,
+                      width=space.width, near=config.near, far=config.far, masks=masks, rays=rays, split=split,
+                      name=f'dtu/{config.dtu_scan}', image_paths=list(paths), space=space)
+
+
+def ray_space(config, height: int, width: int) -> RaySpace:
+  """DTU's rays: OpenCV cameras, Config's near and far, origins on the plane z = Config.near_origin."""
+  return RaySpace(opengl=False, near=config.near, far=config.far, height=height, width=width,
+                  plane_z=config.near_origin)
 
 
 def mask_region(test_set: base.Dataset):
@@ -256,9 +263,9 @@ def render_cameras(config) -> tuple:
 def scene_render_path(config):
   """Rays [F,H,W,...] of the DTU spiral over all cameras, with the mean test intrinsics."""
   poses, pixtocam, height, width = render_cameras(config)
-  path = cameras.spiral_path_dtu(poses, config.render_path_frames)
-  return raygen.stack_rays((raygen.dtu_rays(p, pixtocam, height, width, config.near, config.far,
-                                            config.near_origin) for p in path), len(path))
+  path = algebra.spiral_path_dtu(poses, config.render_path_frames)
+  cameras = Cameras(path, np.broadcast_to(pixtocam, (len(path), 3, 3)))
+  return caster.image_rays(cameras, ray_space(config, height, width))
 
 
 def pack_cameras(config, datasets: dict) -> dict:
@@ -276,10 +283,11 @@ def pack_cameras(config, datasets: dict) -> dict:
   return record
 
 
-def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> tuple:
-  """(RegNeRF's random poses [n,3,4] in the box of all cameras, their mean pixtocam [3,3], 0: world rays)."""
+def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> Cameras:
+  """RegNeRF's random poses [n] in the box of all cameras (at the training factor), with their mean pixtocam."""
   del dataset  # Every camera of the scan, at the training factor.
   _, _, projections = scan_setup(config)
   pixtocams, poses = normalized_cameras(projections, base.load_factor(config, 'train'))
-  return (random_poses.dtu_random_poses(poses, config.n_random_poses, rng, config.random_pose_radius,
-                                        config.random_pose_focusptjitter), pixtocams.mean(0), 0.)
+  found = random_poses.dtu_random_poses(poses, config.n_random_poses, rng, config.random_pose_radius,
+                                        config.random_pose_focusptjitter)
+  return Cameras(found, np.broadcast_to(pixtocams.mean(0), (len(found), 3, 3)))

@@ -5,7 +5,9 @@ import warnings
 
 import numpy as np
 
-from internal.datasets import base, cameras, image_io, random_poses, raygen
+from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
+from internal.datasets import base, image_io, random_poses
 
 IMAGE_EXTENSIONS = ('JPG', 'jpg', 'png')
 AXIS_FIX = np.array([[0., -1., 0., 0.], [1., 0., 0., 0.], [0., 0., 1., 0.], [0., 0., 0., 1.]])
@@ -51,7 +53,7 @@ def read_poses_bounds(scene_dir: str, image_paths=None) -> np.ndarray:
   names = [f' ({os.path.basename(p)!r})' for p in image_paths or ()]
   names = names if len(names) == len(data) else [''] * len(data)
   labels = [f'image {i}{name}' for i, name in enumerate(names)]
-  cameras.check_cameras(data[:, :15].reshape(-1, 3, 5), path, labels, 'pose')
+  base.check_cameras(data[:, :15].reshape(-1, 3, 5), path, labels, 'pose')
   base.check_finite(data[:, 15:17], path, 'the near/far bounds')
   if (data[:, 15:17] <= 0).any():
     raise base.DatasetError(f'{path!r}: the near/far bounds (columns 15, 16) must be positive; found minimum '
@@ -66,7 +68,7 @@ def process_poses(poses_bounds: np.ndarray) -> tuple:
   c2w = poses[:, :, :4] @ AXIS_FIX
   scale = 1. / (bounds.min() * .75)
   c2w[:, :, 3] *= scale
-  return cameras.recenter_poses(c2w), bounds * scale, poses[0, 2, 4]
+  return algebra.recenter_poses(c2w), bounds * scale, poses[0, 2, 4]
 
 
 def split_ids(split: str, n_images: int, llffhold: int, n_views: int) -> list:
@@ -105,14 +107,24 @@ def load_llff(split: str, config, scene_dir: str, name: str) -> base.Dataset:
   images = image_io.load_stack([paths[i] for i in ids],
                                lambda p: image_io.load_rgb(p, extra, config.downsample_mode))
   height, width = images.shape[1:3]
-  pixtocam = cameras.focal_pixtocam(focal / factor, height, width)
-  rays = raygen.stack_rays((raygen.llff_rays(c2w[i], pixtocam, height, width, focal / factor) for i in ids),
-                           len(ids))
-  near, far = raygen.NDC_NEAR_FAR
+  pixtocam = algebra.focal_pixtocam(focal / factor, height, width)
+  space = ray_space(focal / factor, height, width)
   return base.Dataset(images=images, camtoworlds=c2w[ids].astype(np.float32),
                       pixtocams=np.repeat(pixtocam[None], len(ids), 0).astype(np.float32), ids=list(ids),
-                      height=height, width=width, near=near, far=far, masks=None, rays=rays, split=split, name=name,
-                      image_paths=[paths[i] for i in ids])
+                      height=height, width=width, near=space.near, far=space.far, masks=None,
+                      rays=ndc_rays(c2w[ids], pixtocam, space), split=split, name=name,
+                      image_paths=[paths[i] for i in ids], space=space)
+
+
+def ray_space(focal: float, height: int, width: int) -> RaySpace:
+  """LLFF's rays: OpenGL cameras, NDC of the given focal length (pixels), near 0 and far 1."""
+  near, far = caster.NDC_NEAR_FAR
+  return RaySpace(opengl=True, near=near, far=far, height=height, width=width, ndc_focal=focal)
+
+
+def ndc_rays(camtoworlds: np.ndarray, pixtocam: np.ndarray, space: RaySpace):
+  """Rays [N,H,W,...] of cameras [N,3,4] with one pixtocam [3,3] in space."""
+  return caster.image_rays(Cameras(camtoworlds, np.broadcast_to(pixtocam, (len(camtoworlds), 3, 3))), space)
 
 
 def scene_path(config) -> str:
@@ -136,14 +148,14 @@ def render_cameras(scene_dir: str, factor: int) -> tuple:
   c2w, bounds, focal = process_poses(poses_bounds)
   full_h, full_w = image_io.image_size(paths[0])
   height, width = full_h // extra, full_w // extra
-  return c2w, bounds, focal / factor, cameras.focal_pixtocam(focal / factor, height, width), height, width
+  return c2w, bounds, focal / factor, algebra.focal_pixtocam(focal / factor, height, width), height, width
 
 
 def render_path_rays(config, scene_dir: str):
   """Rays [F,H,W,...] (NDC) of the LLFF spiral path (Config.render_path_frames frames)."""
   c2w, bounds, focal, pixtocam, height, width = render_cameras(scene_dir, base.render_factor(config))
-  path = cameras.spiral_path_llff(c2w, bounds, config.render_path_frames)
-  return raygen.stack_rays((raygen.llff_rays(p, pixtocam, height, width, focal) for p in path), len(path))
+  path = algebra.spiral_path_llff(c2w, bounds, config.render_path_frames)
+  return ndc_rays(path, pixtocam, ray_space(focal, height, width))
 
 
 def camera_record(config, datasets: dict, scene_dir: str) -> dict:
@@ -153,7 +165,7 @@ def camera_record(config, datasets: dict, scene_dir: str) -> dict:
   c2w, bounds, focal = process_poses(read_poses_bounds(scene_dir))
   for split, data in datasets.items():
     split_focal = focal / base.load_factor(config, split)
-    pixtocam = cameras.focal_pixtocam(split_focal, data.height, data.width)
+    pixtocam = algebra.focal_pixtocam(split_focal, data.height, data.width)
     record['arrays'].update({f'{split}/camtoworlds': c2w[data.ids],
                              f'{split}/pixtocams': np.repeat(pixtocam[None], len(data.ids), 0),
                              f'{split}/focal': np.float64(split_focal)})
@@ -172,15 +184,16 @@ def pack_cameras(config, datasets: dict) -> dict:
   return camera_record(config, datasets, scene_path(config))
 
 
-def random_cameras(dataset: base.Dataset, config, rng: np.random.Generator, scene_dir: str) -> tuple:
-  """(RegNeRF's random poses [n,3,4] of an LLFF-layout scene, pixtocam [3,3] of the dataset's size, NDC focal)."""
+def random_cameras(dataset: base.Dataset, config, rng: np.random.Generator, scene_dir: str) -> Cameras:
+  """RegNeRF's random poses of an LLFF-layout scene, with the pixtocam of the dataset's size."""
   c2w, bounds, focal = process_poses(read_poses_bounds(scene_dir))
   focal /= base.load_factor(config, 'train')
   poses = random_poses.llff_random_poses(c2w, bounds, config.n_random_poses, rng,
                                          not config.regnerf_fix_released_bugs)
-  return poses, cameras.focal_pixtocam(focal, dataset.height, dataset.width), focal
+  pixtocam = algebra.focal_pixtocam(focal, dataset.height, dataset.width)
+  return Cameras(poses, np.broadcast_to(pixtocam, (len(poses), 3, 3)))
 
 
-def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> tuple:
+def random_pose_cameras(dataset: base.Dataset, config, rng: np.random.Generator) -> Cameras:
   """The random poses of the LLFF scene Config.llff_scan (see random_cameras)."""
   return random_cameras(dataset, config, rng, scene_path(config))

@@ -10,8 +10,9 @@ from typing import Callable, Dict, Optional, Tuple
 
 import numpy as np
 
-from internal.datasets import base, blender, camera_noise, capture, dtu, generated, llff, packed, raygen
-from internal.datasets import pose_correction
+from internal.cameras import caster
+from internal.cameras.records import Cameras
+from internal.datasets import base, blender, camera_noise, capture, dtu, generated, llff, packed
 
 
 # Loader fields filled from the loader file's attribute of that name where it has one (see Loader.of).
@@ -38,7 +39,7 @@ class Loader:
   ground_truth: Optional[Callable] = None  # (Dataset, config) -> Dataset with exact depths and object masks.
   pack_cameras: Optional[Callable] = None  # (config, {split: Dataset}) -> the pack's camera record; None: unpackable.
   choices: Tuple[Tuple[str, Tuple[str, ...]], ...] = ()  # (Config field, its allowed values) of its own settings.
-  # (Dataset, config, rng) -> (RegNeRF's random poses [n,3,4], pixtocam [3,3], NDC focal or 0: world rays), or
+  # (Dataset, config, rng) -> RegNeRF's random poses as Cameras (in the axes and RaySpace of the dataset's), or
   # None for a scene without them; None: no random poses (depth smoothness is refused).
   random_pose_cameras: Optional[Callable] = None
   mesh_bounds: Optional[Callable] = None  # config -> [2, 3] region of a world-ray scene to mesh, or None: none.
@@ -48,8 +49,8 @@ class Loader:
     """The record of a loader file: MODULE_ATTRIBUTES from the module, ndc a constant or config -> bool, fields
     the rest (or overrides)."""
     found = {field: getattr(module, name) for field, name in MODULE_ATTRIBUTES if hasattr(module, name)}
-    ray_space = ndc if callable(ndc) else lambda config: ndc
-    return cls(scene_setting=scene_setting, ndc=ray_space, **{**found, **fields})
+    rule = ndc if callable(ndc) else lambda config: ndc
+    return cls(scene_setting=scene_setting, ndc=rule, **{**found, **fields})
 
 
 def _filed_as_packed(config) -> Tuple[str, str]:
@@ -92,7 +93,7 @@ def load_dataset(split: str, config, ground_truth: bool = False) -> base.Dataset
   record = loader_of(config)
   data = record.load(split, config)
   if camera_noise.is_on(config):  # Studies of camera refinement: noise on the training cameras only.
-    data = camera_noise.perturbed(data, config, ray_space(config, data))
+    data = camera_noise.perturbed(data, config)
   return record.ground_truth(data, config) if ground_truth and record.ground_truth else data
 
 
@@ -129,22 +130,13 @@ def mesh_bounds(config) -> Optional[np.ndarray]:
   """[2, 3] the scene's own region to mesh: the NDC box for NDC rays, else its loader's (None: it has none)."""
   record = loader_of(config)
   if record.ndc(config):
-    return np.array(raygen.NDC_BOX)
+    return np.array(caster.NDC_BOX)
   return record.mesh_bounds(config) if record.mesh_bounds else None
 
 
-def ray_space(config, dataset: base.Dataset) -> pose_correction.RaySpace:
-  """How the rays of Config's scene (as loaded in dataset) follow from its cameras: those of the dataset it is filed
-  under (world rays, DTU's origin plane, or NDC with the focal length its rays were made with)."""
-  filed, _ = filed_as(config)
-  if REGISTRY[filed].ndc(config):
-    return pose_correction.RaySpace(ndc_focal=pose_correction.ndc_focal(dataset), height=dataset.height,
-                                    width=dataset.width)
-  return pose_correction.RaySpace(plane_z=float(config.near_origin) if filed == 'dtu' else None)
-
-
-def random_pose_cameras(dataset: base.Dataset, config, rng) -> tuple:
-  """(random poses [n,3,4], pixtocam [3,3], NDC focal or 0) of the training scene, drawn with rng by its loader.
+def random_pose_cameras(dataset: base.Dataset, config, rng) -> Cameras:
+  """RegNeRF's random poses of the training scene as Cameras in its own axes and RaySpace, drawn with rng by its
+  loader.
 
   ValueError naming the settings when the scene has none (the loaders with random poses listed).
   """

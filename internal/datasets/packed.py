@@ -15,7 +15,9 @@ import zipfile
 import numpy as np
 
 from internal import configs
-from internal.datasets import base, cameras, raygen
+from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras, RaySpace
+from internal.datasets import base
 
 VERSION = 1
 FIELDS = ('images', 'masks', 'depths', 'object_masks')
@@ -52,24 +54,27 @@ def decode(arrays, name: str):
 
 # ---------------------------------------------------------------- rays from cameras
 
-def make_rays(kind: str, c2w, pixtocam, height: int, width: int, params: dict):
-  """Rays [H,W,...] of one camera by ray kind 'dtu' | 'llff' | 'pinhole' (the loaders' functions)."""
+def ray_space(kind: str, height: int, width: int, params: dict) -> RaySpace:
+  """The RaySpace the loader of ray kind 'dtu' | 'llff' | 'pinhole' sets (dtu, llff, blender.ray_space), from the
+  pack's ray parameters."""
   if kind == 'dtu':
-    return raygen.dtu_rays(c2w, pixtocam, height, width, params['near'], params['far'], params['near_origin'])
+    return RaySpace(opengl=False, near=params['near'], far=params['far'], height=height, width=width,
+                    plane_z=params['near_origin'])
   if kind == 'llff':
-    return raygen.llff_rays(c2w, pixtocam, height, width, params['focal'])
+    near, far = caster.NDC_NEAR_FAR
+    return RaySpace(opengl=True, near=near, far=far, height=height, width=width, ndc_focal=params['focal'])
   # Packs written before Config.pixel_offset existed hold pixel-centre rays.
-  return raygen.pinhole_rays(c2w, pixtocam, height, width, params['near'], params['far'], True,
-                             params.get('pixel_offset', .5))
+  return RaySpace(opengl=True, near=params['near'], far=params['far'], height=height, width=width,
+                  pixel_offset=params.get('pixel_offset', .5))
 
 
 def path_poses(kind: str, source, bounds, n_frames: int) -> np.ndarray:
   """[F,3,4] render-path cameras from the path's source cameras [M,3,4] (and LLFF bounds [M,2])."""
   if kind == 'spiral_dtu':
-    return cameras.spiral_path_dtu(source, n_frames)
+    return algebra.spiral_path_dtu(source, n_frames)
   if kind == 'spiral_llff':
-    return cameras.spiral_path_llff(source, bounds, n_frames)
-  return cameras.orbit_path(source, n_frames)
+    return algebra.spiral_path_llff(source, bounds, n_frames)
+  return algebra.orbit_path(source, n_frames)
 
 
 # ---------------------------------------------------------------- pack and load
@@ -101,8 +106,13 @@ def pack_arrays(config, datasets: dict, record: dict) -> dict:
 def write_pack(path: str, arrays: dict) -> None:
   """Writes arrays to path (.npz, compressed) through a temporary file, so a failed write leaves nothing."""
   tmp = path + '.partial.npz'
-  np.savez_compressed(tmp, **arrays)
-  os.replace(tmp, path)
+  try:
+    np.savez_compressed(tmp, **arrays)
+    os.replace(tmp, path)
+  except BaseException:
+    if os.path.exists(tmp):
+      os.remove(tmp)
+    raise
 
 
 def read_pack(path: str) -> tuple:
@@ -148,15 +158,15 @@ def load_scene(split: str, config) -> base.Dataset:
   info = meta['splits'][split]
   c2w, pixtocams = arrays[f'{split}/camtoworlds'], arrays[f'{split}/pixtocams']
   labels = [f'{split} view {i} (id {view})' for i, view in enumerate(info['ids'])]
-  cameras.check_cameras(c2w, config.data_dir, labels, 'camtoworld')
-  cameras.check_cameras(pixtocams, config.data_dir, labels, 'pixtocam')
+  base.check_cameras(c2w, config.data_dir, labels, 'camtoworld')
+  base.check_cameras(pixtocams, config.data_dir, labels, 'pixtocam')
   params = {**meta['ray_params'], 'focal': float(arrays.get(f'{split}/focal', 0.))}
-  rays = raygen.stack_rays((make_rays(meta['ray_kind'], c2w[i], pixtocams[i], info['height'], info['width'], params)
-                            for i in range(len(c2w))), len(c2w))
+  space = ray_space(meta['ray_kind'], info['height'], info['width'], params)
   fields = {field: decode(arrays, f'{split}/{field}') for field in FIELDS}
   return base.Dataset(camtoworlds=c2w.astype(np.float32), pixtocams=pixtocams.astype(np.float32), ids=info['ids'],
-                      height=info['height'], width=info['width'], near=info['near'], far=info['far'], rays=rays,
-                      split=split, name=info['name'], **fields)
+                      height=info['height'], width=info['width'], near=info['near'], far=info['far'],
+                      rays=caster.image_rays(Cameras(c2w, pixtocams), space), split=split, name=info['name'],
+                      space=space, **fields)
 
 
 def scene_render_path(config):
@@ -171,8 +181,8 @@ def scene_render_path(config):
   poses = path_poses(meta['path_kind'], arrays['render/source'], arrays.get('render/bounds'),
                      config.render_path_frames)
   params = {**meta['ray_params'], 'focal': float(arrays.get('render/focal', 0.))}
-  return raygen.stack_rays((make_rays(meta['ray_kind'], p, arrays['render/pixtocam'], render['height'],
-                                      render['width'], params) for p in poses), len(poses))
+  cameras = Cameras(poses, np.broadcast_to(arrays['render/pixtocam'], (len(poses), 3, 3)))
+  return caster.image_rays(cameras, ray_space(meta['ray_kind'], render['height'], render['width'], params))
 
 
 def rays_equal(a, b) -> bool:

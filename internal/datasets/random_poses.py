@@ -1,12 +1,18 @@
 """RegNeRF's random poses and the patches of rays drawn from them each step (never all rays at once).
 
 Poses are drawn once from np.random.default_rng([Config.np_rng_seed, POSES_STREAM]); the patches of step s from
-np.random.default_rng([Config.np_rng_seed, s, PATCHES_STREAM]), so a resumed run draws the same patches.
+np.random.default_rng([Config.np_rng_seed, s, PATCHES_STREAM]), so a resumed run draws the same patches. A patch's
+rays are cast as the training images' (the dataset's RaySpace) with RegNeRF's two differences: unit viewdirs for
+NDC rays, and radii from the next pixel on a patch's last row and column as on its others.
 """
+
+import dataclasses
 
 import numpy as np
 
-from internal.datasets import base, cameras, raygen
+from internal.cameras import algebra, caster
+from internal.cameras.records import Pixels, RaySpace
+from internal.datasets import base
 from internal.rays import Rays
 
 POSES_STREAM = 1
@@ -22,7 +28,7 @@ def needs_patches(config) -> bool:
 def _box_positions(poses: np.ndarray, u: np.ndarray) -> np.ndarray:
   """[n,3] positions c2w_avg @ [r * u, 1], r = max |camera position| per axis, u [n,3] in [-1, 1]."""
   radii = np.abs(poses[:, :3, 3]).max(0)
-  c2w = cameras.to_homogeneous(cameras.poses_avg(poses))
+  c2w = algebra.to_homogeneous(algebra.poses_avg(poses))
   local = np.concatenate([radii * u, np.ones((len(u), 1))], axis=-1)
   return (local @ c2w.T)[:, :3]
 
@@ -31,9 +37,9 @@ def dtu_random_poses(poses: np.ndarray, n: int, rng: np.random.Generator, radius
                      jitter: bool) -> np.ndarray:
   """[n,3,4] OpenCV poses in the box of poses [N,3,4] (render-path type), +z towards the (jittered) focus point."""
   positions = _box_positions(poses, 2. * radius * (rng.random((n, 3)) - .5))
-  focus = cameras.focus_point(poses) + (rng.normal(size=(n, 3)) * FOCUS_JITTER_STD if jitter else 0.)
+  focus = algebra.focus_point(poses) + (rng.normal(size=(n, 3)) * FOCUS_JITTER_STD if jitter else 0.)
   up = poses[:, :3, 1].mean(0)
-  return np.stack([cameras.viewmatrix(f - p, up, p) for f, p in zip(np.broadcast_to(focus, (n, 3)), positions)])
+  return np.stack([algebra.viewmatrix(f - p, up, p) for f, p in zip(np.broadcast_to(focus, (n, 3)), positions)])
 
 
 def llff_random_poses(poses: np.ndarray, bounds: np.ndarray, n: int, rng: np.random.Generator,
@@ -46,31 +52,20 @@ def llff_random_poses(poses: np.ndarray, bounds: np.ndarray, n: int, rng: np.ran
   positions = _box_positions(poses, 2. * rng.random((n, 3)) - 1.)
   if keep_last_only:
     positions = positions[-1:]
-  lookat = (cameras.to_homogeneous(cameras.poses_avg(poses)) @ np.array([0., 0., -focus, 1.]))[:3]
+  lookat = (algebra.to_homogeneous(algebra.poses_avg(poses)) @ np.array([0., 0., -focus, 1.]))[:3]
   up = poses[:, :3, 1].mean(0)
-  return np.stack([cameras.viewmatrix(p - lookat, up, p) for p in positions])
+  return np.stack([algebra.viewmatrix(p - lookat, up, p) for p in positions])
 
 
-def patch_rays(camtoworld, pixtocam, height: int, width: int, x0: int, y0: int, size: int, near: float,
-               far: float, ndc_focal: float = 0., near_origin: float = 0.) -> Rays:
-  """Rays [size,size,...] of pixels [y0, y0+size) x [x0, x0+size) of a camera of the full image's geometry.
+def patch_space(space: RaySpace) -> RaySpace:
+  """The RaySpace of RegNeRF's patches in a scene of space: unit viewdirs, radii from the next pixel everywhere."""
+  return dataclasses.replace(space, unit_viewdirs=True, released_edges=False)
 
-  ndc_focal > 0: LLFF (OpenGL camera, NDC rays over the full image, unit viewdirs as RegNeRF's random rays);
-  else DTU (OpenCV camera, origins on z = near_origin). Radii use the next pixel, as for a full image's inner
-  pixels (on the last image row or column the neighbour lies just outside instead of repeating a difference).
-  """
-  cam_dirs = raygen.camera_directions(pixtocam, size + 1, size + 1, ndc_focal > 0, (x0 + .5, y0 + .5))
-  dirs = raygen.world_directions(camtoworld, cam_dirs)
-  origins = np.broadcast_to(np.asarray(camtoworld, np.float64)[:3, 3], dirs.shape)
-  viewdirs = dirs / raygen.norm(dirs)[..., None]
-  if ndc_focal > 0:
-    origins, dirs = raygen.convert_to_ndc(origins, dirs, ndc_focal, height, width)
-    radii = raygen.ndc_radii(origins)
-  else:
-    radii = raygen.row_radii(dirs)
-    origins = raygen.shift_origins(origins, dirs, near_origin)
-  crop = lambda x: x[:size, :size]
-  return raygen.pack_rays(crop(origins), crop(dirs), crop(viewdirs), crop(radii), near, far)
+
+def patch_pixels(pose, x0, y0, size: int) -> Pixels:
+  """Pixels [P, size, size] of P square patches: pose [P] (a camera index), rows from y0 [P], columns from x0 [P]."""
+  at, offsets = lambda start: np.asarray(start)[:, None, None], np.arange(size)
+  return Pixels(at(pose), at(x0) + offsets[None, None], at(y0) + offsets[None, :, None])
 
 
 def check_random_rays(config) -> None:
@@ -83,23 +78,21 @@ def check_random_rays(config) -> None:
 def make_patch_sampler(dataset: base.Dataset, config, scene_cameras):
   """callable(step) -> Rays [P, ps, ps, ...] f32 of P random-pose patches, or None when no loss needs them.
 
-  scene_cameras: (dataset, config, rng) -> (random poses [n,3,4], pixtocam [3,3], NDC focal or 0) of the scene
+  scene_cameras: (dataset, config, rng) -> the scene's random poses as Cameras in the dataset's axes and RaySpace
   (the loader's, see loader.random_pose_cameras).
   """
   if not needs_patches(config):
     return None
   check_random_rays(config)
-  poses, pixtocam, ndc_focal = scene_cameras(dataset, config, np.random.default_rng([config.np_rng_seed,
-                                                                                     POSES_STREAM]))
+  cameras = scene_cameras(dataset, config, np.random.default_rng([config.np_rng_seed, POSES_STREAM]))
+  space = patch_space(dataset.space)
   size, height, width = config.patch_size, dataset.height, dataset.width
   count = config.batch_size_random // size**2
 
   def patches(step: int) -> Rays:
     """The random-pose patches of this step."""
     rng = np.random.default_rng([config.np_rng_seed, int(step), PATCHES_STREAM])
-    pose = rng.integers(len(poses), size=count)
+    pose = rng.integers(len(cameras.camtoworlds), size=count)
     x0, y0 = rng.integers(width - size + 1, size=count), rng.integers(height - size + 1, size=count)
-    rays = [patch_rays(poses[p], pixtocam, height, width, x, y, size, dataset.near, dataset.far, ndc_focal,
-                       config.near_origin) for p, x, y in zip(pose, x0, y0)]
-    return Rays(*[np.stack(field) for field in zip(*rays)])
+    return caster.cast(cameras, patch_pixels(pose, x0, y0, size), space)
   return patches

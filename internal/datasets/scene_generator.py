@@ -15,7 +15,9 @@ import tempfile
 
 import numpy as np
 
-from internal.datasets import base, cameras, image_io, raygen
+from internal.cameras import algebra, caster
+from internal.cameras.records import Cameras
+from internal.datasets import base, image_io
 
 SCENE_VERSION = 3  # 3: two-tone solids and large ground checkers, which a small model fits in a CPU demo.
 RIGS = ('object', 'forward')
@@ -95,7 +97,7 @@ def object_cameras(rng: np.random.Generator) -> tuple:
   def poses(azimuth, elevation):
     pos = 4. * np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
                          np.sin(elevation)], -1)
-    return np.stack([cameras.viewmatrix(p - target, up, p) for p in pos])
+    return np.stack([algebra.viewmatrix(p - target, up, p) for p in pos])
   return poses(*train), poses(*test)
 
 
@@ -105,7 +107,7 @@ def forward_cameras(rng: np.random.Generator) -> np.ndarray:
   grid = [(x, y) for j, y in enumerate(ys) for x in (xs if j % 2 == 0 else xs[::-1])]
   target = np.array([0., -.5, -4.]) + rng.normal(0., .05, 3)
   jitter = rng.normal(0., .03, (N_FORWARD, 3))
-  return np.stack([cameras.viewmatrix(p - target, np.array([0., 1., 0.]), p)
+  return np.stack([algebra.viewmatrix(p - target, np.array([0., 1., 0.]), p)
                    for p in np.array([(x, y, 0.) for x, y in grid]) + jitter])
 
 
@@ -126,7 +128,7 @@ def hit_sphere(solid: dict, o: np.ndarray, d: np.ndarray) -> np.ndarray:
 def hit_box(solid: dict, o: np.ndarray, d: np.ndarray) -> np.ndarray:
   """[R] first hit with an oriented box (slab test in its frame; inf: miss)."""
   rot, half = np.array(solid['rotation']), np.array(solid['half'])
-  o_l, d_l = raygen.mat_vec(rot.T, o - np.array(solid['centre'])), raygen.mat_vec(rot.T, d)
+  o_l, d_l = caster.mat_vec(rot.T, o - np.array(solid['centre'])), caster.mat_vec(rot.T, d)
   inv_d = 1. / np.where(d_l == 0., 1e-300, d_l)
   t1, t2 = (-half - o_l) * inv_d, (half - o_l) * inv_d
   t_min, t_max = np.minimum(t1, t2), np.maximum(t1, t2)
@@ -154,10 +156,10 @@ def normal_at(solid: dict, p: np.ndarray) -> np.ndarray:
   if solid['shape'] == 'plane':
     return np.broadcast_to(np.array(solid['normal']), p.shape)
   rot, half = np.array(solid['rotation']), np.array(solid['half'])
-  p_l = raygen.mat_vec(rot.T, p - np.array(solid['centre']))
+  p_l = caster.mat_vec(rot.T, p - np.array(solid['centre']))
   axis = np.abs(p_l / half).argmax(-1)
   n_l = np.eye(3)[axis] * np.sign(np.take_along_axis(p_l, axis[:, None], -1))
-  return raygen.mat_vec(rot, n_l)
+  return caster.mat_vec(rot, n_l)
 
 
 def pattern(solid: dict, p: np.ndarray) -> np.ndarray:
@@ -167,9 +169,9 @@ def pattern(solid: dict, p: np.ndarray) -> np.ndarray:
     u, v = np.arctan2(q[:, 1], q[:, 0]), np.arcsin(np.clip(q[:, 2], -1., 1.))
     return np.sin(solid['freq'] * u) * np.sin(solid['freq'] * v) > 0.
   if solid['shape'] == 'plane':
-    coords = raygen.mat_vec(np.array(solid['axes']), p)
+    coords = caster.mat_vec(np.array(solid['axes']), p)
   else:
-    p_l = raygen.mat_vec(np.array(solid['rotation']).T, p - np.array(solid['centre']))
+    p_l = caster.mat_vec(np.array(solid['rotation']).T, p - np.array(solid['centre']))
     in_face = np.abs(p_l / np.array(solid['half'])).argmax(-1)[:, None] != np.arange(3)
     coords = np.where(in_face, p_l, 0.)
   return np.floor(coords / solid['cell'] + .5).sum(-1).astype(np.int64) % 2 == 1
@@ -222,7 +224,8 @@ def render_view(scene: dict, c2w: np.ndarray, pixtocam: np.ndarray, height: int,
   """One view: rgb [H,W,3] (mean over hits), alpha, object coverage [H,W] (spp^2 samples), depth [H,W]."""
   spp = scene['spp']
   offsets = [((i + .5) / spp, (j + .5) / spp) for j in range(spp) for i in range(spp)] + [(.5, .5)]
-  dirs = np.stack([raygen.world_directions(c2w, raygen.camera_directions(pixtocam, height, width, True, offset))
+  camera, pixels = Cameras(c2w[None], pixtocam[None]), caster.image_pixels(0, height, width)
+  dirs = np.stack([caster.world_directions(camera, pixels, caster.camera_directions(camera, pixels, True, offset))
                    for offset in offsets]).reshape(-1, 3)
   colour, t, is_object = trace(scene, np.broadcast_to(c2w[:3, 3], dirs.shape), dirs)
   colour, t, is_object = [x.reshape((len(offsets), height, width) + x.shape[1:]) for x in (colour, t, is_object)]
@@ -242,11 +245,11 @@ def build_scene(params: dict) -> tuple:
   """(scene dict with solids, light and fov; {split or 'all': cameras [N,3,4]}) from the parameters."""
   rng = np.random.default_rng([SCENE_VERSION, params['seed']])
   if params['rig'] == 'object':
-    solids, light = object_solids(rng), cameras.normalize(np.array([.5, .3, 1.]))
+    solids, light = object_solids(rng), algebra.normalize(np.array([.5, .3, 1.]))
     train, test = object_cameras(rng)
     views = {'train': train, 'test': test}
   else:
-    solids, light = forward_solids(rng), cameras.normalize(np.array([.3, 1., .6]))
+    solids, light = forward_solids(rng), algebra.normalize(np.array([.3, 1., .6]))
     views = {'all': forward_cameras(rng)}
   scene = dict(params, solids=solids, light=light.tolist(), camera_angle_x=FOV_X[params['rig']])
   return scene, views
@@ -263,7 +266,7 @@ def write_ground_truth(out_dir: str, stem: str, view: dict) -> None:
 def write_object_rig(out_dir: str, scene: dict, views: dict) -> None:
   """Blender layout: transforms_{split}.json, {split}/r_i.png (RGBA) plus depth and masks."""
   h, w = scene['height'], scene['width']
-  pixtocam = cameras.focal_pixtocam(.5 * w / np.tan(.5 * scene['camera_angle_x']), h, w)
+  pixtocam = algebra.focal_pixtocam(.5 * w / np.tan(.5 * scene['camera_angle_x']), h, w)
   for split, poses in views.items():
     os.makedirs(os.path.join(out_dir, split), exist_ok=True)
     frames = []
@@ -272,7 +275,7 @@ def write_object_rig(out_dir: str, scene: dict, views: dict) -> None:
       image_io.write_png(os.path.join(out_dir, split, f'r_{i}.png'),
                          np.concatenate([view['rgb'], view['alpha'][..., None]], -1))
       write_ground_truth(out_dir, f'{split}/r_{i}', view)
-      frames.append({'file_path': f'./{split}/r_{i}', 'transform_matrix': cameras.to_homogeneous(pose).tolist()})
+      frames.append({'file_path': f'./{split}/r_{i}', 'transform_matrix': algebra.to_homogeneous(pose).tolist()})
     with open(os.path.join(out_dir, f'transforms_{split}.json'), 'w') as f:
       json.dump({'camera_angle_x': scene['camera_angle_x'], 'frames': frames}, f, indent=1)
 
@@ -281,7 +284,7 @@ def write_forward_rig(out_dir: str, scene: dict, views: dict) -> None:
   """LLFF layout: poses_bounds.npy ([down, right, back, t, hwf] + depth bounds) and images/imageNNN.png."""
   h, w = scene['height'], scene['width']
   focal = .5 * w / np.tan(.5 * scene['camera_angle_x'])
-  pixtocam = cameras.focal_pixtocam(focal, h, w)
+  pixtocam = algebra.focal_pixtocam(focal, h, w)
   os.makedirs(os.path.join(out_dir, 'images'), exist_ok=True)
   rows = []
   for i, pose in enumerate(views['all']):

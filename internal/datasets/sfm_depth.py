@@ -5,7 +5,7 @@ pixels where that view observed them, each weighted by how well the point reproj
 reprojection error e. What this leaks: the capture's own model was triangulated from every photo, test views
 included, so its points (and the cameras the loader reads) carry information the training views alone do not
 have. The strict form reads a model made from the training photos alone (Config.sfm_depth_model), aligned to the
-capture by a similarity between its cameras and the capture's (matched by image name).
+capture by the similarity between its cameras and the capture's (matched by image name; cameras/alignment.fit).
 
 Depths are the rays' parameter t: camera z-depth for world rays, NDC t for forward captures; for evaluation
 (test views) always the camera z-depth, the unit of internal/evaluation/depth_metrics.py.
@@ -18,6 +18,7 @@ from typing import Callable, List
 
 import numpy as np
 
+from internal.cameras import algebra, alignment
 from internal.datasets import base, colmap_model
 from internal.datasets import capture as capture_loader
 
@@ -25,37 +26,19 @@ MIN_TRAINING_VIEWS = 2  # A point triangulated from the training views alone nee
 MAX_ALIGNMENT_ERROR = .05  # Of the cameras' spread: a model whose cameras fit the capture's worse is refused.
 
 
-@dataclasses.dataclass
-class Alignment:
-  """x_loader = scale * rotation @ x_model + translation, from a COLMAP model's frame to the loader's."""
-  scale: float
-  rotation: np.ndarray     # [3, 3]
-  translation: np.ndarray  # [3]
-
-
-def similarity(source: np.ndarray, target: np.ndarray) -> Alignment:
-  """The least-squares similarity taking points source [N, 3] to target [N, 3] (Umeyama), N >= 3."""
-  mu_s, mu_t = source.mean(0), target.mean(0)
-  s, t = source - mu_s, target - mu_t
-  u, d, vt = np.linalg.svd(t.T @ s / len(source))
-  sign = np.diag([1., 1., np.sign(np.linalg.det(u) * np.linalg.det(vt))])
-  rotation = u @ sign @ vt
-  scale = float(np.trace(np.diag(d) @ sign) / np.mean(np.sum(s * s, -1)))
-  return Alignment(scale, rotation, mu_t - scale * rotation @ mu_s)
-
-
-def align(model: colmap_model.Model, capture: capture_loader.Capture, where: str) -> Alignment:
-  """The similarity from model's frame to the capture's loader frame, fitted on the cameras both hold (by image
-  name); DatasetError naming where for fewer than 3 shared images or cameras that do not fit."""
+def align(model: colmap_model.Model, capture: capture_loader.Capture, where: str) -> alignment.Similarity:
+  """The similarity from model's frame to the capture's loader frame (x -> scale rotation x + shift), fitted on the
+  cameras both hold (by image name); DatasetError naming where for fewer than 3 shared images or cameras that do
+  not fit."""
   index = {name: i for i, name in enumerate(capture.names)}
   shared = [image for image in model.images.values() if image.name in index]
   if len(shared) < 3:
     raise base.DatasetError(f'{where}: {len(shared)} of its images are images of the capture; aligning it to the '
                             'capture needs the cameras of 3 or more')
-  source = np.stack([colmap_model.camera_center(image) for image in shared])
+  source = np.stack([colmap_model.camtoworld(image) for image in shared])
   target = capture.camtoworlds[[index[image.name] for image in shared], :, 3]
-  found = similarity(source, target)
-  error = np.linalg.norm(found.scale * source @ found.rotation.T + found.translation - target, axis=-1).max()
+  found = alignment.fit(source, capture.camtoworlds[[index[image.name] for image in shared]])
+  error = np.linalg.norm(found.cameras(source)[:, :, 3] - target, axis=-1).max()
   spread = np.linalg.norm(target - target.mean(0), axis=-1).max()
   if error > MAX_ALIGNMENT_ERROR * spread:
     raise base.DatasetError(f'{where}: its cameras fit the capture\'s only to {error / spread:.1%} of their spread '
@@ -64,8 +47,8 @@ def align(model: colmap_model.Model, capture: capture_loader.Capture, where: str
   return found
 
 
-def view_depths(model: colmap_model.Model, alignment: Alignment, names: List[str], height: int, width: int,
-                keep: Callable, ndc: bool) -> tuple:
+def view_depths(model: colmap_model.Model, similarity: alignment.Similarity, names: List[str], height: int,
+                width: int, keep: Callable, ndc: bool) -> tuple:
   """(depth [N, H, W], weight [N, H, W]) f32 of the views names at height x width; 0 = no point.
 
   keep(set of the image names of a track) -> whether its point serves; a pixel observing several keeps the
@@ -80,7 +63,7 @@ def view_depths(model: colmap_model.Model, alignment: Alignment, names: List[str
   error = np.array([model.points[i].error for i in ids])
   serves = np.array([keep({names_of[j] for j in model.points[i].track['image_id'].tolist() if j in names_of})
                      for i in ids], bool)
-  world_z = (alignment.scale * xyz @ alignment.rotation.T + alignment.translation)[:, 2]
+  world_z = (similarity.scale * xyz @ similarity.rotation.T + similarity.shift)[:, 2]
   found = []  # Per view: (flat pixels, depths, point rows) of its observations that serve.
   for name in names:
     image = by_name.get(name)
@@ -92,11 +75,11 @@ def view_depths(model: colmap_model.Model, alignment: Alignment, names: List[str
     chosen[chosen] = serves[rows[chosen]]
     observed, rows = image.points2d[chosen], rows[chosen]
     camera = model.cameras[image.camera_id]
-    z = (xyz[rows] @ colmap_model.qvec_to_rotmat(image.qvec).T + image.tvec)[:, 2]
+    z = (xyz[rows] @ algebra.quaternion_to_rotation(image.qvec).T + image.tvec)[:, 2]
     r = np.floor(observed['y'] * height / camera.height).astype(int)
     c = np.floor(observed['x'] * width / camera.width).astype(int)
     inside = (z > 0) & (r >= 0) & (r < height) & (c >= 0) & (c < width)
-    value = 1. + 1. / world_z[rows] if ndc else alignment.scale * z
+    value = 1. + 1. / world_z[rows] if ndc else similarity.scale * z
     found.append((r[inside] * width + c[inside], value[inside], rows[inside]))
   used = np.concatenate([rows for _, _, rows in found])
   mean_error = max(float(error[used].mean()), 1e-12) if used.size else 1.

@@ -4,11 +4,14 @@ capture's separate training model): test cameras brought into the training frame
 The test cameras live in the frame of the reference training cameras: the loader's, before any study noise
 (Config.camera_noise_*) and from Config.capture_model rather than capture_train_model. The similarity that best maps
 those reference cameras onto the final training cameras (refined, or as given when not refined;
-datasets/camera_alignment.py, as BARF evaluates) carries the test cameras into the frame the model was trained in;
+cameras/alignment.py, as BARF evaluates) carries the test cameras into the frame the model was trained in;
 optionally each test camera is then refined on its own image with the model frozen (Config.test_pose_steps,
 BARF's test-time pose optimization). Camera errors are after a similarity too: the final cameras against the
 given ones (what refinement moved) and against the reference (the true cameras where the loader's are exact: the
-generated scene, Blender, DTU's calibration).
+generated scene, Blender, DTU's calibration). A similarity explains part of any error (cameras/alignment.py), so
+where the training cameras start in the reference's frame (noise and refinement move them from it; a capture's
+separate training model has a frame of its own) the errors against the reference are reported without it too
+(*_unaligned): on the generated scene, whose frame is known, those read the noise whole.
 """
 
 import dataclasses
@@ -19,8 +22,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from internal import datasets
-from internal.datasets import camera_alignment, camera_noise, loader, pose_correction
-from internal.evaluation import learning_curve
+from internal.cameras import alignment, corrections
+from internal.datasets import batching, camera_noise, loader
+from internal.evaluation import pose_progress
 from internal.models import freq_schedule
 from internal.training import camera_refinement, optim
 
@@ -41,18 +45,31 @@ def reference_config(config):
 
 class TrainingCameras(NamedTuple):
   """The training cameras [N,3,4] as given, as finally trained on, and in the test cameras' frame; the camera
-  distance of the reference (the unit of translation errors)."""
+  distance of the reference (the unit of translation errors); whether the given cameras are in the reference's
+  frame."""
   given: np.ndarray
   final: np.ndarray
   reference: np.ndarray
   distance: float
+  shared_frame: bool
+
+
+# What the camera metrics of metrics.json measure (its 'cameras' record says it beside them).
+METRIC_WORDS = {
+    'camera_rotation_deg': 'median rotation error (degrees) of the final training cameras against the reference, '
+                           'after the similarity taking them onto it',
+    'camera_translation': 'median centre distance (of the camera distance) of the final training cameras from the '
+                          'reference, after the similarity taking them onto it',
+    'camera_rotation_deg_unaligned': 'camera_rotation_deg without the similarity (the cameras share its frame)',
+    'camera_translation_unaligned': 'camera_translation without the similarity (the cameras share its frame)'}
 
 
 def reference_cameras(config, train_set: datasets.Dataset) -> tuple:
-  """(reference training cameras [N,3,4], their camera distance) of the training views of train_set."""
+  """(reference training cameras [N,3,4], their camera distance, whether the given cameras share their frame) of
+  the training views of train_set."""
   reference = datasets.load_dataset('train', reference_config(config))
-  space = loader.ray_space(config, reference)
-  return np.asarray(reference.camtoworlds, np.float64), camera_noise.camera_distance(reference, space)
+  distance = alignment.camera_distance(reference.camtoworlds, reference.space)
+  return np.asarray(reference.camtoworlds, np.float64), distance, not config.capture_train_model
 
 
 def training_cameras(train_set: datasets.Dataset, camera_state, reference: tuple) -> TrainingCameras:
@@ -64,68 +81,78 @@ def training_cameras(train_set: datasets.Dataset, camera_state, reference: tuple
 
 
 def errors(cameras: TrainingCameras) -> dict:
-  """Camera errors (camera_alignment.errors) of the final cameras against the given ones and the reference, and
-  of the given ones against the reference; medians, means, maxima and per view."""
-  pairs = {'final_vs_given': (cameras.final, cameras.given), 'final_vs_reference': (cameras.final, cameras.reference),
-           'given_vs_reference': (cameras.given, cameras.reference)}
+  """Camera errors (alignment.errors) of the final cameras against the given ones and the reference, and of the
+  given ones against the reference, after the similarity; against the reference also without it ('_unaligned')
+  where the frames are shared; medians, means, maxima and per view."""
+  pairs = {'final_vs_given': (cameras.final, cameras.given, True),
+           'final_vs_reference': (cameras.final, cameras.reference, True),
+           'given_vs_reference': (cameras.given, cameras.reference, True)}
+  if cameras.shared_frame:
+    pairs.update(final_vs_reference_unaligned=(cameras.final, cameras.reference, False),
+                 given_vs_reference_unaligned=(cameras.given, cameras.reference, False))
   out = {}
-  for name, (a, b) in pairs.items():
-    values = camera_alignment.errors(a, b, cameras.distance)
-    out[name] = {**camera_alignment.summary(values), 'per_view': {k: v.tolist() for k, v in values.items()}}
+  for name, (a, b, align) in pairs.items():
+    values = alignment.errors(a, b, cameras.distance, align)
+    out[name] = {**alignment.summary(values), 'per_view': {k: v.tolist() for k, v in values.items()}}
   return out
 
 
 def metrics(error_record: dict) -> dict:
-  """The camera metrics of metrics.json's means: median errors of the final cameras against the reference."""
-  against = error_record['final_vs_reference']
-  return {'camera_rotation_deg': against['rotation_deg_median'], 'camera_translation': against['translation_median']}
+  """The camera metrics of metrics.json's means (METRIC_WORDS): median errors of the final cameras against the
+  reference, after the similarity and, where the frames are shared, without it."""
+  out = {}
+  for suffix in ('', '_unaligned'):
+    against = error_record.get('final_vs_reference' + suffix)
+    if against is not None:
+      out.update({f'camera_rotation_deg{suffix}': against['rotation_deg_median'],
+                  f'camera_translation{suffix}': against['translation_median']})
+  return out
 
 
-def test_similarity(cameras: TrainingCameras) -> camera_alignment.Similarity:
+def test_similarity(cameras: TrainingCameras) -> alignment.Similarity:
   """The similarity carrying the test cameras' frame into the final training cameras' frame."""
-  return camera_alignment.fit(cameras.reference, cameras.final)
+  return alignment.fit(cameras.reference, cameras.final)
 
 
-def aligned_corrections(test_set: datasets.Dataset, similarity: camera_alignment.Similarity) -> tuple:
+def aligned_corrections(test_set: datasets.Dataset, similarity: alignment.Similarity) -> tuple:
   """(rotations [M,3,3], shifts [M,3]) that carry the test cameras of test_set by the similarity."""
   c2w = np.asarray(test_set.camtoworlds, np.float64)
   moved = similarity.cameras(c2w)
   return np.repeat(similarity.rotation[None], len(c2w), 0), moved[:, :, 3] - c2w[:, :, 3]
 
 
-def test_rays(config, test_set: datasets.Dataset, train_set: datasets.Dataset, rotations, shifts):
+def test_rays(test_set: datasets.Dataset, train_set: datasets.Dataset, rotations, shifts):
   """Rays [M,H,W,...] of the test cameras corrected by rotations [M,3,3] and shifts [M,3], with the training
   rays' near and far (the range the model was trained on)."""
-  centres = np.asarray(test_set.camtoworlds, np.float64)[:, :, 3]
-  rays = pose_correction.image_rays(test_set.rays, rotations, centres, shifts, loader.ray_space(config, test_set))
-  rays = type(rays)(*[np.asarray(x, np.float32) for x in rays])
+  rays = corrections.corrected_image_rays(test_set.rays, test_set.cameras, rotations, shifts, test_set.space)
   return rays._replace(near=np.full_like(rays.near, train_set.near), far=np.full_like(rays.far, train_set.far))
 
 
-def _view_batch(config, test_set: datasets.Dataset, flat, v: int, k: int, space) -> tuple:
-  """(rays [B,...], colours [B,3], NDC neighbour directions or None) of Config.batch_size pixels of test view v for
-  its k-th step, drawn from np.random.default_rng([Config.np_rng_seed, view id, k]); flat: its rays [M,H*W,...]."""
+def _view_batch(config, test_set: datasets.Dataset, flat, v: int, k: int) -> tuple:
+  """(rays [B,...], colours [B,3], their Pixels) of Config.batch_size pixels of test view v for its k-th step, drawn
+  from np.random.default_rng([Config.np_rng_seed, view id, k]); flat: its rays [M,H*W,...]."""
   size = test_set.height * test_set.width
   pixel = np.random.default_rng([config.np_rng_seed, int(test_set.ids[v]), k]).integers(size, size=config.batch_size)
-  fields = pose_correction.camera_fields((np.full(len(pixel), v), pixel), flat.viewdirs, space, test_set.height,
-                                         test_set.width)
   colours = test_set.images[v].reshape(-1, 3)[pixel]
-  return type(flat)(*[x[v, pixel] for x in flat]), colours, fields.get('neighbour_dirs')
+  pixels = batching.pixels_of((np.full(len(pixel), v), pixel), test_set.width)
+  return type(flat)(*[x[v, pixel] for x in flat]), colours, pixels
 
 
-def test_time_poses(config, model, params, step: int, test_set: datasets.Dataset, rotations, shifts) -> tuple:
+def test_time_poses(config, model, params, step: int, test_set: datasets.Dataset, rotations, shifts,
+                    on_step=None) -> tuple:
   """(rotations [M,3,3], shifts [M,3]) refined per test view on its own image, the model frozen (as at step):
-  Config.test_pose_steps Adam steps (Config.test_pose_lr) of the fine level's squared colour error (_view_batch)."""
-  space = loader.ray_space(config, test_set)
+  Config.test_pose_steps Adam steps (Config.test_pose_lr) of the fine level's squared colour error (_view_batch).
+  on_step(view, correction [6]), when given, follows every step (pose_progress.PoseProgress)."""
+  space, cameras = test_set.space, test_set.cameras
   masks = freq_schedule.model_masks(config, model, jnp.asarray(step))
   adam = optim.adam(config.adam_eps)
   flat = type(test_set.rays)(*[x.reshape(len(test_set.ids), test_set.height * test_set.width, -1)
                                for x in test_set.rays])
   centres = np.asarray(test_set.camtoworlds, np.float32)[:, :, 3]
 
-  def loss(delta, rays, rgb, neighbours, rotation, centre, shift):
-    turned = pose_correction.so3_exp(delta[:3], jnp) @ rotation
-    moved = pose_correction.corrected_rays(rays, turned, centre, shift + delta[3:], space, neighbours, jnp)
+  def loss(delta, rays, rgb, pixels, rotation, centre, shift):
+    turned = corrections.so3_exp(delta[:3], jnp) @ rotation
+    moved = corrections.corrected_rays(rays, turned, centre, shift + delta[3:], space, jnp, cameras, pixels)
     renderings, _ = model.apply({'params': params}, None, moved, *masks, config.resample_padding_final)
     return jnp.mean((renderings[-1]['rgb'] - rgb)**2)
 
@@ -140,9 +167,11 @@ def test_time_poses(config, model, params, step: int, test_set: datasets.Dataset
     opt_state = adam.init(delta)
     camera = (jnp.asarray(rotations[v], jnp.float32), centres[v], jnp.asarray(shifts[v], jnp.float32))
     for k in range(config.test_pose_steps):
-      delta, opt_state = adam_step(delta, opt_state, *_view_batch(config, test_set, flat, v, k, space), *camera)
+      delta, opt_state = adam_step(delta, opt_state, *_view_batch(config, test_set, flat, v, k), *camera)
+      if on_step is not None:
+        on_step(v, delta)
     delta = np.asarray(delta, np.float64)
-    out_rotations.append(pose_correction.so3_exp(delta[:3]) @ rotations[v])
+    out_rotations.append(corrections.so3_exp(delta[:3]) @ rotations[v])
     out_shifts.append(shifts[v] + delta[3:])
   return np.stack(out_rotations), np.stack(out_shifts)
 
@@ -167,32 +196,13 @@ def evaluation_rays(config, model, state, step: int, test_set: datasets.Dataset,
   similarity = test_similarity(cameras)
   rotations, shifts = aligned_corrections(test_set, similarity)
   if config.test_pose_steps:
-    rotations, shifts = test_time_poses(config, model, state.params, step, test_set, rotations, shifts)
+    with pose_progress.PoseProgress(config, len(test_set.ids)) as on_step:
+      rotations, shifts = test_time_poses(config, model, state.params, step, test_set, rotations, shifts, on_step)
   record = {'refined': bool(config.optimize_cameras), 'reference': reference_words(config),
             'test_cameras': 'similarity' + (' + test-time pose optimization' if config.test_pose_steps else ''),
             'test_pose_steps': config.test_pose_steps,
             'similarity': {'scale': similarity.scale, 'rotation': similarity.rotation.tolist(),
                            'shift': similarity.shift.tolist()},
             'errors': errors(cameras)}
-  return test_rays(config, test_set, train_set, rotations, shifts), record, similarity.scale
-
-
-class CurveCameras:
-  """The learning curve's views carried into the training frame at each curve point, with the camera errors of
-  that step (learning_curve.Recorder's cameras)."""
-
-  def __init__(self, config, train_set: datasets.Dataset):
-    self.config, self.train_set = config, train_set
-    self.reference = reference_cameras(config, train_set)
-    test_set = datasets.load_dataset('test', dataclasses.replace(config, eval_factor=config.curve_factor))
-    positions = learning_curve.curve_positions(config, len(test_set.ids))
-    self.views = dataclasses.replace(
-        test_set, images=test_set.images[positions], camtoworlds=test_set.camtoworlds[positions],
-        rays=type(test_set.rays)(*[x[positions] for x in test_set.rays]), ids=[test_set.ids[p] for p in positions])
-
-  def at(self, camera_state) -> tuple:
-    """(the views' rays [V,h,w,...] in the frame of the training cameras of camera_state (None: as given),
-    {'camera_rotation_deg', 'camera_translation'} medians against the reference)."""
-    cameras = training_cameras(self.train_set, camera_state, self.reference)
-    rotations, shifts = aligned_corrections(self.views, test_similarity(cameras))
-    return test_rays(self.config, self.views, self.train_set, rotations, shifts), metrics(errors(cameras))
+  record['metrics'] = {name: METRIC_WORDS[name] for name in metrics(record['errors'])}
+  return test_rays(test_set, train_set, rotations, shifts), record, similarity.scale

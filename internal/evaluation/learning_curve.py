@@ -28,6 +28,8 @@ import numpy as np
 from internal import atomic
 from internal import datasets
 from internal import rays as rays_lib
+from internal.datasets import base
+from internal.evaluation import camera_evaluation
 from internal.evaluation import evaluate
 from internal.evaluation import inference
 from internal.evaluation import metrics
@@ -148,7 +150,7 @@ class Recorder:
   """Scores the curve's views every Config.curve_every steps and at the last step; tensorboard and the CSV."""
 
   def __init__(self, config, model, views: Views, run_dir: str, writer, resumed_step: int, cameras=None):
-    """cameras: where the training cameras may move (camera_evaluation.CurveCameras), what carries the views into
+    """cameras: where the training cameras may move (CurveCameras), what carries the views into
     the training frame at each point and gives the camera errors of the row."""
     self.config, self.model, self.views, self.writer, self.run_dir = config, model, views, writer, run_dir
     self.cameras = cameras
@@ -198,3 +200,22 @@ class Recorder:
         self.writer.add_scalar(f'curve/{name}', row[name], step)
     self.writer.add_scalar('curve/eval_seconds', elapsed, step)
     return row
+
+
+class CurveCameras:
+  """The curve's views carried into the training frame at each curve point, with the camera errors of that step
+  (camera_evaluation.py; Recorder's cameras)."""
+
+  def __init__(self, config, train_set: datasets.Dataset):
+    self.train_set = train_set
+    self.reference = camera_evaluation.reference_cameras(config, train_set)
+    test_set = datasets.load_dataset('test', dataclasses.replace(config, eval_factor=config.curve_factor))
+    self.views = base.subset(test_set, curve_positions(config, len(test_set.ids)))
+
+  def at(self, camera_state) -> tuple:
+    """(the views' rays [V,h,w,...] in the frame of the training cameras of camera_state (None: as given), the
+    camera metrics of metrics.json at this step)."""
+    cameras = camera_evaluation.training_cameras(self.train_set, camera_state, self.reference)
+    rotations, shifts = camera_evaluation.aligned_corrections(self.views, camera_evaluation.test_similarity(cameras))
+    return (camera_evaluation.test_rays(self.views, self.train_set, rotations, shifts),
+            camera_evaluation.metrics(camera_evaluation.errors(cameras)))

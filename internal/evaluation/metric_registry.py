@@ -12,7 +12,8 @@ DEPTH = 'depth'                # Depth errors against exact depths (generated sc
 PSEUDO_DEPTH = 'pseudo_depth'  # The depth errors against another run's depths (Config.depth_reference_dir).
 SFM_DEPTH = 'sfm_depth'        # The depth errors at the capture's structure-from-motion points (captures).
 # Training-camera errors where the cameras may move (camera_evaluation.py): medians over the training views against
-# the reference cameras after a similarity, rotation in degrees, translation as a fraction of the camera distance.
+# the reference cameras after a similarity, rotation in degrees, translation as a fraction of the camera distance;
+# *_unaligned: without the similarity, where the cameras share the reference's frame.
 CAMERAS = 'cameras'
 MASKED_SUFFIX = '_masked'
 PSEUDO_PREFIX = 'pseudo_'
@@ -41,7 +42,9 @@ METRICS: Dict[str, Metric] = {m.name: m for m in (
     + [Metric(PSEUDO_PREFIX + name, 'pseudo ' + display, lower, PSEUDO_DEPTH) for name, display, lower in _DEPTH]
     + [Metric(SFM_PREFIX + name, 'SfM ' + display, lower, SFM_DEPTH) for name, display, lower in _DEPTH]
     + [Metric('camera_rotation_deg', 'camera rotation error (deg)', True, CAMERAS),
-       Metric('camera_translation', 'camera translation error', True, CAMERAS)])}
+       Metric('camera_translation', 'camera translation error', True, CAMERAS),
+       Metric('camera_rotation_deg_unaligned', 'camera rotation error without the similarity (deg)', True, CAMERAS),
+       Metric('camera_translation_unaligned', 'camera translation error without the similarity', True, CAMERAS)])}
 
 
 def names(group: str) -> Tuple[str, ...]:

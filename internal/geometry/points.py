@@ -18,6 +18,7 @@ from typing import List, Optional
 
 import numpy as np
 
+from internal.cameras import algebra
 from internal.datasets import colmap_model
 from internal.evaluation import depth_metrics
 
@@ -139,7 +140,7 @@ def colmap_of(train: List[View], sizes: List[tuple], found: dict) -> colmap_mode
     cameras[k + 1] = colmap_model.Camera(k + 1, 'PINHOLE', int(width), int(height),
                                          np.array([fx, fy, cx, cy]) * scale)
     rotation = view.camtoworld[:, :3].T
-    images[k + 1] = colmap_model.Image(k + 1, colmap_model.rotmat_to_qvec(rotation),
+    images[k + 1] = colmap_model.Image(k + 1, algebra.rotation_to_quaternion(rotation),
                                        -rotation @ view.camtoworld[:, 3], k + 1, view.name,
                                        np.zeros(0, colmap_model.POINT2D))
     scales.append(scale)

@@ -7,10 +7,13 @@ being an increasing affine function of the prior's.
 
 import jax.numpy as jnp
 
+from internal.datasets import loader
 from internal.losses import depth_ranking
+from internal.losses.rendered import over_levels
 
 EPS = 1e-12  # Keeps the correlation's gradient finite where the rendered patch is flat (a rendered variance).
 FLAT = 1e-6  # A patch whose prior varies by less than this, relative to its size, is flat: it says nothing.
+NDC_FAR_EPS = 1e-3  # NDC t near 1 is depth near infinity: depth = 1 / max(1 - t, this).
 
 
 def pearson_loss(rendered, prior):
@@ -30,3 +33,26 @@ def pearson_loss(rendered, prior):
   p = p / jnp.sqrt(jnp.where(informs, var_p, 1.))[:, None]  # The prior in its own units: any scale works.
   corr = jnp.sum(r * p, -1) / safe / jnp.sqrt(var_r + EPS)
   return jnp.sum(jnp.where(informs, 1. - corr, 0.)) / jnp.maximum(jnp.sum(informs), 1)
+
+
+def pearson_values(t, kind: str, ndc: bool):
+  """What a prior of kind ('depth' | 'disparity') is correlated with: the rendered depth or disparity of t [...]
+  (NDC t is affine in disparity: 1 - t)."""
+  if ndc:
+    return 1. - t if kind == 'disparity' else 1. / jnp.maximum(1. - t, NDC_FAR_EPS)
+  return 1. / t if kind == 'disparity' else t
+
+
+def is_on(config) -> bool:
+  """Whether Config asks for the Pearson term (a dense depth prior)."""
+  return config.depth_pearson_loss_mult > 0
+
+
+def term(config, rendered: dict, batch, step) -> tuple:
+  """(Config.depth_pearson_loss_mult x the Pearson loss of the depth-prior patches' rendered depth or disparity
+  against the prior, summed over the levels as the data loss, {'loss_depth_pearson'}) (losses/terms.py)."""
+  del step  # A constant weight.
+  ndc = bool(loader.ndc(config))
+  loss = over_levels(config, [pearson_loss(pearson_values(t, config.depth_prior_kind, ndc), batch.prior)
+                              for t in rendered['prior_rays'].depths()])
+  return config.depth_pearson_loss_mult * loss, {'loss_depth_pearson': loss}

@@ -3,6 +3,8 @@
 import jax
 import jax.numpy as jnp
 
+from internal.datasets import random_poses
+
 
 def expected_depth(weights, t_vals):
   """Expected depth [...] of weights [..., S] over t_vals [..., S+1], acc clamped to eps, clipped to [t0, tS]."""
@@ -37,3 +39,35 @@ def patch_depth_tv(weights, t_vals, patch_shape, mask_weight: float, fix: bool):
   depth = expected_depth(weights, t_vals).reshape(patch_shape)
   acc = jnp.sum(weights, axis=-1).reshape(patch_shape)
   return tv_norm(depth, tv_weighting(acc, mask_weight, fix))
+
+
+def linear(step, maxstep: int, start: float, end: float):
+  """start (1 - w) + end w, w = clip(step / maxstep, 0, 1)."""
+  w = jnp.clip(step / maxstep, 0., 1.)
+  return start * (1. - w) + end * w
+
+
+def tv_weight(config, step):
+  """RegNeRF's depth-smoothness weight of the last level at step: decayed under Config.depth_tvnorm_decay."""
+  if config.depth_tvnorm_decay:
+    return linear(step, config.depth_tvnorm_maxstep, config.depth_tvnorm_loss_mult_start,
+                  config.depth_tvnorm_loss_mult_end)
+  return config.depth_tvnorm_loss_mult
+
+
+def is_on(config) -> bool:
+  """Whether Config asks for depth smoothness (random_poses.needs_patches: the batch then holds the patches)."""
+  return random_poses.needs_patches(config)
+
+
+def term(config, rendered: dict, batch, step) -> tuple:
+  """(the depth TV of RegNeRF's random-pose patches over the levels, {'depth_tv_level<l>', 'loss_depth_tv'})
+  (losses/terms.py): as released, the coarse levels weighted by Config.coarse_loss_mult, the last by tv_weight."""
+  del batch  # The rendered patches only.
+  patches = rendered['patch_rays']
+  tvs = jnp.stack([patch_depth_tv(level['weights'], level['t_vals'], patches.shape, config.depth_tvnorm_mask_weight,
+                                  config.regnerf_fix_released_bugs) for level in patches.history])
+  stats = {f'depth_tv_level{level}': tv for level, tv in enumerate(tvs)}
+  level_mults = [config.coarse_loss_mult] * (len(tvs) - 1) + [tv_weight(config, step)]
+  stats['loss_depth_tv'] = sum(mult * tv for mult, tv in zip(level_mults, tvs))
+  return stats['loss_depth_tv'], stats

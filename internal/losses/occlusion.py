@@ -21,3 +21,17 @@ def occlusion_mask(rgb, reg_range: int, wb_prior: bool, wb_range: int):
 def occlusion_loss(density, rgb, reg_range: int, wb_prior: bool, wb_range: int):
   """Mean over all B x S entries of density [B, S] on the masked samples (rgb [B, S, 3] per sample)."""
   return jnp.mean(density * occlusion_mask(rgb, reg_range, wb_prior, wb_range))
+
+
+def is_on(config) -> bool:
+  """Whether Config asks for the occlusion term."""
+  return config.occ_reg_loss_mult > 0
+
+
+def term(config, rendered: dict, batch, step) -> tuple:
+  """(Config.occ_reg_loss_mult x the occlusion loss of the fine level's samples of the training pixels' rays,
+  {'loss_occ'}) (losses/terms.py)."""
+  del batch, step  # The samples' density and colour only.
+  fine = rendered['rays'].history[-1]
+  loss = occlusion_loss(fine['density'], fine['rgb'], config.occ_reg_range, config.occ_wb_prior, config.occ_wb_range)
+  return config.occ_reg_loss_mult * loss, {'loss_occ': loss}

@@ -40,3 +40,19 @@ def weight_l2(params):
   """Mean squared parameter value (logged, and used when weight_decay_mult > 0)."""
   leaves = jax.tree.leaves(params)
   return sum(jnp.sum(x**2) for x in leaves) / sum(x.size for x in leaves)
+
+
+def distortion_on(config) -> bool:
+  """Whether Config asks for the distortion term (an ablation)."""
+  return config.distortion_loss_mult > 0
+
+
+def distortion_term(config, rendered: dict, batch, step) -> tuple:
+  """(Config.distortion_loss_mult x the distortion of the fine level of the training pixels' rays, their samples'
+  endpoints normalized to each ray's (annealed) near and far, {'loss_distortion'}) (losses/terms.py)."""
+  del batch, step  # The rendered rays and samples only.
+  pixels = rendered['rays']
+  fine = pixels.history[-1]
+  s_vals = (fine['t_vals'] - pixels.rays.near) / (pixels.rays.far - pixels.rays.near)
+  loss = distortion_loss(s_vals, fine['weights'])
+  return config.distortion_loss_mult * loss, {'loss_distortion': loss}

@@ -46,11 +46,14 @@ def weights_at(config: Config, degrees, step, interleaved=False):
 
 
 def check_settings(config: Config) -> None:
-  """Raises a ValueError naming the settings when the schedule is not 0 <= start < end (warns when end > 1)."""
+  """With Config.coarse_to_fine on: raises a ValueError naming the settings when the schedule is not
+  0 <= start < end (warns when end > 1). Off, its settings are read by nothing."""
   start, end = config.coarse_to_fine_start, config.coarse_to_fine_end
+  if not config.coarse_to_fine:
+    return
   if not 0. <= start < end:
     raise ValueError(f'Config.coarse_to_fine_start = {start} and Config.coarse_to_fine_end = {end}; expected '
                      '0 <= start < end (fractions of Config.max_steps; BARF: 0.1 and 0.5)')
-  if config.coarse_to_fine and end > 1.:
+  if end > 1.:
     warnings.warn(f'Config.coarse_to_fine_end = {end} exceeds 1: the encoding never fully opens during training',
                   stacklevel=4)

@@ -9,7 +9,8 @@ import jax.numpy as jnp
 # 'bfloat16': parameters stay float32 and are cast at use; the MLP's inputs, activations and matmuls are
 #             bfloat16; density and rgb come back as float32 for volume rendering and the losses.
 # 'auto' (the default): 'float32' on a CPU, where the released numerics are checked; 'bfloat16' on an accelerator,
-#             where it trains 1.7x faster than TF32 with the same test PSNR on one GPU (results/gpu/README.md).
+#             where a training step took 0.6x TF32's time, its test PSNR 0.7 dB above TF32's, on one H100
+#             (results/gpu/h100_2026-11-26/README.md, 'The precision trade').
 PRECISIONS = ('float32', 'default', 'bfloat16')
 CHOICES = ('auto',) + PRECISIONS
 _SETTINGS = {'float32': (jnp.float32, jax.lax.Precision.HIGHEST),

@@ -10,12 +10,12 @@ from typing import Optional
 import jax
 import numpy as np
 from jax import random
-import tensorboardX
 import tqdm
 
 from internal.run import camera_export
 from internal.run import checkpoints
 from internal.run import disk_full
+from internal.run import event_file
 from internal import datasets
 from internal.run import distributed
 from internal.evaluation import camera_evaluation
@@ -28,10 +28,9 @@ from internal.run import out_of_memory
 from internal.run import sharding
 from internal.run import stuck
 from internal.training import train_step as train_step_lib
-from internal.training import prior_losses
 from internal.evaluation import vis
 from internal import progress
-from internal.datasets import random_poses
+from internal.datasets import depth_prior, random_poses
 from internal.training import camera_refinement
 
 PREVIEW_INDEX = 0  # The test view rendered every Config.train_render_every steps.
@@ -176,7 +175,7 @@ def preview(config, model, state, step: int, test_set, writer) -> None:
 
 def _example_rays(batcher):
   """A few rays of the first batch, to initialize the model's shapes."""
-  return jax.tree.map(lambda x: x[:8], batcher(0)['rays'])
+  return jax.tree.map(lambda x: x[:8], batcher(0).rays)
 
 
 def _host_memory_named(config, batcher):
@@ -198,7 +197,7 @@ def _check_batch(config, mesh) -> None:
                      f'{config.patch_size}x{config.patch_size}; expected a multiple of the number of devices '
                      f'({mesh.size}) so that every device gets whole patches')
   prior_patches = config.depth_prior_rays // config.depth_patch_size**2
-  if prior_losses.any_on(config) and (prior_patches % mesh.size or config.depth_prior_rays % mesh.size):
+  if depth_prior.any_on(config) and (prior_patches % mesh.size or config.depth_prior_rays % mesh.size):
     raise ValueError(f'Config.depth_prior_rays = {config.depth_prior_rays} makes {prior_patches} patches of '
                      f'Config.depth_patch_size = {config.depth_patch_size}; expected both counts to be multiples of '
                      f'the number of devices ({mesh.size})')
@@ -233,8 +232,8 @@ def _train_in(config, run_dir: str, stop_at_step: int, stop: Optional[StopFlag])
   restored = checkpoints.restore_latest(mngr, state)
   state = restored if restored is not None else state
   primary = distributed.is_primary()
-  writer = tensorboardX.SummaryWriter(os.path.join(run_dir, 'tensorboard')) if primary else NullWriter()
-  moving = camera_evaluation.CurveCameras(config, dataset) if (
+  writer = event_file.EventWriter(os.path.join(run_dir, 'tensorboard')) if primary else NullWriter()
+  moving = learning_curve.CurveCameras(config, dataset) if (
       curve_views is not None and primary and camera_evaluation.needs_alignment(config)) else None
   curve = learning_curve.Recorder(config, model, curve_views, run_dir, writer, int(state.step), moving) if (
       curve_views is not None and primary) else None

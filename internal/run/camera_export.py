@@ -13,18 +13,13 @@ import os
 import numpy as np
 
 from internal import atomic
+from internal.cameras import algebra
 from internal.datasets import base, colmap_model
 from internal.datasets import capture as capture_loader
 from internal.training import camera_refinement
 
 FOLDER = 'cameras'
 OPENGL_TO_OPENCV = np.diag([1., -1., -1.])
-
-
-def is_opengl(dataset: base.Dataset) -> bool:
-  """Whether dataset's cameras look down their -z axis (OpenGL: LLFF, Blender), by its centre pixels' rays."""
-  centre = np.asarray(dataset.rays.viewdirs[:, dataset.height // 2, dataset.width // 2], np.float64)
-  return bool(np.mean(np.sum(centre * dataset.camtoworlds[:, :, 2], -1)) < 0)
 
 
 def image_names(config, dataset: base.Dataset) -> list:
@@ -44,7 +39,7 @@ def colmap_cameras(camtoworlds: np.ndarray, dataset: base.Dataset, names: list, 
     intrinsics = np.linalg.inv(np.asarray(pixtocam, np.float64))
     params = np.array([intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]])
     cameras[k] = colmap_model.Camera(k, 'PINHOLE', dataset.width, dataset.height, params)
-    images[k] = colmap_model.Image(k, colmap_model.rotmat_to_qvec(rotation.T), -rotation.T @ centre, k, name,
+    images[k] = colmap_model.Image(k, algebra.rotation_to_quaternion(rotation.T), -rotation.T @ centre, k, name,
                                    np.zeros(0, colmap_model.POINT2D))
   return colmap_model.Model(cameras, images, {})
 
@@ -54,7 +49,7 @@ def write(run_dir: str, config, dataset: base.Dataset, camera_state) -> str:
   folder = os.path.join(run_dir, FOLDER)
   given = np.asarray(dataset.camtoworlds, np.float64)
   sets = {'given': given, 'refined': camera_refinement.refined_cameras(camera_state, given)}
-  names, opengl = image_names(config, dataset), is_opengl(dataset)
+  names, opengl = image_names(config, dataset), dataset.space.opengl
   for label, c2w in sets.items():
     colmap_model.write_text(colmap_cameras(c2w, dataset, names, opengl), os.path.join(folder, label))
   record = {'ids': [int(i) for i in dataset.ids], 'names': names, 'axes': 'OpenGL' if opengl else 'OpenCV',

@@ -1,5 +1,5 @@
-"""A checkpoint save that finds the disk full: one error (DiskFullError) naming the intact step, orbax's reports of
-the failed save dropped.
+"""A training write that finds the disk full: one error (DiskFullError) naming what it wrote and the intact step,
+orbax's reports of a failed save dropped.
 
 Orbax writes each step into a temporary folder and renames it when complete, so a failed save leaves the checkpoints
 before it as they were. Its threads, event loop and abandoned coroutines report the failure again and again, some as
@@ -22,7 +22,8 @@ from internal.run import checkpoints
 
 
 class DiskFullError(RuntimeError):
-  """A checkpoint save failed for lack of disk space; the checkpoints saved before it are intact."""
+  """A write of training (a checkpoint save, or another file of its run) failed for lack of disk space; the
+  checkpoints saved before it are intact."""
 
 
 def _says_disk_full(text: str) -> bool:
@@ -102,9 +103,18 @@ def _drop_failed_save_reports(folder: str):
   return restore
 
 
+def _what_found_it_full(err: BaseException, folder: str) -> str:
+  """'writing <file>' for a write of a named file outside the checkpoint folder (tensorboard's events, the learning
+  curve and its clock, the settings), else 'saving a checkpoint in <folder>' (orbax's errors name no file)."""
+  written = getattr(err, 'filename', None)
+  inside = written is not None and os.path.abspath(written).startswith(os.path.abspath(folder) + os.sep)
+  return f'writing {written!r}' if written is not None and not inside else f'saving a checkpoint in {folder!r}'
+
+
 @contextlib.contextmanager
 def stop_when_disk_full(run_dir: str):
-  """Turns a checkpoint save that ran out of disk space in the block into DiskFullError naming the intact step.
+  """Turns a write in the block that ran out of disk space (a checkpoint save, tensorboard's events, the learning
+  curve) into DiskFullError naming what it wrote and the intact step.
 
   Orbax writes each step into a temporary folder and renames it when complete, so a failed save leaves the
   checkpoints before it as they were (the temporary folder is removed when training next starts). Orbax's own
@@ -126,7 +136,7 @@ def stop_when_disk_full(run_dir: str):
       kept = f'the newest intact checkpoint, step {checkpoints.latest_step(run_dir)}, is kept'
     except checkpoints.NoCheckpointError:
       kept = 'no earlier checkpoint exists'
-    raise DiskFullError(f'no space left on the device while saving a checkpoint in {folder!r}; {kept}. Free disk '
+    raise DiskFullError(f'no space left on the device while {_what_found_it_full(err, folder)}; {kept}. Free disk '
                         'space (or lower Config.checkpoint_keep) and run the same command again to resume') from err
   finally:
     if not full:

@@ -3,12 +3,15 @@ the model in the one jitted step, with its own learning rate, warm-up and decay 
 Config.camera_adam_eps: steps in proportion to small gradients).
 
 A view's correction is an axis-angle rotation omega [3] about the camera's centre and a translation tau [3], both
-in world axes, zero at the start (datasets/pose_correction.py: c2w = [R | C] -> [exp(omega) R | C + tau]). tau is
-its free parameters in scene units, or with Config.camera_shift_in_distances in units of the camera distance
-(camera_noise.camera_distance): a view's image then moves about as far for a step of its shift as of its turn, which
-matters where steps follow the gradients' size (the large epsilon) and the scene's units are far from the distance.
-The step builds the batch's rays from the corrected cameras (origins, directions, mip-NeRF's radii, NDC for LLFF-like
-scenes), so the loss's gradient reaches the corrections.
+in world axes, zero at the start (cameras/corrections.py: c2w = [R | C] -> [exp(omega) R | C + tau]). tau is its
+free parameters in scene units, or with Config.camera_shift_in_distances in units of the camera distance
+(cameras/alignment.camera_distance): a view's image then moves about as far for a step of its shift as of its turn,
+which matters where steps follow the gradients' size (the large epsilon) and the scene's units are far from the
+distance. The step makes every ray family of the batch that comes from training views (the training pixels, the
+depth priors' patches and points) again from the corrected cameras, once, before the loss terms (origins,
+directions, mip-NeRF's radii, NDC for LLFF-like scenes: their radii from the neighbouring pixels' directions, cast
+from the given cameras, which the state holds as constants of the step), so every term's gradient reaches the
+corrections. RegNeRF's random-pose patches come from no training camera: they keep the frame the gauge holds.
 
 The gauge: turning, moving or scaling every camera and the scene together changes no image, so the corrections
 are kept where no such motion hides in them: the free parameters [N, 6] are projected to corrections whose rotation
@@ -25,29 +28,48 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from internal.datasets import base, camera_noise, loader, pose_correction
+from internal.cameras import alignment, corrections
+from internal.cameras.records import Cameras, RaySpace
+from internal.datasets import base, batching
 from internal.training import optim, schedule
+
+
+class StaticCameras:
+  """Cameras of numpy arrays as a static (hashable) part of a pytree: constants of the jitted step, equal when their
+  values are."""
+
+  def __init__(self, cameras: Cameras):
+    self.cameras = cameras
+    self._key = tuple(None if x is None else (x.dtype.str, x.shape, x.tobytes()) for x in cameras)
+
+  def __eq__(self, other) -> bool:
+    return isinstance(other, StaticCameras) and self._key == other._key
+
+  def __hash__(self) -> int:
+    return hash(self._key)
 
 
 @flax.struct.dataclass
 class CameraState:
   """The corrections' free parameters [N, 6] (omega, tau) and Adam moments; the given centres [N, 3] (constants);
-  how the scene's rays follow from its cameras and the scene length of a unit of shift (static)."""
+  static: how the scene's rays follow from its cameras, the given cameras themselves and the scene length of a unit
+  of shift."""
   free: jax.Array
   opt_state: Any
   centres: jax.Array
-  space: pose_correction.RaySpace = flax.struct.field(pytree_node=False)
+  space: RaySpace = flax.struct.field(pytree_node=False)
+  given: StaticCameras = flax.struct.field(pytree_node=False)
   shift_unit: float = flax.struct.field(pytree_node=False, default=1.)
 
 
 def init(config, dataset: base.Dataset) -> CameraState:
   """Zero corrections of the training views of dataset (as loaded: noise included)."""
   free = jnp.zeros((len(dataset.ids), 6), jnp.float32)
-  space = loader.ray_space(config, dataset)
-  unit = camera_noise.camera_distance(dataset, space) if config.camera_shift_in_distances else 1.
+  given = Cameras(*(None if x is None else np.asarray(x, np.float32) for x in dataset.cameras))
+  unit = alignment.camera_distance(dataset.camtoworlds, dataset.space) if config.camera_shift_in_distances else 1.
   return CameraState(free=free, opt_state=optim.adam(config.camera_adam_eps).init(free),
-                     centres=jnp.asarray(dataset.camtoworlds[:, :, 3], jnp.float32), space=space,
-                     shift_unit=float(unit))
+                     centres=jnp.asarray(dataset.camtoworlds[:, :, 3], jnp.float32), space=dataset.space,
+                     given=StaticCameras(given), shift_unit=float(unit))
 
 
 def gauge_fixed(free, centres, xp=jnp):
@@ -64,20 +86,25 @@ def gauge_fixed(free, centres, xp=jnp):
 def view_corrections(free, centres, shift_unit: float = 1.) -> tuple:
   """(rotations [N, 3, 3], shifts [N, 3]) of the gauge-fixed corrections of free parameters [N, 6], the shifts
   in units of shift_unit."""
-  corrections = gauge_fixed(free, centres)
-  return pose_correction.so3_exp(corrections[:, :3], jnp), shift_unit * corrections[:, 3:]
+  fixed = gauge_fixed(free, centres)
+  return corrections.so3_exp(fixed[:, :3], jnp), shift_unit * fixed[:, 3:]
 
 
-def corrected_batch(cameras: CameraState, free, batch: dict) -> dict:
-  """The batch with its rays made from the corrected cameras of its views (batch['view'] [B])."""
+def corrected_batch(cameras: CameraState, free, batch: batching.Batch) -> batching.Batch:
+  """The batch with the rays of every family of training views (their Pixels) made from the corrected cameras."""
   rotations, shifts = view_corrections(free, cameras.centres, cameras.shift_unit)
-  view = batch['view']
-  rays = pose_correction.corrected_rays(batch['rays'], rotations[view], cameras.centres[view], shifts[view],
-                                        cameras.space, batch.get('neighbour_dirs'), jnp)
-  return {**batch, 'rays': rays}
+  fields = {}
+  for rays_field, pixels_field in batching.FAMILIES:
+    pixels = getattr(batch, pixels_field) if pixels_field else None
+    if pixels is not None:
+      view = pixels.view
+      fields[rays_field] = corrections.corrected_rays(getattr(batch, rays_field), rotations[view],
+                                                      cameras.centres[view], shifts[view], cameras.space, jnp,
+                                                      cameras.given.cameras, pixels)
+  return batch._replace(**fields)
 
 
-def value_and_grads(loss_fn, params, cameras: CameraState, batch: dict, key, step):
+def value_and_grads(loss_fn, params, cameras: CameraState, batch: batching.Batch, key, step):
   """((loss, stats), (model gradients, free-parameter gradients [N, 6])) of loss_fn(params, batch, key, step) on
   the batch's rays made from the corrected cameras."""
   def loss(params, free):
@@ -103,6 +130,5 @@ def update(config, cameras: CameraState, grads, step) -> tuple:
 def refined_cameras(cameras: CameraState, given: np.ndarray) -> np.ndarray:
   """[N, 3, 4] the given training cameras [N, 3, 4] corrected by the state's corrections (float64)."""
   free, centres = (np.asarray(jax.device_get(x), np.float64) for x in (cameras.free, cameras.centres))
-  corrections = gauge_fixed(free, centres, np)
-  return pose_correction.corrected_cameras(given, pose_correction.so3_exp(corrections[:, :3]),
-                                           cameras.shift_unit * corrections[:, 3:])
+  fixed = gauge_fixed(free, centres, np)
+  return corrections.corrected_cameras(given, corrections.so3_exp(fixed[:, :3]), cameras.shift_unit * fixed[:, 3:])

@@ -48,5 +48,5 @@ def train_step_flops(config) -> float:
   """Flops of one train step of Config's model and batch (lowered_flops)."""
   batch = datasets.make_batcher(datasets.load_dataset('train', config), config)(1)
   model, state = train_step_lib.create_train_state(config, random.PRNGKey(0),
-                                                   jax.tree.map(lambda x: x[:8], batch['rays']))
+                                                   jax.tree.map(lambda x: x[:8], batch.rays))
   return lowered_flops(train_step_lib.make_train_step(config, model), state, batch, random.PRNGKey(1))

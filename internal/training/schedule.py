@@ -1,4 +1,4 @@
-"""Schedules of the training step: learning rate with sine warm-up, resampling padding, depth-smoothness weight."""
+"""Schedules of the training step: learning rate with sine warm-up, resampling padding."""
 
 import jax.numpy as jnp
 
@@ -28,17 +28,3 @@ def resample_padding(config, step):
   """Padding added to the blurred coarse weights at step."""
   return log_lerp(jnp.clip(step / config.max_steps, 0., 1.),
                   config.resample_padding_init, config.resample_padding_final)
-
-
-def linear(step, maxstep: int, start: float, end: float):
-  """start (1 - w) + end w, w = clip(step / maxstep, 0, 1)."""
-  w = jnp.clip(step / maxstep, 0., 1.)
-  return start * (1. - w) + end * w
-
-
-def depth_tv_weight(config, step):
-  """RegNeRF's depth-smoothness weight of the last level at step: decayed under Config.depth_tvnorm_decay."""
-  if config.depth_tvnorm_decay:
-    return linear(step, config.depth_tvnorm_maxstep, config.depth_tvnorm_loss_mult_start,
-                  config.depth_tvnorm_loss_mult_end)
-  return config.depth_tvnorm_loss_mult

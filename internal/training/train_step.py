@@ -1,25 +1,25 @@
 """One jit-compiled, pure training step: masks, losses, clipping, Adam, non-finite guard."""
 
 import functools
+import re
 from typing import Any
 
 import flax
 import jax
 import jax.numpy as jnp
 from jax import random
+import numpy as np
 import optax
 
-from internal.datasets import random_poses
+from internal.datasets import batching
+from internal.losses import reconstruction
+from internal.losses import terms
 from internal.models import freq_schedule
 from internal.models import registry
-from internal.losses import depth_smoothness
-from internal.losses import occlusion
-from internal.losses import reconstruction
-from internal.training import anneal
 from internal.training import camera_refinement
 from internal.training import optim
+from internal.training import renderer
 from internal.training import schedule
-from internal.training import prior_losses
 
 
 @flax.struct.dataclass
@@ -43,9 +43,21 @@ class NonFiniteError(FloatingPointError):
   """A step's loss, gradients, learning rate or update was not finite (policy 'raise' or too many skips)."""
 
 
-# What the guard checks, as (stats flag, words for the error message).
-GUARD_CHECKS = (('loss_finite', 'loss'), ('grads_finite', 'gradients'), ('lr_valid', 'learning rate'),
+# What the guard checks, as (stats flag, words for the error message): an update is skipped unless all hold.
+GUARD_CHECKS = (('loss_finite', 'loss'), ('grads_finite', 'gradients'),
+                ('lr_valid', 'learning rate (Config.lr_init, lr_final, lr_delay_mult)'),
                 ('update_finite', 'new parameters / optimizer state'))
+# What a skipped step's message names before them, in the order the step computes it: the batch's inputs (stats
+# flags: the batch's Rays, under keys ending in 'rays', and its other arrays), then each loss term (LOSS_TERMS).
+INPUT_CHECKS = (('rays_finite', 'rays of the batch (the training cameras)'),
+                ('targets_finite', 'targets of the batch (colours of the images, depth priors)'))
+# The loss terms of stats in the order compute_loss adds them, with the Config setting that weights each ('' =
+# none): the data loss and weight decay, then the regularizers' table (losses/terms.py); a name ending in 'level'
+# is one term per level, every level but the last weighted by coarse_loss_mult. A weighted term's stats flag
+# '<term>_weighted_finite' says whether it times its weight is finite, so that a message names the weight whose
+# size made a finite term overflow.
+LOSS_TERMS = (('loss_level', ''), ('weight_l2', 'weight_decay_mult')) + tuple(
+    (term.stats, term.weight) for term in terms.TERMS)
 
 
 def create_train_state(config, key, example_rays, cameras=None):
@@ -61,67 +73,63 @@ def create_train_state(config, key, example_rays, cameras=None):
   return model, state
 
 
-def compute_loss(config, model, params, batch, key, step):
-  """(total loss, stats) of one batch {'rays': Rays [B, ...], 'rgb': [B, 3]} at step.
-
-  With RegNeRF's depth smoothness the batch also holds 'patch_rays' [P, ps, ps, ...] (no data loss on them).
-  """
-  mask_point, mask_view = freq_schedule.model_masks(config, model, step)
-  rays = batch['rays']
-  if config.anneal_nearfar:
-    rays = anneal.anneal_rays(config, rays, step)
-  renderings, history = model.apply(
-      {'params': params}, key if config.randomized else None, rays, mask_point, mask_view,
-      schedule.resample_padding(config, step))
+def compute_loss(config, model, params, batch: batching.Batch, key, step):
+  """(total loss, stats) of one Batch at step: every ray family of the batch rendered once (training/renderer.py),
+  the data loss of the training pixels per level (the coarse ones times Config.coarse_loss_mult), weight decay and
+  each term of losses/terms.TERMS that is on, in its order; every term's value also goes into stats."""
+  masks = freq_schedule.model_masks(config, model, step)
+  rendered = renderer.render_batch(config, model, params, batch, key, step, masks)
+  pixels = rendered['rays']
   stats = {}
   level_losses = []
-  for level, rendering in enumerate(renderings):
-    level_losses.append(reconstruction.data_loss(rendering['rgb'], batch['rgb'], rays.lossmult))
+  for level, rendering in enumerate(pixels.levels):
+    level_losses.append(reconstruction.data_loss(rendering['rgb'], batch.rgb, pixels.rays.lossmult))
     stats[f'loss_level{level}'] = level_losses[-1]
-    stats[f'psnr_level{level}'] = reconstruction.true_psnr(rendering['rgb'], batch['rgb'], rays.lossmult)
+    stats[f'psnr_level{level}'] = reconstruction.true_psnr(rendering['rgb'], batch.rgb, pixels.rays.lossmult)
   loss = level_losses[-1] + config.coarse_loss_mult * sum(level_losses[:-1])
   stats['weight_l2'] = reconstruction.weight_l2(params)
   loss += config.weight_decay_mult * stats['weight_l2']
-  fine = history[-1]
-  if config.occ_reg_loss_mult > 0:
-    stats['loss_occ'] = occlusion.occlusion_loss(
-        fine['density'], fine['rgb'], config.occ_reg_range, config.occ_wb_prior, config.occ_wb_range)
-    loss += config.occ_reg_loss_mult * stats['loss_occ']
-  if config.distortion_loss_mult > 0:
-    s_vals = (fine['t_vals'] - rays.near) / (rays.far - rays.near)
-    stats['loss_distortion'] = reconstruction.distortion_loss(s_vals, fine['weights'])
-    loss += config.distortion_loss_mult * stats['loss_distortion']
-  if random_poses.needs_patches(config):
-    tvs = _depth_tvs(config, model, params, batch['patch_rays'], key, step, mask_point, mask_view)
-    stats.update({f'depth_tv_level{level}': tv for level, tv in enumerate(tvs)})
-    # As released: the coarse levels by coarse_loss_mult, the last by the scheduled weight.
-    level_mults = [config.coarse_loss_mult] * (len(tvs) - 1) + [schedule.depth_tv_weight(config, step)]
-    stats['loss_depth_tv'] = sum(mult * tv for mult, tv in zip(level_mults, tvs))
-    loss += stats['loss_depth_tv']
-  if prior_losses.any_on(config):  # Depth priors (#51): their own rays, rendered with the step's masks.
-    prior_loss, prior_stats = prior_losses.loss_terms(config, model, params, batch, key, step,
-                                                      (mask_point, mask_view))
-    stats.update(prior_stats)
-    loss += prior_loss
-  if mask_point is not None:
-    stats['mask_visible_point'] = jnp.mean(mask_point)
-    stats['mask_visible_view'] = jnp.mean(mask_view)
+  for term in terms.TERMS:
+    if term.is_on(config):
+      value, term_stats = term.loss(config, rendered, batch, step)
+      stats.update(term_stats)
+      loss += value
+  if masks[0] is not None:
+    stats['mask_visible_point'] = jnp.mean(masks[0])
+    stats['mask_visible_view'] = jnp.mean(masks[1])
   stats['loss'] = loss
-  stats['psnr'] = stats[f'psnr_level{len(renderings) - 1}']
+  stats['psnr'] = stats[f'psnr_level{len(pixels.levels) - 1}']
   return loss, stats
 
 
-def _depth_tvs(config, model, params, patch_rays, key, step, mask_point, mask_view):
-  """Unweighted depth TV per level [L] of the model on random-pose patch rays [P, ps, ps, ...]."""
-  patch_shape = patch_rays.origins.shape[:3]
-  rays = jax.tree.map(lambda x: x.reshape((-1, x.shape[-1])), patch_rays)
-  if config.anneal_nearfar:
-    rays = anneal.anneal_rays(config, rays, step)
-  _, history = model.apply({'params': params}, random.fold_in(key, 1) if config.randomized else None, rays,
-                           mask_point, mask_view, schedule.resample_padding(config, step))
-  return jnp.stack([depth_smoothness.patch_depth_tv(level['weights'], level['t_vals'], patch_shape,
-                                                    config.depth_tvnorm_mask_weight, config.regnerf_fix_released_bugs)
-                    for level in history])
+def _input_flags(batch: batching.Batch) -> dict:
+  """INPUT_CHECKS' flags of a batch: whether its Rays (every family's), and its other arrays (the targets, not the
+  pixels), are finite."""
+  fields = batch._asdict()
+  rays = [name for name, _ in batching.FAMILIES]
+  pixels = [name for _, name in batching.FAMILIES if name]
+  return {'rays_finite': optim.all_finite([fields[name] for name in rays]),
+          'targets_finite': optim.all_finite([v for k, v in fields.items() if k not in rays + pixels])}
+
+
+def loss_terms(stats) -> list:
+  """(stats key, weighting Config setting or '') of each loss term in stats, in the order compute_loss adds them."""
+  found = []
+  for name, setting in LOSS_TERMS:
+    if not name.endswith('level'):
+      found += [(name, setting)] if name in stats else []
+      continue
+    levels = sorted((k for k in stats if re.fullmatch(rf'{name}\d+', k)), key=lambda k: int(k[len(name):]))
+    found += [(k, 'coarse_loss_mult' if i < len(levels) - 1 else setting) for i, k in enumerate(levels)]
+  return found
+
+
+def _weighted_term_flags(config, stats, step) -> dict:
+  """'<term>_weighted_finite' of each weighted loss term of stats: whether it times its weight at step is finite."""
+  scheduled = {term.weight: term.weight_at for term in terms.TERMS if term.weight_at is not None}
+  weight = lambda setting: scheduled[setting](config, step) if setting in scheduled else getattr(config, setting)
+  return {f'{key}_weighted_finite': jnp.isfinite(weight(setting) * stats[key])
+          for key, setting in loss_terms(stats) if setting}
 
 
 def make_train_step(config, model):
@@ -139,6 +147,7 @@ def make_train_step(config, model):
     else:  # The batch's rays made from the corrected cameras; the corrections get their own gradient.
       (loss, stats), (grads, camera_grads) = camera_refinement.value_and_grads(
           loss_fn, state.params, cameras, batch, random.fold_in(key, step), step)
+    stats.update(_input_flags(batch), **_weighted_term_flags(config, stats, step))
     stats.update(loss_finite=jnp.isfinite(loss), grads_finite=optim.all_finite((grads, camera_grads)))
     grads, clip_stats = optim.clip_gradients(grads, config.grad_max_val, config.grad_max_norm)
     lr = schedule.config_learning_rate(config, step)
@@ -162,9 +171,24 @@ def make_train_step(config, model):
   return jax.jit(train_step, donate_argnums=(0,))
 
 
+def nonfinite_quantities(stats) -> list:
+  """Words for each checked quantity of a step's (host) stats that is not finite (or, the learning rate, not
+  positive), in the order the step computes them: a loss term finite only before its weight names the weight."""
+  found = [words for flag, words in INPUT_CHECKS if flag in stats and not bool(stats[flag])]
+  for key, setting in loss_terms(stats):
+    if not np.isfinite(stats[key]):
+      found.append(key)
+    elif not bool(stats.get(f'{key}_weighted_finite', True)):
+      found.append(f'{key} x its weight Config.{setting}')
+  return found + [words for flag, words in GUARD_CHECKS if not bool(stats[flag])]
+
+
 def skip_reason(stats) -> str:
-  """Which guarded values of a step's (host) stats were not finite, in words."""
-  return ', '.join(words for flag, words in GUARD_CHECKS if not bool(stats[flag]))
+  """The first quantity of a step's (host) stats that was not finite, in the step's order, then the guarded
+  values that followed it, in words."""
+  first, *later = nonfinite_quantities(stats)
+  after = [words for _, words in GUARD_CHECKS if words in later]
+  return ', then '.join([first, ', '.join(after)] if after else [first])
 
 
 class SkipCounter:

@@ -1,4 +1,4 @@
-"""Photos or a video -> a capture folder the colmap loader reads: structure-from-motion with pycolmap.
+"""Photos or a video -> a capture folder the capture loader reads: structure-from-motion with pycolmap.
 
 `python -m tools.capture PHOTOS_DIR_OR_VIDEO --out CAPTURE_DIR` (tools/capture/__main__.py). The steps, one module
 each: the inputs checked and written as `images/` (photos.py; video.py takes the sharpest frame per window of a

@@ -25,7 +25,8 @@ import numpy as np
 
 from internal import atomic
 from internal import cli
-from internal.datasets import cameras, colmap_model, dtu
+from internal.cameras import algebra
+from internal.datasets import colmap_model, dtu
 from tools import provenance
 from tools.capture import CaptureError, photos, pipeline, poses, sfm
 
@@ -44,7 +45,7 @@ def reference_cameras(reference: str, names: list, photo_dir: str) -> np.ndarray
   sorted name order of photo_dir's photos) or an IDR cameras_sphere.npz (DTU: photo NNNNNN.png is camera NNNNNN)."""
   if reference.endswith('.npz'):
     projections = dtu.idr_projections(os.path.dirname(reference), 1 + max(int(os.path.splitext(n)[0]) for n in names))
-    return np.stack([cameras.projection_to_camtoworld(projections[int(os.path.splitext(n)[0])])[1] for n in names])
+    return np.stack([algebra.projection_to_camtoworld(projections[int(os.path.splitext(n)[0])])[1] for n in names])
   order, rows = sorted(photos.list_photos(photo_dir)[0]), np.load(reference)
   if len(rows) != len(order):
     raise CaptureError(f'{reference!r} has {len(rows)} cameras for the {len(order)} photos of {photo_dir!r}; expected '
@@ -108,9 +109,9 @@ def markdown(record: dict) -> str:
           f'`{record["command"]}` at commit {record["commit"][:12]}, pycolmap {record["pycolmap"]}, '
           f'{machine["cpu_count"]} CPUs ({machine["platform"]}), shared with other jobs: the 1-minute load average '
           'before and after each run is in the table (above 2, other jobs had the cores too).\n\n'
-          'Errors: the recovered cameras against the reference after a similarity alignment (its rotation the mean of '
-          'the rotation differences, scale and translation fitted to the centres); positions as a fraction of the '
-          "reference's camera distance. Seconds are wall seconds from the tool's report; CPU seconds are the whole "
+          'Errors: the recovered cameras against the reference after the similarity alignment of '
+          'internal/cameras/alignment.py (one fit of the centres and orientations together); positions as a fraction '
+          "of the reference's camera distance. Seconds are wall seconds from the tool's report; CPU seconds are the whole "
           f'run\'s.\n\n{table(record["runs"])}\nTargets ({record["targets"]}): {met}.\n')
 
 

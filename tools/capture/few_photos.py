@@ -3,6 +3,7 @@ from those of a model of all the photos.
 
 Usage: python -m tools.capture.few_photos CAPTURE_DIR --out RESULTS.json [--sizes 3 6 9] [--subsets 8] [--seed 0]
                                           [--max_size 800] [--work out/capture/few_photos]
+       python -m tools.capture.few_photos --summarize --out RESULTS.json
 
 CAPTURE_DIR is a capture of every photo (its images/ and the all-photo model sparse/0, e.g. the cup's). For each
 size n, seeded subsets of its photos of four kinds (KINDS): 'spread', n photos evenly spread along the whole arc
@@ -13,7 +14,10 @@ size n, seeded subsets of its photos of four kinds (KINDS): 'spread', n photos e
 every photo is in the capture's model; the registered cameras of every capture made are compared with the all-photo
 model's after a similarity fit (poses.pose_errors: rotation in degrees, centre distance as a fraction of the
 all-photo capture's camera distance), and a capture whose median rotation error is over OFF_DEGREES is counted off.
-Writes the JSON (provenance, every run) and its Markdown summary beside it (same name, .md).
+Writes the JSON (provenance, every run) and its Markdown summary beside it (same name, .md): per size and kind, and
+per size the distribution of the captures' median rotation errors (median, quartiles, largest, how many are off),
+since a few wrong captures hide behind a median. --summarize writes the Markdown again from an existing JSON's runs
+(no structure-from-motion).
 """
 
 from internal import interrupt
@@ -33,6 +37,7 @@ import numpy as np
 from internal import atomic
 from internal import cli
 from internal import config_loader
+from internal.cameras import alignment
 from internal.datasets import colmap_model
 from internal.datasets import capture as capture_loader
 from tools import provenance
@@ -132,6 +137,18 @@ def summary_rows(runs: list) -> list:
   return rows
 
 
+def distribution_rows(runs: list) -> list:
+  """Per size, over the captures made of every kind: their count and the distribution of their median rotation
+  errors (median, quartiles, largest, how many are over OFF_DEGREES)."""
+  rows = []
+  for n in dict.fromkeys(r['n'] for r in runs):
+    values = np.array([r['median_rotation_deg'] for r in runs if r['n'] == n and 'median_rotation_deg' in r])
+    quartiles = [float(q) for q in np.percentile(values, [25, 50, 75])] if len(values) else [None] * 3
+    rows.append({'n': n, 'captures': len(values), 'q1': quartiles[0], 'median': quartiles[1], 'q3': quartiles[2],
+                 'max': float(values.max()) if len(values) else None, 'off': int((values > OFF_DEGREES).sum())})
+  return rows
+
+
 def _median(values: list):
   """The median of values, None for none."""
   return float(np.median(values)) if values else None
@@ -159,6 +176,17 @@ def _summary_table(rows: list) -> str:
   return table
 
 
+def _distribution_table(rows: list) -> str:
+  """The Markdown table of distribution_rows."""
+  table = ('| photos | captures made | median rotation error of a capture: median | quartiles | largest | '
+           f'over {OFF_DEGREES:.0f} degrees |\n|---|---|---|---|---|---|\n')
+  for r in rows:
+    quartiles = '-' if r['q1'] is None else f'{_value(r["q1"], 2)} to {_value(r["q3"], 2, unit=" deg")}'
+    table += (f'| {r["n"]} | {r["captures"]} | {_value(r["median"], 2, unit=" deg")} | {quartiles} | '
+              f'{_value(r["max"], 2, unit=" deg")} | {r["off"]} of {r["captures"]} |\n')
+  return table
+
+
 def _runs_table(runs: list) -> str:
   """The Markdown table of every run."""
   table = ("| run | photos | registered | best pair's matches | median rotation / position error | rig | outcome |\n"
@@ -183,25 +211,45 @@ def markdown(record: dict) -> str:
           "of each one's median (and the worst single camera); positions as a percentage of the all-photo "
           f"capture's camera distance; off: captures whose median rotation error is over {OFF_DEGREES:.0f} "
           'degrees (wrong cameras that registered).\n\n'
-          f'{_summary_table(record["summary"])}\n## Every run\n\n{_runs_table(record["runs"])}')
+          f'{_summary_table(record["summary"])}\n## The captures made, by size\n\nEvery kind together: the '
+          "distribution of the captures' median rotation errors (each capture's median over its cameras), "
+          f'from the runs below.\n\n{_distribution_table(distribution_rows(record["runs"]))}\n'
+          f'## Every run\n\n{_runs_table(record["runs"])}')
+
+
+def summarize(path: str) -> int:
+  """Writes the Markdown beside the results file path again from its runs; prints the distribution."""
+  if not os.path.isfile(path):
+    raise FileNotFoundError(f'--out {path!r} does not exist; --summarize reads the results file a run wrote')
+  with open(path, encoding='utf-8') as f:
+    record = json.load(f)
+  atomic.write_text(os.path.splitext(path)[0] + '.md', markdown(record))
+  print(_distribution_table(distribution_rows(record['runs'])))
+  return 0
 
 
 def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('capture_dir', help='a capture of every photo: images/ and its model sparse/0')
+  parser.add_argument('capture_dir', nargs='?', help='a capture of every photo: images/ and its model sparse/0')
   parser.add_argument('--out', required=True, help='the results file to write (.json; a .md beside it)')
+  parser.add_argument('--summarize', action='store_true',
+                      help='write the .md beside --out again from its runs (no structure-from-motion)')
   parser.add_argument('--sizes', nargs='+', type=int, default=[3, 6, 9])
   parser.add_argument('--subsets', type=int, default=8, help='subsets of each kind and size')
   parser.add_argument('--seed', type=int, default=0)
   parser.add_argument('--max_size', type=int, default=pipeline.MAX_SIZE)
   parser.add_argument('--work', default=os.path.join('out', 'capture', 'few_photos'), help='where the captures go')
   args = parser.parse_args(argv)
+  if args.summarize:
+    return summarize(args.out)
+  if args.capture_dir is None:
+    parser.error('CAPTURE_DIR is required (a capture of every photo), unless --summarize')
   # The code as the runs start (a run takes minutes, in which the worktree may change).
   origin = provenance.record(['python', '-m', 'tools.capture.few_photos']
                              + list(sys.argv[1:] if argv is None else argv))
   order = arc_names(args.capture_dir)
   reference = colmap_model.read_model(os.path.join(args.capture_dir, 'sparse', '0'))
-  distance = poses.camera_distance(poses.model_cameras(reference)[1])
+  distance = alignment.camera_distance(poses.model_cameras(reference)[1])
   runs = []
   for n in args.sizes:
     for kind_index, (kind, span) in enumerate(KINDS.items()):

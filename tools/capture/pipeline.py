@@ -19,6 +19,7 @@ from internal import atomic
 from internal import cli
 from internal import config_loader
 from internal import configs
+from internal.cameras import alignment
 from internal.datasets import colmap_model, load_dataset
 from internal.datasets import capture as capture_loader
 from internal.evaluation import learning_curve
@@ -83,8 +84,8 @@ def checked_inputs(source: str, kind: str, folder: str, names: list, skipped: li
   if duplicates:
     warnings.warn('left out, byte-for-byte repeats of an earlier photo: '
                   + report_lib.listed([f'{a} (= {b})' for a, b in duplicates.items()]))
-  return found, {'input': os.path.abspath(source), 'kind': kind, 'photos': len(found), 'skipped': skipped,
-                 'duplicates': duplicates, 'rotated': [p.name for p in found if p.orientation != 1]}
+  return found, {'input': cli.relative_paths(os.path.abspath(source)), 'kind': kind, 'photos': len(found),
+                 'skipped': skipped, 'duplicates': duplicates, 'rotated': [p.name for p in found if p.orientation != 1]}
 
 
 def run_sfm(args: Options, found, output, kind: str) -> tuple:
@@ -157,7 +158,7 @@ def bindings(out: str, factor: int, n_registered: int) -> list:
 
 def load_back(gin_bindings: list) -> tuple:
   """(Config, the loader's Capture, default views {split: ids}): the capture read, both splits loaded through the
-  colmap loader and the learning curve's views checked, with the printed command's config."""
+  capture loader and the learning curve's views checked, with the printed command's config."""
   gin.clear_config()  # The tool's own process: the config is parsed once, fresh.
   config = config_loader.load_config([os.path.join(REPO, CONFIG)], gin_bindings)
   load_dataset('train', config)
@@ -177,10 +178,10 @@ def next_command(out: str, gin_bindings: list) -> str:
 
 def draw_picture(path: str, sized, capture, views: dict, order: list, title: str) -> None:
   """cameras.png: the model's points moved into the loader's frame by the similarity between both camera sets."""
-  scale, rotation, translation = poses.similarity(poses.model_cameras(sized)[1][:, :, 3], capture.camtoworlds[:, :, 3])
+  fit = alignment.fit(poses.model_cameras(sized)[1], capture.camtoworlds)
   xyz = np.stack([p.xyz for p in sized.points.values()]) if sized.points else np.zeros((0, 3))
   rgb = np.stack([p.rgb for p in sized.points.values()]) / 255. if sized.points else np.zeros((0, 3))
-  picture.draw(path, capture.camtoworlds, capture.forward, scale * xyz @ rotation.T + translation, rgb,
+  picture.draw(path, capture.camtoworlds, capture.forward, fit.scale * xyz @ fit.rotation.T + fit.shift, rgb,
                capture.names, order, views, title)
 
 

@@ -13,11 +13,14 @@ learning_curve.csv) and the cells' commits again in provenance.json. `read` take
 
 converts old ones in place (a folder already converted is left as it is): it writes cells.jsonl and removes the
 cell folders only once every file of every folder comes back byte for byte from its line (`files`), else it stops
-with one line naming the first file that would not, having changed nothing.
+with one line naming the first file that would not, having changed nothing. A cell folder that is a link or holds a
+folder, and an export it cannot change (a read-only file system, an immutable folder), are one line each too, the
+export left as it was.
 """
 
 import argparse
 import csv
+import errno
 import io
 import json
 import os
@@ -34,6 +37,11 @@ METRICS_FILE = 'metrics.json'
 METRICS_TABLE = 'metrics.csv'
 CURVE_FILE = 'learning_curve.csv'  # internal/evaluation/learning_curve.py's CSV_FILE (jax-free here).
 PROVENANCE_FILE = 'provenance.json'
+CONVERTING = '.cells_file.converting'  # The old cell folders during a conversion (deleted at its end).
+# The parts of a line and the JSON type each must have.
+LINE_TYPES = {'cell': str, 'same_as': str, 'spec': dict, 'record': dict, 'evaluation': dict, 'learning_curve': dict}
+JSON_NAMES = {str: 'a string', dict: 'an object', list: 'an array', int: 'a number', float: 'a number',
+              bool: 'true or false', type(None): 'null'}
 
 
 class Entry(NamedTuple):
@@ -116,18 +124,49 @@ def read(export_dir: str) -> Dict[str, Entry]:
   path = os.path.join(export_dir, CELLS_FILE)
   if not os.path.isfile(path):
     folders = [n for n in sorted(os.listdir(export_dir)) if os.path.isfile(os.path.join(export_dir, n, CELL_FILE))]
-    return {n: Entry(_folder_line(os.path.join(export_dir, n)), {'record': os.path.join(export_dir, n, CELL_FILE),
-                     'evaluation': os.path.join(export_dir, n, METRICS_FILE)}, export_dir) for n in folders}
-  entries = {}
+    return {n: _folder_entry(export_dir, n) for n in folders}
+  return {entry['cell']: _entry(export_dir, entry, where, ()) for entry, where in _lines(path)}
+
+
+def _lines(path: str):
+  """(line, 'FILE line N') of each line of a cells.jsonl, checked (_parse_line)."""
   with open(path) as f:
     for number, text in enumerate(f, 1):
       where = f'{path} line {number}'
-      entry = _parse_line(text, where)
-      if 'same_as' in entry:
-        entries[entry['cell']] = _referenced(export_dir, entry, where)
-      else:
-        entries[entry['cell']] = Entry(entry, {k: f'{where} ("{k}")' for k in ('record', 'evaluation')}, export_dir)
-  return entries
+      yield _parse_line(text, where), where
+
+
+def _folder_entry(export_dir: str, cell_id: str) -> Entry:
+  """The Entry of an old-layout export's cell folder."""
+  folder = os.path.join(export_dir, cell_id)
+  return Entry(_folder_line(folder), {'record': os.path.join(folder, CELL_FILE),
+                                      'evaluation': os.path.join(folder, METRICS_FILE)}, export_dir)
+
+
+def _entry(export_dir: str, entry: dict, where: str, referrers: tuple) -> Entry:
+  """The Entry of a line of export_dir's cells.jsonl: the line itself, or the line its reference leads to.
+  referrers: the exports (real paths) whose lines for this cell led here, so that a loop is an error."""
+  if 'same_as' not in entry:
+    return Entry(entry, {k: f'{where} ("{k}")' for k in ('record', 'evaluation')}, export_dir)
+  other = os.path.normpath(os.path.join(export_dir, entry['same_as']))
+  chain = referrers + (os.path.realpath(export_dir),)
+  if os.path.realpath(other) in chain:
+    raise ValueError(f'{where}: cell {entry["cell"]} is the same as in {other}, which leads back here (a loop of '
+                     'references); expected the export the cell was taken from')
+  found = _cell_entry(other, entry['cell'], chain) if os.path.isdir(other) else None
+  if found is None:
+    raise ValueError(f'{where}: cell {entry["cell"]} is the same as in {other}, which does not hold it; expected '
+                     'the export it was taken from beside this one')
+  return found
+
+
+def _cell_entry(export_dir: str, cell_id: str, referrers: tuple) -> Optional[Entry]:
+  """The Entry of one cell of an export (its reference followed), None when the export does not hold it."""
+  path = os.path.join(export_dir, CELLS_FILE)
+  if not os.path.isfile(path):
+    return _folder_entry(export_dir, cell_id) if os.path.isfile(os.path.join(export_dir, cell_id, CELL_FILE)) else None
+  return next((_entry(export_dir, entry, where, referrers) for entry, where in _lines(path)
+               if entry['cell'] == cell_id), None)
 
 
 def _parse_line(text: str, where: str) -> dict:
@@ -139,17 +178,11 @@ def _parse_line(text: str, where: str) -> dict:
                      'conflict? keep one side of each conflicting line)') from None
   if not isinstance(entry, dict) or 'cell' not in entry or not ({'record', 'same_as'} & set(entry)):
     raise ValueError(f'{where}: expected an object with "cell" and "record" (or "same_as"), as tools.study writes')
+  for key, kind in LINE_TYPES.items():
+    if key in entry and not isinstance(entry[key], kind):
+      raise ValueError(f'{where}: "{key}" is {JSON_NAMES[type(entry[key])]}; expected {JSON_NAMES[kind]}, as '
+                       'tools.study writes')
   return entry
-
-
-def _referenced(export_dir: str, entry: dict, where: str) -> Entry:
-  """The Entry a reference line points to (the cell's line in the other export)."""
-  other = os.path.normpath(os.path.join(export_dir, entry['same_as']))
-  found = read(other).get(entry['cell']) if os.path.isdir(other) else None
-  if found is None:
-    raise ValueError(f'{where}: cell {entry["cell"]} is the same as in {other}, which does not hold it; expected '
-                     'the export it was taken from beside this one')
-  return found
 
 
 def _folder_line(folder: str) -> dict:
@@ -193,8 +226,8 @@ def convert(export_dir: str, spec_of=None) -> Optional[dict]:
 
   spec_of(cell id) gives a cell's spec (None where unknown). A cell whose record names another study is a reference
   when the export of that study beside this one holds the same run. ValueError naming the first file that its
-  line would not give back byte for byte, or a provenance.json entry that disagrees with its cell's record; nothing
-  is changed then.
+  line would not give back byte for byte, a cell folder that is a link or holds a folder, a provenance.json entry
+  that disagrees with its cell's record, or what could not be written; nothing is changed then.
   """
   if os.path.isfile(os.path.join(export_dir, CELLS_FILE)):
     return None
@@ -208,13 +241,38 @@ def convert(export_dir: str, spec_of=None) -> Optional[dict]:
     _check_provenance(provenance, provenance_path, entry.line)
   lines = [_converted_line(export_dir, entry.line, spec_of) for entry in entries.values()]
   provenance.pop('cells', None)
-  atomic.write_text(provenance_path, json.dumps(provenance, indent=1))
-  write(export_dir, lines)
-  removed = 0
-  for cell_id in entries:
-    removed += len(os.listdir(os.path.join(export_dir, cell_id)))
-    shutil.rmtree(os.path.join(export_dir, cell_id))
+  removed = sum(len(os.listdir(os.path.join(export_dir, cell_id))) for cell_id in entries)
+  _replace_folders(export_dir, lines, provenance, list(entries))
   return {'cells': len(lines), 'references': sum('same_as' in l for l in lines), 'removed': removed}
+
+
+def _replace_folders(export_dir: str, lines: List[dict], provenance: dict, cell_ids: List[str]) -> None:
+  """Writes cells.jsonl, moves the cell folders into a hidden folder, writes provenance.json, then deletes the
+  hidden folder. A step that fails (a read-only file system, an immutable folder) undoes the ones before it: a
+  ValueError naming what could not be written, the export as it was (a full disk stays an OSError, undone too)."""
+  aside = os.path.join(export_dir, CONVERTING)
+  done = []  # Undo steps, newest last.
+  try:
+    write(export_dir, lines)
+    done.append(lambda: os.remove(os.path.join(export_dir, CELLS_FILE)))
+    os.mkdir(aside)
+    done.append(lambda: os.rmdir(aside))
+    for cell_id in cell_ids:
+      os.rename(os.path.join(export_dir, cell_id), os.path.join(aside, cell_id))
+      done.append(lambda c=cell_id: os.rename(os.path.join(aside, c), os.path.join(export_dir, c)))
+    atomic.write_text(os.path.join(export_dir, PROVENANCE_FILE), json.dumps(provenance, indent=1))
+  except OSError as err:
+    for undo in reversed(done):
+      undo()
+    if err.errno == errno.ENOSPC:
+      raise
+    raise ValueError(f'{export_dir}: cannot be converted: {err.strerror} ({err.filename!r}); expected an export '
+                     'whose folder and cell folders can be changed (nothing was converted)') from None
+  try:
+    shutil.rmtree(aside)
+  except OSError as err:
+    raise ValueError(f'{export_dir}: converted, but {aside}, its old cell folders (each file in {CELLS_FILE} byte '
+                     f'for byte), could not be deleted: {err.strerror} ({err.filename!r}); delete it by hand') from None
 
 
 def _converted_line(export_dir: str, entry: dict, spec_of) -> dict:
@@ -231,9 +289,17 @@ def _converted_line(export_dir: str, entry: dict, spec_of) -> dict:
 
 
 def _check_round_trip(folder: str, entry: dict) -> None:
-  """ValueError naming the first file of an old cell folder that the cell's line does not give back byte for byte."""
+  """ValueError naming an old cell folder that is a link, or the first thing in it that the cell's line does not
+  give back byte for byte (a file, or a folder)."""
+  if os.path.islink(folder):
+    raise ValueError(f'{folder}: a symbolic link (to {os.readlink(folder)}); expected the cell folder that '
+                     'tools.study --export wrote: put a copy of that folder in its place (nothing was converted)')
   texts = files(entry)
   for name in sorted(os.listdir(folder)):
+    if os.path.isdir(os.path.join(folder, name)):
+      raise ValueError(f'{os.path.join(folder, name)}: a folder, which {CELLS_FILE} cannot hold; expected only '
+                       'cell.json, metrics.json, metrics.csv and learning_curve.csv as tools.study wrote them: move '
+                       'it out of the export (nothing was converted)')
     with open(os.path.join(folder, name), newline='') as f:
       if texts.get(name) != f.read():
         raise ValueError(f'{os.path.join(folder, name)}: its line in {CELLS_FILE} would not give it back byte for '

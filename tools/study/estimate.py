@@ -65,7 +65,7 @@ def measure(config) -> Dict[str, float]:
   batcher = datasets.make_batcher(datasets.load_dataset('train', config), config)
   mesh = sharding.data_mesh()
   model, state = train_step.create_train_state(config, random.PRNGKey(config.jax_rng_seed),
-                                               jax.tree.map(lambda x: x[:8], batcher(0)['rays']))
+                                               jax.tree.map(lambda x: x[:8], batcher(0).rays))
   state, step_fn, key = sharding.replicate(state, mesh), train_step.make_train_step(config, model), random.PRNGKey(0)
   batch = lambda step: sharding.shard_batch(batcher(step), mesh)
   state, _ = _timed(lambda: step_fn(state, batch(1), key))[0]

@@ -1,19 +1,22 @@
 """Copies a study's results into a folder meant to be committed: what was run, on what, and what came out.
 
-<dest>/ gets results.csv, the statistics over seeds (summary.csv, comparisons.csv and .md) and the plots, cells.jsonl
-(a line per finished cell: its gin, its cell.json, its evaluation's metrics.json and its learning curve; a cell
-reused from another study's export a reference to that export's line: tools/study/cells_file.py), a side-by-side
-picture per scene (ground truth, then each method's render of the first evaluated test views, of the first seed),
-table.md (per cell its metrics, wall times and commit) and provenance.json: the command, the study file's path and
-SHA-256, the machine and the package versions (each cell's commit, with the tracked files that differed from it,
-is in its line). No checkpoints, no renders.
+<dest>/ gets results.csv, the statistics over seeds (summary.csv, comparisons.csv and .md, and looks.json: the seed
+counts at which the comparisons were read, tools/study/looks.py) and the plots, cells.jsonl (a line per finished
+cell: its gin, its cell.json, its evaluation's metrics.json, whose run folder is written as the spec writes it,
+{out}/<study>/<cell>/run, and its learning curve; a cell reused from another study's export a reference to that
+export's line: tools/study/cells_file.py), a side-by-side picture per scene (ground truth, then each method's render
+of the first evaluated test views, of the first seed; under each, its depth, the exact depth under the ground truth
+where the scene has one, each depth panel in its own colour range), table.md (per cell its metrics, wall times and
+commit) and provenance.json: the command (its paths relative to the repository: internal/cli.py's recorded_command),
+the study file's path and SHA-256, the machine and the package versions (each cell's commit, with the tracked files
+that differed from it, is in its line). No checkpoints, no renders.
 """
 
 import glob
 import json
 import os
 import shutil
-from typing import Dict, List, Optional
+from typing import Callable, Dict, List, NamedTuple, Optional
 
 import numpy as np
 from PIL import Image
@@ -21,6 +24,7 @@ from PIL import Image
 from internal.evaluation import vis
 from tools import provenance
 from tools.study import cells_file
+from tools.study import looks as study_looks
 from tools.study import spec as study_spec
 
 RUN_SUBDIR = 'run'    # A cell's run directory (Config.checkpoint_dir) inside its folder.
@@ -49,12 +53,22 @@ def _cell_line(study: study_spec.Study, cell: study_spec.Cell, path: str, record
   from internal.evaluation import learning_curve  # pylint: disable=import-outside-toplevel
   metrics = os.path.join(eval_dir(path, record['step']), cells_file.METRICS_FILE)
   curve = learning_curve.csv_path(os.path.join(path, RUN_SUBDIR))
-  entry = cells_file.line(cell.cell_id, record, cells_file.read_json(metrics) if os.path.isfile(metrics) else None,
-                          _text(curve), cells_file.spec(study, cell))
+  evaluation = _portable(cells_file.read_json(metrics), path) if os.path.isfile(metrics) else None
+  entry = cells_file.line(cell.cell_id, record, evaluation, _text(curve), cells_file.spec(study, cell))
   source = _reused_from(path)
   if source and record.get('study') != study.name:
     return cells_file.reference(dest, entry, source) or entry
   return entry
+
+
+def _portable(evaluation: dict, cell_path: str) -> dict:
+  """A cell's metrics.json with the run folder it names, where absolute, as its spec writes it: {out}/<study>/<cell>/run
+  (a cell --reuse placed names the folder of the export's line already)."""
+  run_dir = evaluation.get('run_dir')
+  out = os.path.dirname(os.path.dirname(os.path.abspath(cell_path)))
+  if not (run_dir and os.path.isabs(run_dir) and run_dir.startswith(out + os.sep)):
+    return evaluation
+  return {**evaluation, 'run_dir': '{out}' + run_dir[len(out):]}
 
 
 def _text(path: str) -> Optional[str]:
@@ -71,30 +85,39 @@ def _reused_from(cell_path: str) -> Optional[str]:
   return cells_file.read_json(marker)['export'] if os.path.isfile(marker) else None
 
 
-def _depth_row(folders: List[str], view_id: int, image: np.ndarray):
-  """The depth row of one test view: blank under the ground truth, then each evaluation's rendered distance in
-  one colour range shared by the renders (so that they compare); None when an evaluation kept no depth."""
+class Truth(NamedTuple):
+  """The pictured test views as the cells' evaluation loaded them: {view id: image [H,W,3]}, {view id: exact depth
+  [H,W] or None where the scene has none}, and (view id, rendered distance [H,W]) -> world depth [H,W]."""
+  images: Dict[int, np.ndarray]
+  depths: Dict[int, Optional[np.ndarray]]
+  to_world: Callable
+
+
+def _depth_row(folders: List[str], view_id: int, truth: Truth):
+  """The depth row of one test view: the exact depth under the ground truth where the scene has one (else blank),
+  then each evaluation's rendered depth, each panel in its own colour range (a shared range flattens a render
+  whose depths span little, such as a prior's); None when an evaluation kept no depth."""
   from internal.evaluation import depth_metrics  # pylint: disable=import-outside-toplevel
   files = [depth_metrics.depth_file(folder, view_id) for folder in folders]
   if not all(os.path.isfile(f) for f in files):
     return None
-  depths = [np.load(f)['distance'] for f in files]
-  value_range = vis.depth_range(np.concatenate([d.ravel() for d in depths]))
-  return [np.ones_like(image)] + [vis.colorize_depth(d, value_range) for d in depths]
+  exact = truth.depths.get(view_id)
+  first = np.ones_like(truth.images[view_id]) if exact is None else vis.colorize_depth(exact)
+  return [first] + [vis.colorize_depth(truth.to_world(view_id, np.load(f)['distance'])) for f in files]
 
 
-def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Dict[int, np.ndarray], path: str) -> None:
+def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Truth, path: str) -> None:
   """Writes one scene's picture: per test view (by id) a colour row and, where kept, a depth row; columns ground
   truth then each cell's render."""
   from internal import demo  # pylint: disable=import-outside-toplevel
   folders = [eval_dir(paths[c['cell']], c['step']) for c in cells]
   rows, row_titles = [], []
-  for view_id, image in truth.items():
+  for view_id, image in truth.images.items():
     renders = [np.asarray(Image.open(os.path.join(folder, f'color_{view_id:03d}.png')).convert('RGB')) / 255.
                for folder in folders]
     rows.append([image] + renders)
     row_titles.append(f'test view {view_id}')
-    depth = _depth_row(folders, view_id, image)
+    depth = _depth_row(folders, view_id, truth)
     if depth is not None:
       rows.append(depth)
       row_titles.append('depth')
@@ -103,22 +126,38 @@ def _scene_picture(cells: List[dict], paths: Dict[str, str], truth: Dict[int, np
                      [f'{k}={v}' for k, v in c['labels'].items()]) for c in cells]
   scale = -(-MIN_TILE_WIDTH // rows[0][0].shape[1])
   picture = demo.grid(rows, ['ground truth'] + titles, row_titles, scale=scale)
-  vis.save_png(picture / 255., path)
+  vis.save_picture(picture, path)
 
 
-def _ground_truth(cell_path: str, cell: dict, count: int) -> Dict[int, np.ndarray]:
-  """{view id: image} of the first `count` test views the cell evaluated, loaded as its evaluation did."""
+def _ground_truth(cell_path: str, cell: dict, count: int) -> Truth:
+  """The first `count` test views the cell evaluated, loaded as its evaluation did (with exact depths where the
+  scene has them)."""
   import gin  # pylint: disable=import-outside-toplevel
   from internal import config_loader, datasets  # pylint: disable=import-outside-toplevel
+  from internal.datasets import loader  # pylint: disable=import-outside-toplevel
+  from internal.evaluation import depth_metrics  # pylint: disable=import-outside-toplevel
   with open(os.path.join(cell_path, 'cell_spec.json')) as f:
     spec = json.load(f)
   gin.clear_config()
   config = config_loader.load_config(spec['gin_configs'], spec['gin_bindings'])
-  test_set = datasets.load_dataset('test', config)
+  test_set = datasets.load_dataset('test', config, ground_truth=True)
+  ndc = loader.REGISTRY[loader.filed_as(config)[0]].ndc(config)
   gin.clear_config()
   with open(os.path.join(eval_dir(cell_path, cell['step']), 'metrics.json')) as f:
     ids = [entry['id'] for entry in json.load(f)['per_image'][:count]]
-  return {i: np.asarray(test_set.images[list(test_set.ids).index(i)]) for i in ids}
+  at = {i: list(test_set.ids).index(i) for i in ids}
+  depths = {i: None if test_set.depths is None else np.asarray(test_set.depths[at[i]]) for i in ids}
+  return Truth({i: np.asarray(test_set.images[at[i]]) for i in ids}, depths,
+               lambda i, distance: depth_metrics.world_depth(test_set, at[i], distance, ndc))
+
+
+def checkout_path(path: str) -> str:
+  """path relative to the git checkout that holds it (a worktree's own, not the one whose code runs), else to REPO."""
+  folder = os.path.dirname(os.path.abspath(path))
+  while not os.path.exists(os.path.join(folder, '.git')) and os.path.dirname(folder) != folder:
+    folder = os.path.dirname(folder)
+  root = folder if os.path.exists(os.path.join(folder, '.git')) else REPO
+  return os.path.relpath(os.path.abspath(path), root)
 
 
 def markdown_table(cells: List[dict]) -> str:
@@ -181,7 +220,7 @@ def _write(study: study_spec.Study, study_file: str, study_folder: str, dest: st
   """The export itself, into dest; returns the pictures written."""
   os.makedirs(dest, exist_ok=True)
   for name in sorted(os.listdir(study_folder)):
-    if name.endswith(('.csv', '.png', '.md')):
+    if name.endswith(('.csv', '.png', '.md')) or name == study_looks.FILE:
       shutil.copy2(os.path.join(study_folder, name), dest)
   finished, paths, lines = [], {}, []
   for cell in study_spec.cells(study):
@@ -203,7 +242,7 @@ def _write(study: study_spec.Study, study_file: str, study_folder: str, dest: st
   with open(os.path.join(dest, TABLE_FILE), 'w') as f:
     f.write(markdown_table(finished))
   record = {'command': command, 'machine': provenance.machine(),
-            'study_file': {'path': os.path.relpath(os.path.abspath(study_file), REPO),
+            'study_file': {'path': checkout_path(study_file),
                            'sha256': provenance.file_sha256(study_file)}}
   with open(os.path.join(dest, PROVENANCE_FILE), 'w') as f:
     json.dump(record, f, indent=1)

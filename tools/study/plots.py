@@ -12,7 +12,9 @@ from tools.study import spec as study_spec
 from tools.study import stats as study_stats
 
 # Learning-curve metrics (internal/evaluation/learning_curve.py) plotted against the training step.
-CAMERA_CURVE_METRICS = ('camera_rotation_deg', 'camera_translation')  # Of the training cameras, where they move.
+# Of the training cameras, where they move (after the similarity, and without it where the frames are shared).
+CAMERA_CURVE_METRICS = ('camera_rotation_deg', 'camera_translation', 'camera_rotation_deg_unaligned',
+                        'camera_translation_unaligned')
 CURVE_METRICS = ('psnr', 'psnr_masked') + CAMERA_CURVE_METRICS
 
 
@@ -91,7 +93,8 @@ def _seed_figure(lines: dict, joined: bool) -> tuple:
 
 
 def comparison_plot(study: study_spec.Study, comparisons, metric: str, path: str) -> bool:
-  """Draws each comparison's paired mean difference and 95% interval (red: undecided); False when none."""
+  """Draws each comparison's paired mean difference and interval (95%, or more when corrected for several looks;
+  red: undecided); False when none."""
   if not comparisons:
     return False
   fig, ax = vis.line_figure({})
@@ -108,7 +111,7 @@ def comparison_plot(study: study_spec.Study, comparisons, metric: str, path: str
   ax.set_ylim(-.6, len(comparisons) - .2)
   if any(c.verdict.startswith(study_stats.UNDECIDED) for c in comparisons):
     ax.plot([], [], color='red', label=f'{study_stats.UNDECIDED}: no difference shown')
-  vis.save_figure(fig, ax, f'a - b: paired mean, {study_stats.LEVEL:.0%} interval', '',
+  vis.save_figure(fig, ax, f'a - b: paired mean, {study_stats.level_text(comparisons[0].level)} interval', '',
                   f'{study.name}: {metric}, paired', path)
   return True
 

@@ -108,7 +108,8 @@ def check_fits(resources: study_spec.Resources, nodes: list, address) -> None:
 
 
 def _still_stopping(signum, frame) -> None:
-  """The driver's SIGINT handler once it stops: says so instead of leaving before its cells (or Ray) are done."""
+  """The driver's SIGINT and SIGTERM handler once it stops: says so instead of leaving before its cells (or Ray) are
+  done."""
   del signum, frame
   print(f'still stopping: the cells save their checkpoints and end (up to {CANCEL_WAIT_SECONDS:g} s), then the '
         'driver leaves Ray', file=sys.stderr, flush=True)
@@ -144,9 +145,10 @@ class RayExecutor:
     wherever it runs (it saves a checkpoint, releases its claim and exits, and its task ends); the others through
     Ray (a queued one never starts, a starting one gets SIGINT from its task). The tasks are waited for, up to
     CANCEL_WAIT_SECONDS; tasks still running then are ended. Called as the driver stops, it leaves further Ctrl-C
-    only reported from then on: a driver that left would take its tasks' processes down with it, in the middle of
-    their checkpoints."""
-    signal.signal(signal.SIGINT, _still_stopping)
+    and SIGTERM only reported from then on: a driver that left would take its tasks' processes down with it, in the
+    middle of their checkpoints."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+      signal.signal(signum, _still_stopping)
     cancelled = [self.submitted[f] for f in futures]
     for ref, path in cancelled:
       if (study_claim.live_holder(path) or {}).get('job') == self.job:

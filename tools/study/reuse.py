@@ -10,7 +10,8 @@ completeness and every mean), else the command stops with one line naming both; 
 evaluation is not reused (it runs here). Its cell.json, the evaluation's metrics.json and metrics.csv and its
 learning curve go where a run here would have written them, with a note of the export it came from (an export of
 this study then refers to that export's line); its checkpoints and renders are not in an export, so a reused cell
-cannot resume training and appears in no side-by-side picture.
+cannot resume training and appears in no side-by-side picture. An export of the same study passes on its looks (the
+seed counts at which its comparisons were read, tools/study/looks.py), so that its intervals stay corrected for them.
 """
 
 import json
@@ -21,6 +22,7 @@ from internal import atomic
 from tools import provenance
 from tools.study import cells_file
 from tools.study import export as study_export
+from tools.study import looks as study_looks
 from tools.study import spec as study_spec
 
 
@@ -35,11 +37,23 @@ def exported_study(export_dir: str) -> study_spec.Study:
   if not {'path', 'sha256'} <= source.keys():
     raise study_spec.StudyError(f'--reuse {export_dir}: its {study_export.PROVENANCE_FILE} names no study file '
                                 '(path and sha256); export it again with this version of tools.study')
-  text = provenance.file_at(study_export.REPO, source['path'], source['sha256'])
+  text = next(filter(None, (provenance.file_at(study_export.REPO, path, source['sha256'])
+                            for path in _paths_here(source['path']))), None)
   if text is None:
     raise study_spec.StudyError(f"--reuse {export_dir}: it ran {source['path']} of SHA-256 {source['sha256'][:12]}..., "
                                 'which neither that file here nor its git history holds')
   return study_spec.parse(text, source['path'])
+
+
+def _paths_here(path: str) -> List[str]:
+  """The path a provenance.json names, then, for one outside this checkout (another worktree's,
+  '../wt-x/studies/<file>'), its tails inside it ('wt-x/studies/<file>', 'studies/<file>', '<file>'): the file's
+  SHA-256 decides which, if any, is the study file that ran."""
+  parts = os.path.normpath(path).split(os.sep)
+  if parts[0] != os.pardir and not os.path.isabs(path):
+    return [path]
+  parts = [p for p in parts if p not in (os.pardir, '')]
+  return [path] + [os.path.join(*parts[i:]) for i in range(len(parts))]
 
 
 def _same_settings(study, exported, cell, out: str, data_root: str) -> bool:
@@ -128,6 +142,9 @@ def reuse(study: study_spec.Study, export_dir: str, study_folder: str, data_root
             'be checked against it')
       continue
     chosen.append((cell, entry, target))
+  if exported.name == study.name and study_looks.recorded(export_dir):
+    os.makedirs(study_folder, exist_ok=True)
+    study_looks.record(study_folder, study_looks.recorded(export_dir))
   reused = []
   for cell, entry, target in chosen:  # Written once every cell is checked: a bad export writes nothing.
     _place(entry, target)

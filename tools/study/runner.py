@@ -21,7 +21,8 @@ results of all finished cells are gathered into <out>/<study>/results.csv and <m
 the cells' learning curves (Config.curve_every > 0) into psnr_vs_step.png (and psnr_masked_vs_step.png on DTU).
 `python -m tools.tables <out>/<study>` gathers the same runs into the paper's tables.
 With seeds (a `seeds` key or an axis named seed) results also give per cell the mean, spread and n over seeds and
-the paired comparisons with their 95% intervals (tools/study/stats.py). `--list --estimate` measures each distinct
+the paired comparisons with their 95% intervals, corrected for the seed counts at which they were read
+(tools/study/stats.py, looks.py). `--list --estimate` measures each distinct
 setting of the pending cells on this machine (about a minute each) and prints the expected wall time before any
 cell runs (tools/study/estimate.py); with --cluster-gpus N, the GPU-hours and the wall time on N GPUs from the step
 times measured on a GPU (results/gpu). Bad input is one line (exit status 2, internal/cli.py).
@@ -46,31 +47,34 @@ from internal import cli
 from tools import provenance
 from tools.study import time_budgets
 from tools.study import cells_file
-from tools.study import claim as study_claim
+from tools.study import claim
 from tools.study import estimate
-from tools.study import export as study_export
-from tools.study import plots as study_plots
-from tools.study import reuse as study_reuse
+from tools.study import export
+from tools.study import looks
+from tools.study import plots
+from tools.study import reuse
 from tools.study import dispatch
-from tools.study import spec as study_spec
-from tools.study import stats as study_stats
+from tools.study import spec
+from tools.study import stats
 
 CELL_FILE = 'cell.json'
 SPEC_FILE = 'cell_spec.json'
 LOG_FILE = dispatch.LOG_FILE
-RUN_SUBDIR = study_export.RUN_SUBDIR  # The cell's run directory (Config.checkpoint_dir) inside its folder.
+RUN_SUBDIR = export.RUN_SUBDIR  # The cell's run directory (Config.checkpoint_dir) inside its folder.
 RESULTS_FILE = 'results.csv'
 SUMMARY_FILE = 'summary.csv'          # Per cell pooled over seeds: mean, std, n of each plotted metric.
 COMPARISONS_FILE = 'comparisons.csv'  # The paired comparisons with their intervals and verdicts.
 COMPARISONS_MD = 'comparisons.md'
 REPO = dispatch.REPO
+TERMINATED_MESSAGE = ('terminated: stopped by SIGTERM before the command finished; its cells saved their checkpoints, '
+                      'what it wrote is kept, and the same command run again finishes the work')
 
 
-def study_dir(study: study_spec.Study, out: str) -> str:
+def study_dir(study: spec.Study, out: str) -> str:
   return os.path.join(out, study.name)
 
 
-def cell_dir(study: study_spec.Study, cell: study_spec.Cell, out: str) -> str:
+def cell_dir(study: spec.Study, cell: spec.Cell, out: str) -> str:
   return os.path.join(study_dir(study, out), cell.cell_id)
 
 
@@ -80,22 +84,20 @@ def read_cell(path: str) -> Optional[dict]:
   return cells_file.read_json(path) if os.path.isfile(path) else None
 
 
-def write_spec(study: study_spec.Study, cell: study_spec.Cell, out: str, data_root: str,
-               extra_bindings=()) -> str:
+def write_spec(study: spec.Study, cell: spec.Cell, out: str, data_root: str, extra_bindings=()) -> str:
   """Writes <cell>/cell_spec.json (the cell's gin configs and bindings, labels), atomically and never for a
   finished cell (its spec records what ran); returns the cell folder."""
   path = cell_dir(study, cell, out)
-  configs, bindings = study_spec.cell_gin(study, cell, out, data_root, os.path.join(path, RUN_SUBDIR),
-                                          extra_bindings)
+  configs, bindings = spec.cell_gin(study, cell, out, data_root, os.path.join(path, RUN_SUBDIR), extra_bindings)
   os.makedirs(path, exist_ok=True)
-  spec = {'study': study.name, 'cell': cell.cell_id, 'method': cell.method, 'scene': cell.scene,
-          'labels': cell.labels(), 'gin_configs': configs, 'gin_bindings': bindings}
+  written = {'study': study.name, 'cell': cell.cell_id, 'method': cell.method, 'scene': cell.scene,
+             'labels': cell.labels(), 'gin_configs': configs, 'gin_bindings': bindings}
   if not os.path.isfile(os.path.join(path, CELL_FILE)):
-    atomic.write_text(os.path.join(path, SPEC_FILE), json.dumps(spec, indent=1))
+    atomic.write_text(os.path.join(path, SPEC_FILE), json.dumps(written, indent=1))
   return path
 
 
-def stale_cells(study: study_spec.Study, done: list, out: str, data_root: str, extra_bindings=()) -> Dict[str, str]:
+def stale_cells(study: spec.Study, done: list, out: str, data_root: str, extra_bindings=()) -> Dict[str, str]:
   """{cell folder: the settings that differ} of the finished (cell, folder) pairs in done whose run trained with other
   settings than the study gives the cell now (a study or gin file edited after it ran), the precision aside (each
   machine resolves 'default' to its own); a cell taken from an export (--reuse) has no run to compare."""
@@ -111,8 +113,8 @@ def stale_cells(study: study_spec.Study, done: list, out: str, data_root: str, e
     try:  # The model's settings (MLP.*, MipNerfModel.*) are read from gin: compared before it is cleared.
       with warnings.catch_warnings():  # A setting's warnings are the cell's to print when it runs, not once a cell.
         warnings.simplefilter('ignore')
-        config = config_loader.load_config(*study_spec.cell_gin(study, cell, out, data_root,
-                                                                 os.path.join(path, RUN_SUBDIR), extra_bindings))
+        config = config_loader.load_config(*spec.cell_gin(study, cell, out, data_root,
+                                                           os.path.join(path, RUN_SUBDIR), extra_bindings))
       differences = run_dir.differences({**stored, 'Config.precision': config.precision}, config)
     finally:
       gin.clear_config()
@@ -121,12 +123,12 @@ def stale_cells(study: study_spec.Study, done: list, out: str, data_root: str, e
   return stale
 
 
-def check_not_stale(study: study_spec.Study, done: list, out: str, data_root: str, extra_bindings=()) -> None:
+def check_not_stale(study: spec.Study, done: list, out: str, data_root: str, extra_bindings=()) -> None:
   """StudyError naming each finished cell that trained with other settings than the study gives it now."""
   stale = stale_cells(study, done, out, data_root, extra_bindings)
   if stale:
     listed = '; '.join(f'{path} ({differences})' for path, differences in stale.items())
-    raise study_spec.StudyError(f'{study.path}: {len(stale)} finished cell(s) trained with other settings than the '
+    raise spec.StudyError(f'{study.path}: {len(stale)} finished cell(s) trained with other settings than the '
                                 f'study gives them now: {listed}. Their results are not this study\'s: move those '
                                 'cell folders away to train them again, or restore the settings they ran with')
 
@@ -150,19 +152,28 @@ class CellStopped(Exception):
     self.signum = signum
 
 
+class Terminated(KeyboardInterrupt):
+  """SIGTERM to the study command: its cells stop as on Ctrl-C (dispatch.run cancels them on a KeyboardInterrupt)."""
+
+
+def _raise_terminated(signum, frame):
+  del signum, frame
+  raise Terminated()
+
+
 def _peak_memory() -> dict:
   """Peak RSS of this process (MiB) and the first device's peak bytes in use (None where not reported)."""
   import jax  # pylint: disable=import-outside-toplevel
-  stats = jax.local_devices()[0].memory_stats() or {}
+  memory = jax.local_devices()[0].memory_stats() or {}
   return {'peak_rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.,
-          'device_peak_bytes': stats.get('peak_bytes_in_use')}
+          'device_peak_bytes': memory.get('peak_bytes_in_use')}
 
 
 def run_cell(path: str, job: str, stop=None) -> Optional[dict]:
-  """Claims the cell in folder path for job (study_claim.Held if another job holds it), then trains (resuming) and
+  """Claims the cell in folder path for job (claim.Held if another job holds it), then trains (resuming) and
   evaluates it from its cell_spec.json and writes cell.json; None when another runner had finished it. stop: the
   loop.StopFlag that training records its signals in (default: its own)."""
-  with study_claim.claimed(path, job):
+  with claim.claimed(path, job):
     return None if read_cell(path) else _train_and_evaluate(path, stop)
 
 
@@ -176,7 +187,7 @@ def _train_and_evaluate(path: str, stop) -> dict:
   from internal.run import checkpoints
   from internal.training import flops
   commit, changed = provenance.code_state(REPO)  # The code it starts with.
-  spec, config = _cell_config(path)
+  cell_spec, config = _cell_config(path)
   try:
     start_step = checkpoints.latest_step(config.checkpoint_dir)
   except checkpoints.NoCheckpointError:
@@ -190,7 +201,7 @@ def _train_and_evaluate(path: str, stop) -> dict:
   record = evaluate.existing_record(config) or evaluate.evaluate(config)
   eval_seconds = time.perf_counter() - tic
   steps = config.max_steps - (start_step or 0)
-  cell = {**{k: spec[k] for k in ('study', 'cell', 'method', 'scene', 'labels')},
+  cell = {**{k: cell_spec[k] for k in ('study', 'cell', 'method', 'scene', 'labels')},
           'dataset': record['dataset'], 'record_scene': record['scene'], 'n_input_views': record['n_input_views'],
           'expname': config.expname, 'step': record['step'], 'complete': record['complete'],
           'means': record['means'], 'resumed_from_step': start_step, 'steps_trained': steps,
@@ -214,9 +225,9 @@ def _cell_config(path: str) -> tuple:
   import gin  # pylint: disable=import-outside-toplevel
   from internal import config_loader  # pylint: disable=import-outside-toplevel
   with open(os.path.join(path, SPEC_FILE)) as f:
-    spec = json.load(f)
+    cell_spec = json.load(f)
   gin.clear_config()
-  return spec, config_loader.load_config(spec['gin_configs'], spec['gin_bindings'])
+  return cell_spec, config_loader.load_config(cell_spec['gin_configs'], cell_spec['gin_bindings'])
 
 
 def measured_estimates(paths: List[str]) -> List[tuple]:
@@ -237,11 +248,11 @@ def measured_estimates(paths: List[str]) -> List[tuple]:
   return estimates
 
 
-def _list(study: study_spec.Study, args) -> None:
+def _list(study: spec.Study, args) -> None:
   """--list: each cell's state (and measured times when done); with --estimate the pending cells' expected times
   (with --cluster-gpus on GPUs, from results/gpu, instead of the state lines)."""
   pending, lines = [], []
-  for cell in study_spec.cells(study):
+  for cell in spec.cells(study):
     path, record = cell_dir(study, cell, args.out), read_cell(cell_dir(study, cell, args.out))
     if record:
       lines.append(f'done    {path}  (took {estimate.format_duration(record["train_seconds"] + record["eval_seconds"])})')
@@ -259,15 +270,15 @@ def _list(study: study_spec.Study, args) -> None:
     print('\n'.join(estimate.summary_lines(measured_estimates(paths), args.jobs)))
 
 
-def _gpu_config(study: study_spec.Study, cell: study_spec.Cell, args):
+def _gpu_config(study: spec.Study, cell: spec.Cell, args):
   """The validated Config of a cell as a GPU runs it (Config.precision 'auto' is bfloat16 there; nothing is
   written)."""
   import gin  # pylint: disable=import-outside-toplevel
   from internal import config_loader  # pylint: disable=import-outside-toplevel
   run_dir = os.path.join(cell_dir(study, cell, args.out), RUN_SUBDIR)
   gin.clear_config()
-  return config_loader.load_config(*study_spec.cell_gin(study, cell, args.out, args.data_root, run_dir,
-                                                        tuple(args.gin_bindings)), backend='gpu')
+  return config_loader.load_config(*spec.cell_gin(study, cell, args.out, args.data_root, run_dir,
+                                                  tuple(args.gin_bindings)), backend='gpu')
 
 
 def _worker_envs(jobs: int, gpus: Optional[str]) -> List[Dict[str, str]]:
@@ -301,10 +312,10 @@ def _shard(cells: list, shard: Optional[str]) -> list:
   return cells[k::n]
 
 
-def gather(study: study_spec.Study, out: str) -> List[dict]:
+def gather(study: spec.Study, out: str) -> List[dict]:
   """Rows of results.csv: one per cell (finished or not), labels, status, means and costs."""
   rows = []
-  for cell in study_spec.cells(study):
+  for cell in spec.cells(study):
     record = read_cell(cell_dir(study, cell, out))
     row = {'cell': cell.cell_id, 'method': cell.method, 'scene': cell.scene, **cell.labels(),
            'status': 'done' if record else 'missing'}
@@ -316,11 +327,11 @@ def gather(study: study_spec.Study, out: str) -> List[dict]:
   return rows
 
 
-def gather_curves(study: study_spec.Study, out: str) -> List[dict]:
+def gather_curves(study: spec.Study, out: str) -> List[dict]:
   """Rows of the cells' learning curves (where recorded): per cell and curve step, its labels and values."""
   from internal.evaluation import learning_curve  # pylint: disable=import-outside-toplevel  (imports jax)
   rows = []
-  for cell in study_spec.cells(study):
+  for cell in spec.cells(study):
     path = learning_curve.csv_path(os.path.join(cell_dir(study, cell, out), RUN_SUBDIR))
     rows += [{'method': cell.method, 'scene': cell.scene, **cell.labels(), **row}
              for row in learning_curve.read_rows(path)]
@@ -343,45 +354,50 @@ def _number(value, digits: int = 3) -> str:
   return '' if value is None else f'{value:.{digits}f}'
 
 
-def comparisons_markdown(comparisons: List[study_stats.Comparison]) -> str:
-  """The comparisons as a Markdown table: a - b, n, mean, interval, verdict (undecided ones in bold)."""
-  lines = ['| metric | a - b | n | mean | 95% interval | verdict |', '|---|---|---|---|---|---|']
+def comparisons_markdown(study: spec.Study, comparisons: List[stats.Comparison]) -> str:
+  """The intervals' level and looks (looks.describe), then the comparisons as a Markdown table: a - b, n,
+  mean, interval, verdict (undecided ones in bold)."""
+  level = stats.level_text(stats.look_level(study))
+  lines = [looks.describe(study), '', f'| metric | a - b | n | mean | {level} interval | verdict |',
+           '|---|---|---|---|---|---|']
   for c in comparisons:
-    verdict = f'**{c.verdict}**' if c.verdict.startswith(study_stats.UNDECIDED) else c.verdict
+    verdict = f'**{c.verdict}**' if c.verdict.startswith(stats.UNDECIDED) else c.verdict
     interval = f'[{_number(c.low)}, {_number(c.high)}]' if c.low is not None else 'none'
     lines.append(f'| {c.metric} | {c.a} - {c.b} ({c.axis}) | {c.n} | {_number(c.mean)} | {interval} | {verdict} |')
   return '\n'.join(lines) + '\n'
 
 
-def write_statistics(study: study_spec.Study, rows: List[dict], out_dir: str) -> List[str]:
+def write_statistics(study: spec.Study, rows: List[dict], out_dir: str) -> List[str]:
   """summary.csv (per cell over seeds: mean, std, n) and the comparisons (CSV, Markdown); the written paths."""
-  summary = [s for metric in study.plot.metrics for s in study_stats.summarize(study, rows, metric)]
-  comparisons = [c for metric in study.plot.metrics for c in study_stats.compare(study, rows, metric)]
+  summary = [s for metric in study.plot.metrics for s in stats.summarize(study, rows, metric)]
+  comparisons = [c for metric in study.plot.metrics for c in stats.compare(study, rows, metric)]
   written = [_write_csv(os.path.join(out_dir, SUMMARY_FILE), summary)] if summary else []
   if comparisons:
     written.append(_write_csv(os.path.join(out_dir, COMPARISONS_FILE), [c.row() for c in comparisons]))
     with open(os.path.join(out_dir, COMPARISONS_MD), 'w') as f:
-      f.write(comparisons_markdown(comparisons))
+      f.write(comparisons_markdown(study, comparisons))
     written.append(os.path.join(out_dir, COMPARISONS_MD))
   return written
 
 
-def write_results(study: study_spec.Study, out: str) -> List[str]:
+def write_results(study: spec.Study, out: str) -> List[str]:
   """Writes results.csv, the statistics over seeds and the plots (learning curves too, where recorded);
   returns the written paths."""
   rows, curve_rows = gather(study, out), gather_curves(study, out)
   out_dir = study_dir(study, out)
+  looks.record_if_finished(study, out_dir, rows)
+  study = looks.with_recorded(study, out_dir)  # Every interval corrected for the looks (tools/study/looks.py).
   path = _write_csv(os.path.join(out_dir, RESULTS_FILE), rows)
-  return ([path] + write_statistics(study, rows, out_dir) + study_plots.write_plots(study, rows, out_dir)
-          + study_plots.write_curve_plots(study, curve_rows, out_dir)
-          + time_budgets.write_budget_results(study, curve_rows, out_dir, study_plots.CURVE_METRICS))
+  return ([path] + write_statistics(study, rows, out_dir) + plots.write_plots(study, rows, out_dir)
+          + plots.write_curve_plots(study, curve_rows, out_dir)
+          + time_budgets.write_budget_results(study, curve_rows, out_dir, plots.CURVE_METRICS))
 
 
-def run_study(study: study_spec.Study, out: str, data_root: str = 'data', shard: Optional[str] = None,
+def run_study(study: spec.Study, out: str, data_root: str = 'data', shard: Optional[str] = None,
               executor=None, job: Optional[str] = None, extra_bindings=()) -> Dict[str, str]:
   """Runs the unfinished cells (of the shard) on executor (None: in this process), each claimed for job, then
   writes results and plots; returns {cell dir: error}."""
-  cells = _shard(study_spec.cells(study), shard)
+  cells = _shard(spec.cells(study), shard)
   paths = [write_spec(study, c, out, data_root, extra_bindings) for c in cells]
   check_not_stale(study, [(c, p) for c, p in zip(cells, paths) if read_cell(p) is not None], out, data_root,
                   extra_bindings)
@@ -391,7 +407,7 @@ def run_study(study: study_spec.Study, out: str, data_root: str = 'data', shard:
     failed = _run_in_process(todo, job)
   else:
     failed = dispatch.run(todo, executor, lambda path: read_cell(path) is not None) if todo else {}
-  with study_claim.claimed(study_dir(study, out), job, wait=True):  # One runner at a time writes the results.
+  with claim.claimed(study_dir(study, out), job, wait=True):  # One runner at a time writes the results.
     for path in write_results(study, out):
       print(path)
   return failed
@@ -461,17 +477,17 @@ def _check_flags(args) -> None:
   _shard([], args.shard)
 
 
-def _resources(study: study_spec.Study, args) -> study_spec.Resources:
+def _resources(study: spec.Study, args) -> spec.Resources:
   """The study file's [resources], with the flags that override them."""
   flags = {'num_gpus': args.num_gpus, 'num_cpus': args.num_cpus, 'max_retries': args.max_retries}
   return dataclasses.replace(study.resources, **{k: v for k, v in flags.items() if v is not None})
 
 
-def _executor(study: study_spec.Study, args, job: str):
+def _executor(study: spec.Study, args, job: str):
   """The executor of --executor: processes here (--jobs / --gpus), or Ray tasks with the cells' resources."""
   if args.executor == 'ray':
-    from tools.study import ray_executor as study_ray  # pylint: disable=import-outside-toplevel  (Ray is an optional extra)
-    return study_ray.RayExecutor(args.address, _resources(study, args), job)
+    from tools.study import ray_executor  # pylint: disable=import-outside-toplevel  (Ray is an optional extra)
+    return ray_executor.RayExecutor(args.address, _resources(study, args), job)
   return dispatch.LocalExecutor(_worker_envs(args.jobs, args.gpus), job)
 
 
@@ -490,7 +506,7 @@ def _run_one_cell(path: str, job: Optional[str]) -> int:
   dispatch.stop_with_runner()
   try:
     record = run_cell(path, job or dispatch.new_job(), stop)
-  except study_claim.Held as e:
+  except claim.Held as e:
     print(f'not run: {e}')
     return dispatch.CLAIMED_STATUS
   except CellStopped as e:
@@ -511,9 +527,9 @@ def main(argv=None) -> int:
     print(json.dumps(measure_cell(args.measure_cell)))
     return 0
   _check_flags(args)
-  study = study_spec.load(args.study)
+  study = spec.load(args.study)
   if args.reuse:
-    study_reuse.reuse(study, args.reuse, study_dir(study, args.out), args.data_root)
+    reuse.reuse(study, args.reuse, study_dir(study, args.out), args.data_root)
   if args.list:
     _list(study, args)
     return 0
@@ -522,22 +538,35 @@ def main(argv=None) -> int:
       print(path)
     _export(study, args, argv)
     return 0
-  job = dispatch.new_job()
-  executor = _executor(study, args, job)
   try:
-    failed = run_study(study, args.out, args.data_root, args.shard, executor, job, tuple(args.gin_bindings))
-  finally:
-    executor.close()
+    failed = _run_on_executor(study, args)
+  except Terminated:
+    print(TERMINATED_MESSAGE, file=sys.stderr)
+    return cli.signal_status(signal.SIGTERM)
   for path, error in failed.items():
     print(f'FAILED {path}: {error}', file=sys.stderr)
   _export(study, args, argv)
   return 1 if failed else 0
 
 
-def _export(study: study_spec.Study, args, argv) -> None:
+def _run_on_executor(study: spec.Study, args) -> Dict[str, str]:
+  """Runs the study's cells on the executor of the flags; returns {cell dir: error}. SIGTERM meanwhile stops the
+  cells as Ctrl-C does (Terminated), its handler set once the executor is made: Ray's (sys.exit) would leave the
+  running cells behind."""
+  job, before = dispatch.new_job(), signal.getsignal(signal.SIGTERM)
+  executor = _executor(study, args, job)
+  try:
+    signal.signal(signal.SIGTERM, _raise_terminated)
+    return run_study(study, args.out, args.data_root, args.shard, executor, job, tuple(args.gin_bindings))
+  finally:
+    executor.close()
+    signal.signal(signal.SIGTERM, before)
+
+
+def _export(study: spec.Study, args, argv) -> None:
   """--export: copies the study's results into args.export, recording this command."""
   if args.export:
     command = cli.command_line('tools.study', argv)
-    for path in study_export.export(study, args.study, study_dir(study, args.out), args.export, command):
+    for path in export.export(study, args.study, study_dir(study, args.out), args.export, command):
       print(path)
 

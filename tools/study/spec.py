@@ -9,6 +9,7 @@ A study file (see studies/*.toml):
   [[axis]]  name = "T"  binding = "Config.freq_reg_end_fraction"  values = [0.1, 0.5]   # a swept binding, or
   [[axis]]  name = "M"  points = [{label = "M=5", value = 5, bindings = [...], configs = [...]}, ...]
   seeds = 3  (or [0, 1, 2])                 # replicates: the seed axis, last; binds both of a cell's seeds
+  looks = [2, 3]                            # seed counts at which the comparisons were read (default [seeds])
   [[compare]]  a = "freenerf"  b = "mipnerf"  axis = "method"   # paired a - b over seeds and scenes (95% CI)
   [plot]  x = ["T"]  metrics = ["psnr"]  pareto = false  budgets = [60, 300]  # budgets: training seconds
   [resources]  num_gpus = 1  num_cpus = 4  max_retries = 3   # per cell on a Ray cluster (--executor ray)
@@ -24,6 +25,11 @@ Seeds: `seeds = N` (seeds 0 .. N-1) or a list adds the axis SEED_AXIS, whose poi
 (initialization, sampling noise) and Config.np_rng_seed = s (the ray batches). An axis of that name written by hand
 is a seed axis too. Results over it are replicates: tools/study/stats.py gives per cell mean, spread and n, and each
 [[compare]] entry (default: every other method against the first) the paired difference with its interval.
+
+Looks: a study whose seeds were added after its comparisons were read (3 seeds, every interval holding 0, then 2
+more) looked twice, and each look can declare a difference by chance: `looks = [3, 5]` lists the seed counts at which
+they were read, increasing, the last the study's count (default: [count], the seed count fixed in advance). The
+runner adds the looks it recorded itself (tools/study/looks.py) and corrects every interval for their number.
 """
 
 import dataclasses
@@ -122,6 +128,7 @@ class Study:
   paper: Tuple[PaperCurve, ...]
   compare: Tuple[Compare, ...] = ()
   resources: Resources = Resources()
+  looks: Tuple[int, ...] = ()  # Seed counts at which the comparisons were read (the study file's, and recorded).
 
   @property
   def has_seeds(self) -> bool:
@@ -296,6 +303,21 @@ def _seed_axis(r: _Reader, data: dict) -> Tuple[Axis, ...]:
                                 for s in seeds)),)
 
 
+def _looks(r: _Reader, data: dict, axes: Tuple[Axis, ...]) -> Tuple[int, ...]:
+  """`looks`: increasing seed counts >= 1 at which the comparisons were read, the last the study's seed count."""
+  if 'looks' not in data:
+    return ()
+  seeds = next((len(a.points) for a in axes if a.name == SEED_AXIS), None)
+  if seeds is None:
+    r.fail('looks', 'the study has no seeds; looks are the seed counts at which its comparisons were read')
+  looks = data['looks']
+  counts = isinstance(looks, list) and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in looks)
+  if not counts or not looks or sorted(set(looks)) != looks or looks[-1] != seeds:
+    r.fail('looks', f'{looks!r}; expected increasing seed counts >= 1 at which the comparisons were read, the last '
+                    f'the study\'s {seeds} seeds')
+  return tuple(looks)
+
+
 def _comparisons(r: _Reader, data: dict, study: Study) -> Tuple[Compare, ...]:
   """The [[compare]] entries, checked against the labels; default: every other method against the first."""
   labels = {'method': [m.name for m in study.methods], **{a.name: [p.label for p in a.points] for a in study.axes}}
@@ -341,8 +363,8 @@ def parse(text: str, path: str) -> Study:
     data = tomllib.loads(text)
   except tomllib.TOMLDecodeError as e:
     raise StudyError(f'{path}: not valid TOML: {e}') from e
-  r.unknown(data, ('name', 'description', 'bindings', 'methods', 'scenes', 'axis', 'seeds', 'compare', 'plot',
-                   'paper', 'resources'), '')
+  r.unknown(data, ('name', 'description', 'bindings', 'methods', 'scenes', 'axis', 'seeds', 'looks', 'compare',
+                   'plot', 'paper', 'resources'), '')
   name = r.get(data, 'name', '', str)
   if not name or '/' in name or name.startswith('.'):
     r.fail('name', f'{name!r}; expected a folder name')
@@ -372,7 +394,8 @@ def parse(text: str, path: str) -> Study:
     if x not in axis_names and x not in RECORDED_X:
       r.fail('plot.x', f'{x!r} is neither an axis {axis_names} nor a recorded value {list(RECORDED_X)}')
   study = Study(name, path, r.strings(data, 'bindings', ''), tuple(methods), tuple(scenes), axes, plot,
-                _paper(r, r.get(data, 'paper', '', list, []), axis_names), resources=_resources(r, data))
+                _paper(r, r.get(data, 'paper', '', list, []), axis_names), resources=_resources(r, data),
+                looks=_looks(r, data, axes))
   study = dataclasses.replace(study, compare=_comparisons(r, data, study))
   _check_templates(study, r)
   return study

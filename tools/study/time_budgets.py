@@ -6,7 +6,8 @@ that of the last curve point recorded within b (what stopping there would have k
 setting; and its paired difference to the runner-up over the seeds both reached, with the interval and verdict of
 tools/study/stats.py, so a budget where the choice is not decided says so. The best is chosen on these same seeds,
 so a plain 95% interval for its lead would be too narrow; the interval holds 95% simultaneously for all k(k - 1)/2
-pairs of the k settings (Bonferroni), so it stays valid for whichever pair the choice picked.
+pairs of the k settings (Bonferroni), so it stays valid for whichever pair the choice picked; and for every look of a
+study read at several seed counts (stats.looks), as its comparisons are.
 """
 
 import os
@@ -49,15 +50,16 @@ def _at_budget(curves: Dict[str, Dict[str, Curve]], budget: float) -> Dict[str, 
           if any(v is not None for v in by_seed.values())}
 
 
-def selection_level(settings: int) -> float:
-  """The level of each pair's interval that makes all settings x (settings - 1) / 2 pairs hold together at
-  study_stats.LEVEL (Bonferroni): valid for the pair of the best and the runner-up, chosen after seeing them."""
-  return 1. - (1. - study_stats.LEVEL) / max(1, settings * (settings - 1) // 2)
+def selection_level(settings: int, looks: int = 1) -> float:
+  """The level of each pair's interval that makes all settings x (settings - 1) / 2 pairs at each of looks hold
+  together at study_stats.LEVEL (Bonferroni): valid for the pair of the best and the runner-up, chosen after seeing
+  them."""
+  return 1. - (1. - study_stats.LEVEL) / max(1, settings * (settings - 1) // 2) / max(1, looks)
 
 
-def budget_row(values: Dict[str, Dict[str, float]], budget: float, metric: str) -> dict:
+def budget_row(values: Dict[str, Dict[str, float]], budget: float, metric: str, looks: int = 1) -> dict:
   """The best setting at one budget, its spread, and the paired comparison with the runner-up (its interval
-  corrected for the choice: selection_level)."""
+  corrected for the choice and the looks: selection_level)."""
   sign = -1. if metric in study_spec.LOWER_IS_BETTER else 1.
   ranked = sorted(values, key=lambda s: -sign * study_stats.spread(list(values[s].values()))['mean'])
   best = ranked[0]
@@ -66,7 +68,7 @@ def budget_row(values: Dict[str, Dict[str, float]], budget: float, metric: str) 
     runner_up = ranked[1]
     shared = sorted(set(values[best]) & set(values[runner_up]))
     differences = [values[best][seed] - values[runner_up][seed] for seed in shared]
-    interval = study_stats.t_interval(differences, selection_level(len(ranked))) if differences else None
+    interval = study_stats.t_interval(differences, selection_level(len(ranked), looks)) if differences else None
     comparison = study_stats.Comparison('setting', best, runner_up, metric, len(differences), *interval,
                                         sign < 0) if differences else None
     row.update(runner_up=runner_up,
@@ -79,8 +81,8 @@ def budget_row(values: Dict[str, Dict[str, float]], budget: float, metric: str) 
 def budget_rows(study: study_spec.Study, curve_rows: List[dict], metric: str,
                 budgets: Sequence[float]) -> List[dict]:
   """budget_row of every budget that some setting reached."""
-  curves = setting_curves(study, curve_rows, metric)
-  return [budget_row(values, budget, metric) for budget in budgets
+  curves, looks = setting_curves(study, curve_rows, metric), len(study_stats.looks(study))
+  return [budget_row(values, budget, metric, looks) for budget in budgets
           if (values := _at_budget(curves, budget))]
 
 
@@ -88,10 +90,11 @@ def _cell(value, digits: int = 2) -> str:
   return '' if value is None else f'{value:.{digits}f}'
 
 
-def budget_markdown(rows: List[dict]) -> str:
+def budget_markdown(rows: List[dict], looks: int = 1) -> str:
   """The per-budget choice as a Markdown table (undecided verdicts in bold)."""
+  corrected = 'choosing the best' + (f' and {looks} looks' if looks > 1 else '')
   lines = ['| budget (s) | metric | best setting | mean | std | n | runner-up (mean) | best - runner-up '
-           '[95% interval, corrected for choosing the best] | verdict |', '|---|---|---|---|---|---|---|---|---|']
+           f'[95% interval, corrected for {corrected}] | verdict |', '|---|---|---|---|---|---|---|---|---|']
   for r in rows:
     verdict = r.get('verdict', 'only setting')
     verdict = f'**{verdict}**' if verdict.startswith(study_stats.UNDECIDED) else verdict
@@ -144,6 +147,6 @@ def write_budget_results(study: study_spec.Study, curve_rows: List[dict], out_di
   if rows:
     path = os.path.join(out_dir, 'budgets.md')
     with open(path, 'w', encoding='utf-8') as f:
-      f.write(budget_markdown(rows))
+      f.write(budget_markdown(rows, len(study_stats.looks(study))))
     written.append(path)
   return written
