@@ -15,6 +15,7 @@ import numpy as np
 
 from internal import configs
 from internal.configs import Config
+from internal.models import coarse_to_fine
 from internal.models import freq_schedule
 from internal.models import gaussians
 from internal.evaluation import lpips
@@ -194,6 +195,7 @@ def validate(config: Config) -> None:
   if not 0. < config.precrop_frac <= 1.:
     raise ValueError(f'Config.precrop_frac = {config.precrop_frac}; expected a fraction in (0, 1]')
   freq_schedule.check_settings(config, registry.build(config.model).encoding_degrees())
+  coarse_to_fine.check_settings(config)
   _warn_on_unused_regularizer(config)
   _validate_regnerf(config)
   _validate_curve(config)

@@ -272,6 +272,14 @@ class Config:
   # every camera the same way) steps follow their size, as gradient descent's; Adam's normalized steps follow the
   # pull at the full rate (on the generated scene, 6 exact views drifted by 5-11 degrees with 1e-8, 0.6 with 1).
   camera_adam_eps: float = setting(1., FINITE, POSITIVE)
+  # The corrections' shifts in units of the camera distance (cameras/alignment.py), not scene units: with the large
+  # epsilon above a step then moves an image as far by its shift as by its turn (training/camera_refinement.py).
+  camera_shift_in_distances: bool = setting(False)
+  # BARF's coarse-to-fine weighting of the encodings' frequency bands (models/coarse_to_fine.py): band k of L opens
+  # smoothly as alpha = L * (progress - start) / (end - start) passes k; off by default (mip-NeRF's encodings).
+  coarse_to_fine: bool = setting(False)
+  coarse_to_fine_start: float = setting(.1, FINITE, NON_NEGATIVE)  # Fraction of max_steps where alpha = 0 (BARF: .1).
+  coarse_to_fine_end: float = setting(.5, FINITE, POSITIVE)  # Fraction of max_steps where every band is open (.5).
   # Studies: every training camera turned by this angle (degrees) about a random axis through its centre (at most
   # 180: a larger turn about one axis is a smaller one about the opposite axis)...
   camera_noise_rotation_deg: float = setting(0., FINITE, NON_NEGATIVE, at_most=180.,

@@ -9,6 +9,7 @@ import sys
 import textwrap
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax import random
@@ -68,6 +69,23 @@ def test_the_step_moves_the_cameras_only_when_asked(scene_dir, tmp_path):
   assert plain.pixels is None
   _, state = ts.create_train_state(off, random.PRNGKey(0), plain.rays)
   assert type(state) is ts.TrainState  # pylint: disable=unidiomatic-typecheck
+
+
+def test_shifts_in_camera_distances_move_cameras_and_rays_that_many_times_further(scene_dir, tmp_path):
+  config, data, _, _, batch = _camera_batch(scene_dir, tmp_path, 'Config.camera_shift_in_distances = True')
+  scaled = camera_refinement.init(config, data)
+  assert scaled.shift_unit == alignment.camera_distance(data.camtoworlds, data.space) == 4.
+  plain = camera_refinement.init(dataclasses.replace(config, camera_shift_in_distances=False), data)
+  assert plain.shift_unit == 1.
+  free = jnp.asarray(np.random.default_rng(0).normal(scale=1e-2, size=(len(data.ids), 6)), jnp.float32)
+  given = np.asarray(data.camtoworlds, np.float64)
+  moved = [camera_refinement.refined_cameras(state.replace(free=free), given) for state in (plain, scaled)]
+  np.testing.assert_array_equal(moved[0][:, :, :3], moved[1][:, :, :3])  # The turns are the same.
+  np.testing.assert_allclose(moved[1][:, :, 3] - given[:, :, 3], 4. * (moved[0][:, :, 3] - given[:, :, 3]), rtol=1e-9)
+  origins = [np.asarray(camera_refinement.corrected_batch(state, free, batch).rays.origins, np.float64)
+             for state in (plain, scaled)]
+  loaded = np.asarray(batch.rays.origins, np.float64)
+  np.testing.assert_allclose(origins[1] - loaded, 4. * (origins[0] - loaded), rtol=1e-4, atol=1e-5)
 
 
 def test_resumed_refinement_equals_uninterrupted_refinement_and_writes_its_cameras(tmp_path, scene_dir):

@@ -72,7 +72,8 @@ EXPECTED_RANGES = {
     'depth_rank_loss_mult': {F, NN}, 'depth_rank_margin': {F, NN}, 'depth_pearson_loss_mult': {F, NN},
     'depth_patch_size': {P}, 'depth_prior_rays': {P}, 'sfm_depth_loss_mult': {F, NN},
     'camera_lr_init': {F, P}, 'camera_lr_final': {F, P}, 'camera_lr_delay_steps': {NN}, 'camera_lr_delay_mult': {F},
-    'camera_adam_eps': {F, P}, 'camera_noise_rotation_deg': {F, NN}, 'camera_noise_translation': {F, NN},
+    'camera_adam_eps': {F, P}, 'coarse_to_fine_start': {F, NN}, 'coarse_to_fine_end': {F, P},
+    'camera_noise_rotation_deg': {F, NN}, 'camera_noise_translation': {F, NN},
     'test_pose_steps': {NN}, 'test_pose_lr': {F, P}}
 EXPECTED_AT_MOST = {'camera_noise_rotation_deg': 180.}
 

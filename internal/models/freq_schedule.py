@@ -25,7 +25,7 @@ import numpy as np
 import jax.numpy as jnp
 
 from internal.configs import Config
-from internal.models import encoding
+from internal.models import coarse_to_fine, encoding
 
 LAYOUTS = ('released', 'paper')  # Config.freq_mask_layout: released_mask or paper_mask.
 IDENTITY_WIDTH = 3  # The raw coordinates that lead both feature orders (encoding.feature_layout).
@@ -111,12 +111,16 @@ def masks_at(config: Config, degrees, step, interleaved=False):
 
 
 def model_masks(config: Config, model, step):
-  """masks_at for a model (MipNerfModel or NerfModel): its encoding degrees, feature order and point identity.
+  """masks_at for a model (MipNerfModel or NerfModel): its encoding degrees, feature order and point identity,
+  times BARF's coarse-to-fine weights where Config.coarse_to_fine is on (coarse_to_fine.py).
 
   Without the raw coordinates (`point_identity()` False) the point mask is the full encoding's mask less its
   identity entries (the first 3 in either order), so every frequency opens at the same step as with them.
   """
-  mask_point, mask_view = masks_at(config, model.encoding_degrees(), step, model.interleaved_encoding)
+  degrees, interleaved = model.encoding_degrees(), model.interleaved_encoding
+  masks = masks_at(config, degrees, step, interleaved)
+  weights = coarse_to_fine.weights_at(config, degrees, step, interleaved)
+  mask_point, mask_view = (m if w is None else w if m is None else m * w for m, w in zip(masks, weights))
   if mask_point is not None and not model.point_identity():
     mask_point = mask_point[IDENTITY_WIDTH:]
   return mask_point, mask_view

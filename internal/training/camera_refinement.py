@@ -3,12 +3,15 @@ the model in the one jitted step, with its own learning rate, warm-up and decay 
 Config.camera_adam_eps: steps in proportion to small gradients).
 
 A view's correction is an axis-angle rotation omega [3] about the camera's centre and a translation tau [3], both
-in world axes, zero at the start (cameras/corrections.py: c2w = [R | C] -> [exp(omega) R | C + tau]). The
-step makes every ray family of the batch that comes from training views (the training pixels, the depth priors'
-patches and points) again from the corrected cameras, once, before the loss terms (origins, directions, mip-NeRF's
-radii, NDC for LLFF-like scenes: their radii from the neighbouring pixels' directions, cast from the given cameras,
-which the state holds as constants of the step), so every term's gradient reaches the corrections. RegNeRF's
-random-pose patches come from no training camera: they keep the frame the gauge holds.
+in world axes, zero at the start (cameras/corrections.py: c2w = [R | C] -> [exp(omega) R | C + tau]). tau is its
+free parameters in scene units, or with Config.camera_shift_in_distances in units of the camera distance
+(cameras/alignment.camera_distance): a view's image then moves about as far for a step of its shift as of its turn,
+which matters where steps follow the gradients' size (the large epsilon) and the scene's units are far from the
+distance. The step makes every ray family of the batch that comes from training views (the training pixels, the
+depth priors' patches and points) again from the corrected cameras, once, before the loss terms (origins,
+directions, mip-NeRF's radii, NDC for LLFF-like scenes: their radii from the neighbouring pixels' directions, cast
+from the given cameras, which the state holds as constants of the step), so every term's gradient reaches the
+corrections. RegNeRF's random-pose patches come from no training camera: they keep the frame the gauge holds.
 
 The gauge: turning, moving or scaling every camera and the scene together changes no image, so the corrections
 are kept where no such motion hides in them: the free parameters [N, 6] are projected to corrections whose rotation
@@ -25,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from internal.cameras import corrections
+from internal.cameras import alignment, corrections
 from internal.cameras.records import Cameras, RaySpace
 from internal.datasets import base, batching
 from internal.training import optim, schedule
@@ -49,21 +52,24 @@ class StaticCameras:
 @flax.struct.dataclass
 class CameraState:
   """The corrections' free parameters [N, 6] (omega, tau) and Adam moments; the given centres [N, 3] (constants);
-  static: how the scene's rays follow from its cameras and the given cameras themselves."""
+  static: how the scene's rays follow from its cameras, the given cameras themselves and the scene length of a unit
+  of shift."""
   free: jax.Array
   opt_state: Any
   centres: jax.Array
   space: RaySpace = flax.struct.field(pytree_node=False)
   given: StaticCameras = flax.struct.field(pytree_node=False)
+  shift_unit: float = flax.struct.field(pytree_node=False, default=1.)
 
 
 def init(config, dataset: base.Dataset) -> CameraState:
   """Zero corrections of the training views of dataset (as loaded: noise included)."""
   free = jnp.zeros((len(dataset.ids), 6), jnp.float32)
   given = Cameras(*(None if x is None else np.asarray(x, np.float32) for x in dataset.cameras))
+  unit = alignment.camera_distance(dataset.camtoworlds, dataset.space) if config.camera_shift_in_distances else 1.
   return CameraState(free=free, opt_state=optim.adam(config.camera_adam_eps).init(free),
                      centres=jnp.asarray(dataset.camtoworlds[:, :, 3], jnp.float32), space=dataset.space,
-                     given=StaticCameras(given))
+                     given=StaticCameras(given), shift_unit=float(unit))
 
 
 def gauge_fixed(free, centres, xp=jnp):
@@ -77,15 +83,16 @@ def gauge_fixed(free, centres, xp=jnp):
   return xp.concatenate([omega, tau - scaling * offsets], axis=1)
 
 
-def view_corrections(free, centres) -> tuple:
-  """(rotations [N, 3, 3], shifts [N, 3]) of the gauge-fixed corrections of free parameters [N, 6]."""
+def view_corrections(free, centres, shift_unit: float = 1.) -> tuple:
+  """(rotations [N, 3, 3], shifts [N, 3]) of the gauge-fixed corrections of free parameters [N, 6], the shifts
+  in units of shift_unit."""
   fixed = gauge_fixed(free, centres)
-  return corrections.so3_exp(fixed[:, :3], jnp), fixed[:, 3:]
+  return corrections.so3_exp(fixed[:, :3], jnp), shift_unit * fixed[:, 3:]
 
 
 def corrected_batch(cameras: CameraState, free, batch: batching.Batch) -> batching.Batch:
   """The batch with the rays of every family of training views (their Pixels) made from the corrected cameras."""
-  rotations, shifts = view_corrections(free, cameras.centres)
+  rotations, shifts = view_corrections(free, cameras.centres, cameras.shift_unit)
   fields = {}
   for rays_field, pixels_field in batching.FAMILIES:
     pixels = getattr(batch, pixels_field) if pixels_field else None
@@ -124,4 +131,4 @@ def refined_cameras(cameras: CameraState, given: np.ndarray) -> np.ndarray:
   """[N, 3, 4] the given training cameras [N, 3, 4] corrected by the state's corrections (float64)."""
   free, centres = (np.asarray(jax.device_get(x), np.float64) for x in (cameras.free, cameras.centres))
   fixed = gauge_fixed(free, centres, np)
-  return corrections.corrected_cameras(given, corrections.so3_exp(fixed[:, :3]), fixed[:, 3:])
+  return corrections.corrected_cameras(given, corrections.so3_exp(fixed[:, :3]), cameras.shift_unit * fixed[:, 3:])
