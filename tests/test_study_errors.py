@@ -56,17 +56,16 @@ def test_bad_flags_are_one_line(capsys, tmp_path, flags, expected):
   assert expected in _one_line_error(capsys, [path, '--out', tmp_path / 'out', *flags])
 
 
-def _export(tmp_path, cell_json: str, metrics: dict = None):
-  """An export folder of the study file (its mini.toml, named in provenance.json by path and SHA-256) and one
-  cell's cell.json (and metrics.json)."""
+def _export(tmp_path, record_json: str, metrics: dict = None):
+  """An export folder of the study file (its mini.toml, named in provenance.json by path and SHA-256) whose
+  cells.jsonl has one cell's line: its record (record_json, as written) and its evaluation (metrics)."""
   export = tmp_path / 'export'
-  (export / CELL).mkdir(parents=True)
+  export.mkdir()
   (export / 'mini.toml').write_text(TINY_STUDY)
   study_file = {'path': str(export / 'mini.toml'), 'sha256': hashlib.sha256(TINY_STUDY.encode()).hexdigest()}
   (export / 'provenance.json').write_text(json.dumps({'study_file': study_file}))
-  (export / CELL / 'cell.json').write_text(cell_json)
-  if metrics is not None:
-    (export / CELL / 'metrics.json').write_text(json.dumps(metrics))
+  evaluation = '' if metrics is None else f', "evaluation": {json.dumps(metrics)}'
+  (export / 'cells.jsonl').write_text(f'{{"cell": "{CELL}", "record": {record_json}{evaluation}}}\n')
   return export
 
 
@@ -78,7 +77,8 @@ RECORD = {**METRICS, 'commit': 'abc', 'train_seconds': 10., 'eval_seconds': 2., 
 def test_reuse_refuses_a_cell_json_the_metrics_beside_it_contradict(capsys, tmp_path):
   export = _export(tmp_path, json.dumps({**RECORD, 'means': {'psnr': 42.0, 'ssim': 0.5}}), METRICS)
   err = _one_line_error(capsys, [export / 'mini.toml', '--out', tmp_path / 'out', '--reuse', export, '--list'])
-  assert f'{export / CELL / "cell.json"} says means psnr 42.0 but' in err and 'metrics.json says psnr 10.48' in err
+  line = export / 'cells.jsonl'
+  assert f'{line} line 1 ("record") says means psnr 42.0 but' in err and f'{line} line 1 ("evaluation") says psnr 10.48' in err
   assert not (tmp_path / 'out' / 'mini' / CELL / 'cell.json').exists()
 
 
@@ -97,11 +97,12 @@ def test_reuse_passes_over_a_cell_without_metrics(capsys, tmp_path):
   assert f'{CELL} not reused' in capsys.readouterr().out and not (tmp_path / 'out' / 'mini' / CELL).exists()
 
 
-def test_a_merge_conflicted_cell_json_is_one_line_naming_it(capsys, tmp_path):
+def test_a_merge_conflicted_cells_line_or_cell_json_is_one_line_naming_it(capsys, tmp_path):
   conflicted = '<<<<<<< HEAD\n' + json.dumps(RECORD) + '\n=======\n' + json.dumps(RECORD) + '\n>>>>>>> other\n'
-  export = _export(tmp_path, conflicted, METRICS)
+  export = _export(tmp_path, json.dumps(RECORD), METRICS)
+  (export / 'cells.jsonl').write_text('<<<<<<< HEAD\n' + (export / 'cells.jsonl').read_text())
   err = _one_line_error(capsys, [export / 'mini.toml', '--out', tmp_path / 'out', '--reuse', export, '--list'])
-  assert f'{export / CELL / "cell.json"}: not valid JSON' in err
+  assert f'{export / "cells.jsonl"} line 1: not valid JSON' in err and 'a merge conflict?' in err
   study = study_spec.load(export / 'mini.toml')                            # In the study folder itself too.
   (tmp_path / 'out' / 'mini' / CELL).mkdir(parents=True)
   (tmp_path / 'out' / 'mini' / CELL / 'cell.json').write_text(conflicted)
