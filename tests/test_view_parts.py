@@ -3,7 +3,9 @@ loaders', frame sizes, the comparison's panels, chunk sizes; the render thread a
 stand-in runs. None of these needs viser."""
 
 import dataclasses
+import os
 import socket
+import subprocess
 import sys
 import threading
 import time
@@ -371,3 +373,23 @@ def test_the_viewer_without_viser_says_how_to_install_it(monkeypatch):
   monkeypatch.setitem(sys.modules, 'viser', None)  # As if it were not installed.
   with pytest.raises(app.ViewerError, match='pip install -r requirements-viewer.txt'):
     app.require_viser()
+
+
+SIGINT_ON_ANOTHER_THREAD = '''
+import signal, threading, time
+from tools.view.__main__ import wait_for_ctrl_c
+def other():
+  time.sleep(.5)
+  signal.pthread_kill(threading.get_ident(), signal.SIGINT)  # The kernel may give a Ctrl-C to any thread.
+threading.Thread(target=other, daemon=True).start()
+try:
+  wait_for_ctrl_c()
+except KeyboardInterrupt:
+  print('stopped')
+'''
+
+
+def test_ctrl_c_that_lands_on_another_thread_stops_the_wait():
+  proc = subprocess.run([sys.executable, '-c', SIGINT_ON_ANOTHER_THREAD], cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))), capture_output=True, text=True,
+                        timeout=60)  # threading.Event().wait() never returned here.
+  assert proc.stdout == 'stopped\n', proc.stderr

@@ -28,7 +28,7 @@ interrupt.one_line_when_run(__name__)  # Before the other imports: Ctrl-C while 
 
 import socket
 import sys
-import threading
+import time
 
 from internal import cli
 from internal import environment
@@ -36,6 +36,7 @@ from tools.view import app, runs as runs_lib, scene, watch
 
 DEFAULT_PORT = 8080
 LOCAL_HOST = '127.0.0.1'
+WAKE_SECONDS = .5  # How soon Ctrl-C stops the viewer when the signal lands on another thread.
 
 
 COMPARE_FLAGS = ('--compare_configs', '--compare_bindings')  # Multi-value flags, as the gin flags.
@@ -96,10 +97,18 @@ def main(argv=None) -> int:
   names = ' against '.join(f'{run.config.expname} (step {run.step})' for run in viewer.runs)
   print(f'viewing {names} at {address(args.host, args.port)}; Ctrl-C stops', flush=True)
   try:
-    threading.Event().wait()
+    wait_for_ctrl_c()
   finally:
     viewer.stop()
   return 0
+
+
+def wait_for_ctrl_c() -> None:
+  """Sleeps until a KeyboardInterrupt, waking every WAKE_SECONDS: a SIGINT that the kernel hands to another of the
+  process's threads (the server's, XLA's) only marks itself pending, and a main thread blocked without a timeout
+  (threading.Event().wait()) never ran its handler."""
+  while True:
+    time.sleep(WAKE_SECONDS)
 
 
 if __name__ == '__main__':
