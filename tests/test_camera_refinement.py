@@ -154,6 +154,7 @@ def test_two_devices_refine_as_one(scene_dir, tmp_path):
   assert 'OK' in result.stdout
 
 
+@pytest.mark.slow  # 26 s a call in the clean-clone run (results/ci/run.log).
 def test_a_known_perturbation_of_one_camera_is_mostly_undone(scene_dir, tmp_path):
   """8 views of the tiny scene, one turned by 2.9 degrees and moved: 300 steps with fixed cameras, then 600 of
   joint refinement (from the start, the rough first model pulls the exact cameras too)."""

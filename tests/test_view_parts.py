@@ -4,6 +4,7 @@ stand-in runs. None of these needs viser."""
 
 import dataclasses
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -390,6 +391,7 @@ except KeyboardInterrupt:
 
 
 def test_ctrl_c_that_lands_on_another_thread_stops_the_wait():
-  proc = subprocess.run([sys.executable, '-c', SIGINT_ON_ANOTHER_THREAD], cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))), capture_output=True, text=True,
-                        timeout=60)  # threading.Event().wait() never returned here.
+  root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+  proc = subprocess.run([sys.executable, '-c', SIGINT_ON_ANOTHER_THREAD], cwd=root, capture_output=True, text=True,
+                        timeout=60, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
   assert proc.stdout == 'stopped\n', proc.stderr

@@ -254,7 +254,8 @@ def test_ctrl_c_stops_the_viewer_in_one_line(trained):
   run = trained['object']
   command = [sys.executable, '-m', 'tools.view', '--gin_configs', *run['configs'], '--gin_bindings', *run['flags'],
              '--port', str(free_port())]
-  proc = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+  proc = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # As a terminal starts it.
   lines = []
   for line in proc.stdout:
     lines.append(line)
