@@ -2,28 +2,17 @@
 version in constraints.txt, and an installed Ray is that version."""
 
 import importlib.metadata
-import json
-import subprocess
 
 import pytest
 
-from test_gpu_install import NETWORK
-from test_gpu_install import PIP
-from test_gpu_install import ROOT
 from test_gpu_install import _skip_unless_resolvable
 from test_gpu_install import constraints
-from test_gpu_install import normalized
+from test_gpu_install import resolved_versions
 
 
 def test_the_cluster_extra_resolves_to_constrained_versions_only(tmp_path):
   _skip_unless_resolvable()
-  report = tmp_path / 'report.json'
-  proc = subprocess.run(PIP + ['install', '--dry-run', '--ignore-installed', '--quiet', '--report', str(report), '-r',
-                               'requirements-cluster.txt'] + NETWORK, cwd=ROOT, capture_output=True, text=True,
-                        timeout=600, check=False)
-  assert proc.returncode == 0, proc.stderr[-3000:]
-  resolved = {normalized(item['metadata']['name']): item['metadata']['version']
-              for item in json.loads(report.read_text())['install']}
+  resolved = resolved_versions(tmp_path, 'requirements-cluster.txt')
   pins = constraints()
   assert 'ray' in resolved and {n: v for n, v in resolved.items() if pins.get(n) != v} == {}
 

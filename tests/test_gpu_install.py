@@ -50,24 +50,33 @@ def _skip_unless_resolvable():
   if sys.platform != 'linux' or platform.machine() not in ('x86_64', 'aarch64'):
     pytest.skip(f'jax publishes CUDA wheels for Linux x86_64 and aarch64 only, not {sys.platform} '
                 f'{platform.machine()}')
-  probe = subprocess.run(PIP + ['index', 'versions', 'jax-cuda12-plugin'] + NETWORK, capture_output=True,
-                         text=True, timeout=120, check=False)
+  skip_unless_indexed('jax-cuda12-plugin')
+
+
+def skip_unless_indexed(package: str) -> None:
+  """Skips the test when pip cannot reach the package index (asked for package's versions)."""
+  probe = subprocess.run(PIP + ['index', 'versions', package] + NETWORK, capture_output=True, text=True, timeout=120,
+                         check=False)
   if probe.returncode != 0:
     reason = (probe.stderr.strip().splitlines() or ['no message'])[-1]
-    pytest.skip(f'the package index cannot be reached (pip index versions jax-cuda12-plugin: {reason})')
+    pytest.skip(f'the package index cannot be reached (pip index versions {package}: {reason})')
+
+
+def resolved_versions(report_dir, requirements: str, options=()) -> dict:
+  """{normalized name: version} that pip resolves for a requirements file of the repository, installing nothing."""
+  report = report_dir / 'report.json'
+  command = PIP + ['install', '--dry-run', '--ignore-installed', '--quiet', '--report', str(report), '-r',
+                   requirements] + list(options) + NETWORK
+  proc = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
+  assert proc.returncode == 0, proc.stderr[-3000:]
+  return {normalized(item['metadata']['name']): item['metadata']['version']
+          for item in json.loads(report.read_text())['install']}
 
 
 @pytest.mark.slow
 def test_the_gpu_requirements_resolve_to_the_constrained_jax_with_its_cuda_plugin(tmp_path):
   _skip_unless_resolvable()
-  options = metadata_options()
-  report = tmp_path / 'report.json'
-  command = PIP + ['install', '--dry-run', '--ignore-installed', '--quiet', '--report', str(report), '-r',
-                   'requirements-gpu.txt'] + options + NETWORK
-  proc = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
-  assert proc.returncode == 0, proc.stderr[-3000:]
-  resolved = {normalized(item['metadata']['name']): item['metadata']['version']
-              for item in json.loads(report.read_text())['install']}
+  resolved = resolved_versions(tmp_path, 'requirements-gpu.txt', metadata_options())
   pins = constraints()
   jax_version = pins['jax']
   for name in ('jax', 'jaxlib', 'jax-cuda12-plugin', 'jax-cuda12-pjrt'):
