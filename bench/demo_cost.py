@@ -51,10 +51,10 @@ def run_demo(bindings: list, cwd: str) -> dict:
     if subprocess.run(argv, cwd=cwd, stdout=log, stderr=subprocess.STDOUT, check=False).returncode:
       raise RuntimeError(f'the demo failed in {cwd!r}; its output is in {os.path.join(cwd, "log.txt")!r}')
   return {'wall_seconds': round(time.perf_counter() - wall, 1), 'cpu_seconds': round(children_cpu_seconds() - cpu, 1),
-          'load_average': [round(load, 2), round(os.getloadavg()[0], 2)], 'psnr': test_psnrs(bindings, cwd)}
+          'load_average': [round(load, 2), round(os.getloadavg()[0], 2)], 'psnr': mean_test_psnrs(bindings, cwd)}
 
 
-def test_psnrs(bindings: list, cwd: str) -> dict:
+def mean_test_psnrs(bindings: list, cwd: str) -> dict:
   """{method: mean test PSNR} of the demo that ran in cwd with bindings (its digits: this machine kind's)."""
   return {name: runs.metrics_record(os.path.join(cwd, config.checkpoint_dir), config.max_steps)['means']['psnr']
           for name, config in demo.method_configs(bindings).items()}
@@ -62,14 +62,14 @@ def test_psnrs(bindings: list, cwd: str) -> dict:
 
 def measure(repeats: int, work: str) -> dict:
   """{'runs': {length: [run, ...]}, 'median': {length: {wall_seconds, cpu_seconds}}, 'ratio': now / former}."""
-  runs = {length: [] for length in LENGTHS}
+  found = {length: [] for length in LENGTHS}
   for repeat in range(repeats):
     for length, bindings in LENGTHS.items():  # Alternating, so that a change of load touches both alike.
-      runs[length].append(run_demo(bindings, os.path.join(work, f'{length}_{repeat}')))
+      found[length].append(run_demo(bindings, os.path.join(work, f'{length}_{repeat}')))
   median = {length: {key: statistics.median(r[key] for r in rows) for key in ('wall_seconds', 'cpu_seconds')}
-            for length, rows in runs.items()}
+            for length, rows in found.items()}
   ratio = {key: round(median['now'][key] / median['former'][key], 3) for key in ('wall_seconds', 'cpu_seconds')}
-  return {'former_bindings': FORMER, 'runs': runs, 'median': median, 'ratio_now_to_former': ratio}
+  return {'former_bindings': FORMER, 'runs': found, 'median': median, 'ratio_now_to_former': ratio}
 
 
 def readme(out: str) -> str:
