@@ -25,9 +25,10 @@ from internal.run import run_dir
 
 def run_demo(bindings, stop_at_step: int = 0) -> int:
   """The demo: trains NeRF and FreeNeRF alike (configs/demo*.gin), then evaluates, renders and compares."""
-  method_cfgs = demo.method_configs(bindings)  # Checks both configs and run directories before any work.
-  for config in method_cfgs.values():
-    run_dir.check_trainable(config)
+  method_cfgs = demo.method_configs(bindings)  # Checks both configs and run directories before any work,
+  for name in demo.METHODS:  # each directory with its method's model settings bound (gin holds them).
+    with demo.method_config(name, bindings) as config:
+      run_dir.check_trainable(config)
   out_dir = demo.output_dir(method_cfgs)
   for name in demo.METHODS:
     with demo.method_config(name, bindings) as config:

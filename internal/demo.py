@@ -39,7 +39,9 @@ def method_config(name: str, bindings=()):
 
 
 def method_configs(bindings=()) -> dict:
-  """{method name: validated Config} of both demo configs with the same extra bindings applied to each."""
+  """{method name: validated Config} of both demo configs with the same extra bindings applied to each; gin is
+  cleared after each, so what reads the model's settings from gin (training, a run directory's check) takes its
+  Config from method_config instead."""
   out = {}
   for name in METHODS:
     with method_config(name, bindings) as config:

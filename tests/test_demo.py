@@ -173,16 +173,16 @@ def test_demo_command_writes_both_runs_picture_and_videos(tmp_path, monkeypatch)
   bindings = TINY + [f"Config.data_dir = '{tmp_path / 'forward_scene'}'", 'Config.max_steps = 4', 'Config.freq_reg_end = 3',
                      'Config.render_path_frames = 2', 'Config.compute_lpips = False', 'Config.eval_test_ids = [0, 1]']
   assert train.main(['--gin_bindings', *bindings]) == 0
-  cfgs = demo.method_configs(bindings)
   for name, run in (('FreeNeRF', 'freenerf'), ('NeRF', 'nerf')):
-    assert cfgs[name].checkpoint_dir == f'out/demo/{run}'
-    record = evaluate.existing_record(cfgs[name])
+    with demo.method_config(name, bindings) as config:  # The run's check reads the model's settings from gin.
+      assert config.checkpoint_dir == f'out/demo/{run}'
+      record = evaluate.existing_record(config)
     assert record['step'] == 4 and record['method'] == run
     gin_text = (tmp_path / 'out' / 'demo' / run / 'config.gin').read_text()
     assert f"Config.expname = '{run}'" in gin_text and f'freq_reg = {run == "freenerf"}' in gin_text
     renders = tmp_path / 'out' / 'demo' / run / 'path_renders_step_4'
     assert (renders / f'generated_forward_{run}_color.mp4').stat().st_size > 0
-  picture = np.asarray(Image.open(tmp_path / 'out' / 'demo' / demo.PICTURE))
+  picture = np.asarray(Image.open(tmp_path / 'out' / 'demo' / demo.PICTURE).convert('RGB'))  # Saved as a palette.
   block_rows = -(-len(demo.shown_positions(2)) // demo.BLOCKS_PER_ROW)  # The 2 evaluated test views.
   assert picture.shape == (vis.HEADER + vis.LINE + 2 * block_rows * (32 * demo.SCALE + vis.GAP),
                            vis.LABEL_WIDTH + 3 * demo.BLOCKS_PER_ROW * (40 * demo.SCALE + vis.GAP), 3)
@@ -226,10 +226,10 @@ def test_the_recorded_results_are_the_demo_over_several_seeds(kind):
 
 @pytest.mark.slow
 def test_demo_settings_reconstruct_the_scene_from_all_views(tmp_path):
+  freenerf_lr_final = demo.method_configs()['FreeNeRF'].lr_final  # Before binding: method_configs clears gin.
   config = runs.bind_fresh(demo.METHODS['NeRF'], PIPELINE + [
       f"Config.data_dir = '{tmp_path / 'scene'}'", f"Config.checkpoint_dir = '{tmp_path / 'run'}'"])
-  assert config.n_input_views == 0 and not config.freq_reg and config.lr_final == demo.method_configs()[
-      'FreeNeRF'].lr_final
+  assert config.n_input_views == 0 and not config.freq_reg and config.lr_final == freenerf_lr_final
   assert config.jax_rng_seed == demo_seeds.DEFAULT_SEED
   loop.train(config)
   record = evaluate.evaluate(config)
