@@ -274,6 +274,17 @@ def test_pictures_come_from_the_first_seed_whose_cells_kept_their_renders(tmp_pa
   assert study_export._picture_cells(cells, paths, ['1']) == []
 
 
+def test_an_out_folder_moved_since_its_cells_ran_exports_no_path_of_where_they_ran(ran, tmp_path):
+  _, out, path = ran
+  moved = tmp_path / 'elsewhere' / 'out'
+  shutil.copytree(out, moved)  # Its metrics.json files still name the run folders where they were.
+  dest = tmp_path / 'export'
+  assert study_lib.main([str(path), '--out', str(moved), '--plots-only', '--export', str(dest)]) == 0
+  for cell, entry in cells_file.read(str(dest)).items():
+    assert json.loads(cells_file.files(entry.line)['metrics.json'])['run_dir'] == f'{{out}}/mini/{cell}/run'
+  assert str(out) not in (dest / 'cells.jsonl').read_text()
+
+
 def test_export_without_renders_warns_and_draws_no_picture(ran, tmp_path, capsys):
   _, out, path = ran
   copy = tmp_path / 'out'

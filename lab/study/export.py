@@ -15,6 +15,7 @@ that differed from it, is in its line). No checkpoints, no renders.
 import glob
 import json
 import os
+import pathlib
 import shutil
 from typing import Callable, Dict, List, NamedTuple, Optional
 
@@ -60,13 +61,15 @@ def _cell_line(study: study_spec.Study, cell: study_spec.Cell, path: str, record
 
 
 def _portable(evaluation: dict, cell_path: str) -> dict:
-  """A cell's metrics.json with the run folder it names, where absolute, as its spec writes it: {out}/<study>/<cell>/run
-  (a cell --reuse placed names the folder of the export's line already)."""
+  """A cell's metrics.json with the run folder it names, where absolute, as its spec writes it: {out}/<study>/<cell>/run,
+  read from the path's last three parts, so that an out folder moved or copied since the cell ran (another checkout,
+  a cluster's disk) exports no path of the machine that ran it (a cell --reuse placed names the folder of the
+  export's line already: another study's)."""
   run_dir = evaluation.get('run_dir')
-  out = os.path.dirname(os.path.dirname(os.path.abspath(cell_path)))
-  if not (run_dir and os.path.isabs(run_dir) and run_dir.startswith(out + os.sep)):
+  parts = pathlib.PurePath(run_dir).parts if run_dir and os.path.isabs(run_dir) else ()
+  if len(parts) < 4 or parts[-2:] != (os.path.basename(os.path.abspath(cell_path)), RUN_SUBDIR):
     return evaluation
-  return {**evaluation, 'run_dir': '{out}' + run_dir[len(out):]}
+  return {**evaluation, 'run_dir': '/'.join(('{out}',) + parts[-3:])}
 
 
 def _text(path: str) -> Optional[str]:
