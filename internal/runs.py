@@ -45,6 +45,10 @@ from internal.training import train_step
 
 # ------------------------------------------------------------------ settings
 
+# Config fields that change nothing training computes (left out of a run's fingerprint): what may differ between a
+# run and its resumption, or between two evaluations of one trained run.
+NOT_FINGERPRINTED = run_dir_lib.NOT_FINGERPRINTED
+
 
 def bind_fresh(gin_configs=(), gin_bindings=(), backend: str = '') -> Config:
   """The validated Config of gin files and bindings (its precision resolved for backend, '' = this process's),

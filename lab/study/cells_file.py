@@ -4,7 +4,8 @@ where; a cell that came from another study's export is a reference to that expor
 A line is {"cell": id, "spec": {"gin_configs", "gin_bindings"} (templates {out} and {data_root} left in),
 "record": the cell's cell.json (means, wall times, steps/s, GFLOP per step, peak memory, commit, changed files,
 machine), "evaluation": its metrics.json (per view and means; metrics.csv is its per_image as a table),
-"learning_curve": {"columns", "rows"} where the run recorded one}; or {"cell": id, "same_as": "../other_export"}.
+"learning_curve": {"columns", "rows"} where the run recorded one, "evaluations": {name: {"bindings", "evaluation"}}
+where the study asked for further evaluations (lab/study/evaluations.py)}; or {"cell": id, "same_as": "../other_export"}.
 """
 
 import csv
@@ -22,7 +23,8 @@ METRICS_TABLE = 'metrics.csv'
 CURVE_FILE = 'learning_curve.csv'  # internal/evaluation/learning_curve.py's CSV_FILE (jax-free here).
 PROVENANCE_FILE = 'provenance.json'
 # The parts of a line and the JSON type each must have.
-LINE_TYPES = {'cell': str, 'same_as': str, 'spec': dict, 'record': dict, 'evaluation': dict, 'learning_curve': dict}
+LINE_TYPES = {'cell': str, 'same_as': str, 'spec': dict, 'record': dict, 'evaluation': dict, 'learning_curve': dict,
+              'evaluations': dict}
 JSON_NAMES = {str: 'a string', dict: 'an object', list: 'an array', int: 'a number', float: 'a number',
               bool: 'true or false', type(None): 'null'}
 
@@ -74,8 +76,9 @@ def csv_text(columns: list, rows: list) -> str:
 
 
 def line(cell_id: str, record: dict, evaluation: Optional[dict], curve_csv: Optional[str],
-         spec: Optional[dict] = None) -> dict:
-  """A cell's line from its record, its evaluation's metrics.json (None: not kept) and its learning curve's CSV."""
+         spec: Optional[dict] = None, evaluations: Optional[dict] = None) -> dict:
+  """A cell's line from its record, its evaluation's metrics.json (None: not kept), its learning curve's CSV and
+  its further evaluations ({name: {'bindings', 'evaluation'}}; none: left out)."""
   entry = {'cell': cell_id}
   if spec is not None:
     entry['spec'] = spec
@@ -84,6 +87,8 @@ def line(cell_id: str, record: dict, evaluation: Optional[dict], curve_csv: Opti
     entry['evaluation'] = evaluation
   if curve_csv is not None:
     entry['learning_curve'] = table(curve_csv)
+  if evaluations:
+    entry['evaluations'] = evaluations
   return entry
 
 
@@ -168,8 +173,8 @@ def write(export_dir: str, lines: List[dict]) -> str:
 
 
 def same_cell(a: dict, b: dict) -> bool:
-  """Whether two lines hold the same run: record, evaluation and learning curve (the spec may be spelt apart)."""
-  keys = ('record', 'evaluation', 'learning_curve')
+  """Whether two lines hold the same run: record, evaluations and learning curve (the spec may be spelt apart)."""
+  keys = ('record', 'evaluation', 'learning_curve', 'evaluations')
   return all(json.dumps(a.get(k), sort_keys=True) == json.dumps(b.get(k), sort_keys=True) for k in keys)
 
 

@@ -25,6 +25,7 @@ from PIL import Image
 from internal import runs
 from tools import provenance
 from lab.study import cells_file
+from lab.study import evaluations as study_evaluations
 from lab.study import looks as study_looks
 from lab.study import spec as study_spec
 
@@ -49,11 +50,14 @@ def eval_dir(cell_path: str, step: int) -> str:
 
 def _cell_line(study: study_spec.Study, cell: study_spec.Cell, path: str, record: dict, dest: str) -> dict:
   """A finished cell's line of cells.jsonl: a reference when --reuse took it from another study's export that
-  still holds the same run (its path relative to dest), else its spec, record, evaluation and learning curve."""
+  still holds the same run (its path relative to dest), else its spec, record, evaluation, learning curve and
+  further evaluations."""
   metrics = os.path.join(eval_dir(path, record['step']), cells_file.METRICS_FILE)
   curve = runs.curve_path(os.path.join(path, RUN_SUBDIR))
   evaluation = _portable(cells_file.read_json(metrics), path) if os.path.isfile(metrics) else None
-  entry = cells_file.line(cell.cell_id, record, evaluation, _text(curve), cells_file.spec(study, cell))
+  further = study_evaluations.recorded(path, record['step'], dict(study.evaluations))
+  further = {name: {**found, 'evaluation': _portable(found['evaluation'], path)} for name, found in further.items()}
+  entry = cells_file.line(cell.cell_id, record, evaluation, _text(curve), cells_file.spec(study, cell), further)
   source = _reused_from(path)
   if source and record.get('study') != study.name:
     return cells_file.reference(dest, entry, source) or entry

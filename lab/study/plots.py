@@ -70,7 +70,7 @@ def plot(study: study_spec.Study, rows: List[dict], x: str, metric: str, path: s
       ax.plot(*zip(*curve.points), marker='x', linestyle='--', color='black',
               label=f'paper: {curve.method}' + (f' ({curve.source})' if curve.source else ''))
   if study.plot.pareto:
-    front = pareto_front([p for points in lines.values() for p in points], metric in study_spec.LOWER_IS_BETTER)
+    front = pareto_front([p for points in lines.values() for p in points], study_spec.is_lower_better(metric))
     ax.step(*zip(*front), where='post', color='red', linewidth=1.5, alpha=.6, label='Pareto front')
     ax.scatter(*zip(*front), s=120, facecolors='none', edgecolors='red')
   if ticks:

@@ -7,8 +7,8 @@ its git history) gives it the same settings as this study file does:
 the same gin configs and bindings, or ones that load to the same Config (T given in steps or as a fraction, say).
 Its numbers are the evaluation's: the cell's record must agree with its evaluation's metrics.json (step,
 completeness and every mean), else the command stops with one line naming both; a cell exported without its
-evaluation is not reused (it runs here). Its cell.json, the evaluation's metrics.json and metrics.csv and its
-learning curve go where a run here would have written them, with a note of the export it came from (an export of
+evaluation is not reused (it runs here). Its cell.json, the evaluation's metrics.json and metrics.csv, its
+learning curve and its further evaluations (lab/study/evaluations.py) go where a run here would have written them, with a note of the export it came from (an export of
 this study then refers to that export's line); its checkpoints and renders are not in an export, so a reused cell
 cannot resume training and appears in no side-by-side picture. An export of the same study passes on its looks (the
 seed counts at which its comparisons were read, lab/study/looks.py), so that its intervals stay corrected for them.
@@ -22,6 +22,7 @@ from internal import atomic
 from internal import runs
 from tools import provenance
 from lab.study import cells_file
+from lab.study import evaluations as study_evaluations
 from lab.study import export as study_export
 from lab.study import looks as study_looks
 from lab.study import spec as study_spec
@@ -88,6 +89,7 @@ def _place(entry: cells_file.Entry, target: str) -> None:
   for name, folder in places.items():
     if name in texts:
       atomic.write_text(os.path.join(folder, name), texts[name])
+  study_evaluations.place(target, entry.line['record']['step'], entry.line.get('evaluations', {}))
   atomic.write_text(os.path.join(target, study_export.REUSED_FILE),
                     json.dumps({'export': os.path.abspath(entry.export)}))
   atomic.write_text(os.path.join(target, cells_file.CELL_FILE), texts[cells_file.CELL_FILE])  # Last: finished.

@@ -50,6 +50,7 @@ from lab.study import time_budgets
 from lab.study import cells_file
 from lab.study import claim
 from lab.study import estimate
+from lab.study import evaluations
 from lab.study import export
 from lab.study import looks
 from lab.study import plots
@@ -86,13 +87,25 @@ def read_cell(path: str) -> Optional[dict]:
 
 def write_spec(study: spec.Study, cell: spec.Cell, out: str, data_root: str, extra_bindings=()) -> str:
   """Writes <cell>/cell_spec.json (the cell's gin configs and bindings, labels), atomically and never for a
-  finished cell (its spec records what ran); returns the cell folder."""
+  finished cell (its spec records what ran), and the evaluations the study asks of it; returns the cell folder."""
   path = cell_dir(study, cell, out)
   os.makedirs(path, exist_ok=True)
+  evaluations.write_wanted(path, dict(study.evaluations))
   if not os.path.isfile(os.path.join(path, CELL_FILE)):
     spec.write_cell_spec(path, study, cell, spec.cell_gin(study, cell, out, data_root, os.path.join(path, RUN_SUBDIR),
                                                           extra_bindings))
   return path
+
+
+def has_run(path: str, record: dict) -> bool:
+  """Whether a finished cell's folder holds its final checkpoint (a cell taken from an export has none)."""
+  return runs.latest_step(os.path.join(path, RUN_SUBDIR)) == record['step']
+
+
+def is_finished(path: str) -> bool:
+  """Whether a cell is trained and evaluated as the study asks (its further evaluations too, where its run is here)."""
+  record = read_cell(path)
+  return record is not None and not (evaluations.missing(path, record['step']) and has_run(path, record))
 
 
 def stale_cells(study: spec.Study, done: list, out: str, data_root: str, extra_bindings=()) -> Dict[str, str]:
@@ -165,7 +178,13 @@ def run_cell(path: str, job: str, stop=None) -> Optional[dict]:
   evaluates it from its cell_spec.json and writes cell.json; None when another runner had finished it. stop: the
   runs.stop_flag() that training records its signals in (default: its own)."""
   with claim.claimed(path, job):
-    return None if read_cell(path) else _train_and_evaluate(path, stop)
+    record = read_cell(path)
+    trained = record is None
+    if trained:
+      record = _train_and_evaluate(path, stop)
+    if has_run(path, record):
+      evaluations.run_missing(path, record['step'], lambda extra: spec.cell_config(path, extra))
+    return record if trained else None
 
 
 def _train_and_evaluate(path: str, stop) -> dict:
@@ -292,7 +311,8 @@ def gather(study: spec.Study, out: str) -> List[dict]:
     if record:
       row.update(step=record['step'], complete=record['complete'], **record['means'],
                  **{k: record[k] for k in ('train_seconds', 'eval_seconds', 'steps_trained', 'steps_per_sec',
-                                           'gflops_per_step', 'peak_rss_mb', 'device_peak_bytes')})
+                                           'gflops_per_step', 'peak_rss_mb', 'device_peak_bytes')},
+                 **evaluations.columns(cell_dir(study, cell, out), record['step'], dict(study.evaluations)))
     rows.append(row)
   return rows
 
@@ -369,16 +389,27 @@ def run_study(study: spec.Study, out: str, data_root: str = 'data', shard: Optio
   paths = [write_spec(study, c, out, data_root, extra_bindings) for c in cells]
   check_not_stale(study, [(c, p) for c, p in zip(cells, paths) if read_cell(p) is not None], out, data_root,
                   extra_bindings)
-  todo = [p for p in paths if read_cell(p) is None]
+  _warn_unevaluable(paths)
+  todo = [p for p in paths if not is_finished(p)]
   job = job or dispatch.new_job()
   if executor is None:
     failed = _run_in_process(todo, job)
   else:
-    failed = dispatch.run(todo, executor, lambda path: read_cell(path) is not None) if todo else {}
+    failed = dispatch.run(todo, executor, is_finished) if todo else {}
   with claim.claimed(study_dir(study, out), job, wait=True):  # One runner at a time writes the results.
     for path in write_results(study, out):
       print(path)
   return failed
+
+
+def _warn_unevaluable(paths: List[str]) -> None:
+  """A warning per finished cell without its run here (taken from an export) that lacks an evaluation asked of it."""
+  for path in paths:
+    record = read_cell(path)
+    lacking = record and not has_run(path, record) and evaluations.missing(path, record['step'])
+    if lacking:
+      print(f'warning: {path}: evaluations {sorted(lacking)} not run: the cell came without its checkpoints (from an '
+            'export); its columns stay empty')
 
 
 def _parser() -> argparse.ArgumentParser:

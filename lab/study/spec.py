@@ -14,6 +14,8 @@ A study file (see studies/*.toml):
   [plot]  x = ["T"]  metrics = ["psnr"]  pareto = false  budgets = [60, 300]  # budgets: training seconds
   [resources]  num_gpus = 1  num_cpus = 4  max_retries = 3   # per cell on a Ray cluster (--executor ray)
   [[paper]]  method = "mipnerf"  metric = "psnr"  x = "ratio"  points = [[0.1, 17.62], [1.0, 9.01]]
+  [evaluations.<e>]  bindings = ["Config.test_pose_steps = 100"]   # each finished cell evaluated again under
+                                            # bookkeeping settings: columns <metric>@<e> (lab/study/evaluations.py)
 
 Cells are the product methods x scenes x axis points. A cell's gin input, in order: the method's configs, the
 points' configs, the study's, method's, scene's and points' bindings, then Config.expname and
@@ -44,6 +46,7 @@ from typing import Dict, Iterator, List, Optional, Tuple
 
 from internal import atomic
 from internal import runs
+from lab.study import evaluations as study_evaluations
 
 # Axis named VIEWS_AXIS is the tables' view count: it stays out of Config.expname (the tables' method column).
 REPO = str(pathlib.Path(__file__).resolve().parents[2])  # The repository: studies/, configs/, results/.
@@ -55,6 +58,12 @@ SEED_BINDINGS = ('Config.jax_rng_seed', 'Config.np_rng_seed')
 RECORDED_X = ('train_seconds', 'eval_seconds', 'steps_per_sec', 'gflops_per_step', 'peak_rss_mb')
 # Metrics where lower is better (the Pareto front keeps the low ones).
 LOWER_IS_BETTER = runs.lower_is_better()
+
+
+def is_lower_better(metric: str) -> bool:
+  """Whether lower is better for a metric of results.csv (<metric>@<evaluation> as its metric)."""
+  return metric.split('@')[0] in LOWER_IS_BETTER
+
 # In a cell's folder: the cell's gin configs and bindings and its labels, written before it runs (this module
 # writes and reads it, the one place that knows its form).
 CELL_SPEC_FILE = 'cell_spec.json'
@@ -136,6 +145,7 @@ class Study:
   compare: Tuple[Compare, ...] = ()
   resources: Resources = Resources()
   looks: Tuple[int, ...] = ()  # Seed counts at which the comparisons were read (the study file's, and recorded).
+  evaluations: Tuple[Tuple[str, Tuple[str, ...]], ...] = ()  # (name, bindings): lab/study/evaluations.py.
 
   @property
   def has_seeds(self) -> bool:
@@ -350,6 +360,25 @@ def _comparisons(r: _Reader, data: dict, study: Study) -> Tuple[Compare, ...]:
   return tuple(comparisons)
 
 
+def _evaluations(r: _Reader, data: dict) -> Tuple[Tuple[str, Tuple[str, ...]], ...]:
+  """The [evaluations.<name>] tables: names usable as folder names and column suffixes, bookkeeping bindings."""
+  entries = r.get(data, 'evaluations', '', dict, {})
+  found = []
+  for name, table in entries.items():
+    where = f'evaluations.{name}'
+    if not isinstance(table, dict):
+      r.fail(where, f'{table!r}; expected a table {{bindings}}')
+    if not name.isidentifier():
+      r.fail(where, 'the name must be an identifier (a folder name and the suffix of its columns, <metric>@<name>)')
+    r.unknown(table, ('bindings',), where)
+    bindings = r.strings(table, 'bindings', where)
+    if not bindings:
+      r.fail(f'{where}.bindings', 'is empty; expected the settings this evaluation changes')
+    study_evaluations.check_bindings(bindings, lambda message, at=f'{where}.bindings': r.fail(at, message))
+    found.append((name, bindings))
+  return tuple(found)
+
+
 def _resources(r: _Reader, data: dict) -> Resources:
   """The [resources] table: num_gpus and num_cpus >= 0 (numbers), max_retries >= 0 (an integer)."""
   table = r.get(data, 'resources', '', dict, {})
@@ -371,7 +400,7 @@ def parse(text: str, path: str) -> Study:
   except tomllib.TOMLDecodeError as e:
     raise StudyError(f'{path}: not valid TOML: {e}') from e
   r.unknown(data, ('name', 'description', 'bindings', 'methods', 'scenes', 'axis', 'seeds', 'looks', 'compare',
-                   'plot', 'paper', 'resources'), '')
+                   'plot', 'paper', 'resources', 'evaluations'), '')
   name = r.get(data, 'name', '', str)
   if not name or '/' in name or name.startswith('.'):
     r.fail('name', f'{name!r}; expected a folder name')
@@ -402,7 +431,7 @@ def parse(text: str, path: str) -> Study:
       r.fail('plot.x', f'{x!r} is neither an axis {axis_names} nor a recorded value {list(RECORDED_X)}')
   study = Study(name, path, r.strings(data, 'bindings', ''), tuple(methods), tuple(scenes), axes, plot,
                 _paper(r, r.get(data, 'paper', '', list, []), axis_names), resources=_resources(r, data),
-                looks=_looks(r, data, axes))
+                looks=_looks(r, data, axes), evaluations=_evaluations(r, data))
   study = dataclasses.replace(study, compare=_comparisons(r, data, study))
   _check_templates(study, r)
   return study
@@ -487,8 +516,8 @@ def read_cell_spec(folder: str) -> dict:
 
 
 @contextlib.contextmanager
-def cell_config(folder: str) -> Iterator[runs.Config]:
-  """runs.fresh_config of the gin a cell's folder records (its cell_spec.json)."""
+def cell_config(folder: str, extra_bindings=()) -> Iterator[runs.Config]:
+  """runs.fresh_config of the gin a cell's folder records (its cell_spec.json), extra_bindings last."""
   found = read_cell_spec(folder)
-  with runs.fresh_config(found['gin_configs'], found['gin_bindings']) as config:
+  with runs.fresh_config(found['gin_configs'], found['gin_bindings'] + list(extra_bindings)) as config:
     yield config

@@ -150,5 +150,5 @@ def compare(study: study_spec.Study, rows: List[dict], metric: str) -> List[Comp
     differences = pairs(study, rows, entry, metric)
     if differences:
       found.append(Comparison(entry.axis, entry.a, entry.b, metric, len(differences), *t_interval(differences, level),
-                              metric in study_spec.LOWER_IS_BETTER, level))
+                              study_spec.is_lower_better(metric), level))
   return found

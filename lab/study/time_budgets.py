@@ -60,7 +60,7 @@ def selection_level(settings: int, looks: int = 1) -> float:
 def budget_row(values: Dict[str, Dict[str, float]], budget: float, metric: str, looks: int = 1) -> dict:
   """The best setting at one budget, its spread, and the paired comparison with the runner-up (its interval
   corrected for the choice and the looks: selection_level)."""
-  sign = -1. if metric in study_spec.LOWER_IS_BETTER else 1.
+  sign = -1. if study_spec.is_lower_better(metric) else 1.
   ranked = sorted(values, key=lambda s: -sign * study_stats.spread(list(values[s].values()))['mean'])
   best = ranked[0]
   row = {'budget_s': budget, 'metric': metric, 'best': best, **study_stats.spread(list(values[best].values()))}
@@ -126,7 +126,7 @@ def curve_plot(study: study_spec.Study, curve_rows: List[dict], metric: str, pat
     line.set_marker('')
     for curve in curves[setting].values():
       ax.plot(*zip(*curve), color=line.get_color(), alpha=.35, linewidth=.8, marker='.', drawstyle='steps-post')
-  front = study_plots.pareto_front([p for m in means.values() for p in m], metric in study_spec.LOWER_IS_BETTER)
+  front = study_plots.pareto_front([p for m in means.values() for p in m], study_spec.is_lower_better(metric))
   if front:
     ax.plot(*zip(*front), color='black', linestyle='--', linewidth=1., label='front of the means',
             drawstyle='steps-post')
