@@ -248,9 +248,23 @@ def test_test_time_poses_undo_a_known_turn_with_the_model_frozen(scene_dir, tmp_
   assert np.all(left < .7), left
 
 
+def test_how_far_test_time_poses_moved_each_test_camera_is_its_turn_and_its_centre_s_shift():
+  similarity = (np.repeat(corrections.so3_exp(np.array([.1, .2, -.3]))[None], 2, 0), np.array([[0., 1., 0.]] * 2))
+  turn = corrections.so3_exp(np.array([0., np.deg2rad(2.), 0.]))
+  after = (np.stack([turn @ similarity[0][0], similarity[0][1]]), similarity[1] + np.array([[0., 0., 0.], [.4, 0., 0.]]))
+  moves = camera_evaluation.test_pose_moves(similarity, after, 4.)
+  np.testing.assert_allclose(moves['per_view']['rotation_deg'], [2., 0.], atol=1e-5)  # arccos's floor
+  np.testing.assert_allclose(moves['per_view']['translation'], [0., .1], atol=1e-12)
+  assert moves['rotation_deg_median'] == pytest.approx(1.) and moves['translation_median'] == pytest.approx(.05)
+  means = camera_evaluation.metrics({}, moves)
+  assert means == {'test_pose_rotation_deg': moves['rotation_deg_median'], 'test_pose_translation': .05}
+
+
 def test_camera_settings_off_leave_the_loader_rays_and_space(scene_dir, tmp_path):
   config = tiny_config(scene_dir, tmp_path / 'run')
-  assert not camera_evaluation.needs_alignment(config)
+  assert not camera_evaluation.needs_alignment(config) and not camera_evaluation.places_test_cameras(config)
+  asked = dataclasses.replace(config, test_pose_steps=5)  # Exact cameras, test-time poses asked for: placed too.
+  assert not camera_evaluation.needs_alignment(asked) and camera_evaluation.places_test_cameras(asked)
   data = datasets.load_dataset('train', config)
   assert data.space == RaySpace(opengl=True, near=config.near, far=config.far, height=data.height, width=data.width)
   rays = corrections.corrected_image_rays(data.rays, data.cameras, np.repeat(np.eye(3)[None], len(data.ids), 0),

@@ -70,6 +70,7 @@ def test_a_cell_is_evaluated_again_with_the_evaluations_bindings_into_its_own_co
   assert float(row['psnr@test_pose']) == pytest.approx(again['means']['psnr'], rel=1e-12)
   assert row['psnr@test_pose'] != row['psnr']             # The test cameras moved: another rendering.
   assert row['camera_rotation_deg@test_pose'] == row['camera_rotation_deg']  # The training cameras did not.
+  assert 'test_pose_rotation_deg' not in row and float(row['test_pose_rotation_deg@test_pose']) > 0.
   recorded = json.loads((_cell(out) / 'evaluations' / 'test_pose' / 'bindings.json').read_text())
   assert recorded == ['Config.test_pose_steps = 4', 'Config.test_pose_lr = 1e-2']
 

@@ -38,6 +38,13 @@ def needs_alignment(config) -> bool:
   return bool(config.optimize_cameras or camera_noise.is_on(config) or config.capture_train_model)
 
 
+def places_test_cameras(config) -> bool:
+  """Whether the evaluation places the test cameras itself: by the similarity where the training cameras may move,
+  then by test-time pose optimization where Config.test_pose_steps asks for it (exact cameras included, so that
+  runs on exact and on moved cameras can be evaluated under one protocol)."""
+  return needs_alignment(config) or config.test_pose_steps > 0
+
+
 def reference_config(config):
   """Config whose training split holds the reference cameras: no noise, Config.capture_model's cameras."""
   return dataclasses.replace(config, camera_noise_rotation_deg=0., camera_noise_translation=0., capture_train_model='')
@@ -61,7 +68,11 @@ METRIC_WORDS = {
     'camera_translation': 'median centre distance (of the camera distance) of the final training cameras from the '
                           'reference, after the similarity taking them onto it',
     'camera_rotation_deg_unaligned': 'camera_rotation_deg without the similarity (the cameras share its frame)',
-    'camera_translation_unaligned': 'camera_translation without the similarity (the cameras share its frame)'}
+    'camera_translation_unaligned': 'camera_translation without the similarity (the cameras share its frame)',
+    'test_pose_rotation_deg': 'median angle (degrees) by which test-time pose optimization turned the test cameras '
+                              'from where the similarity placed them',
+    'test_pose_translation': 'median distance (of the camera distance) by which test-time pose optimization moved '
+                             'the test cameras\' centres from where the similarity placed them'}
 
 
 def reference_cameras(config, train_set: datasets.Dataset) -> tuple:
@@ -97,10 +108,23 @@ def errors(cameras: TrainingCameras) -> dict:
   return out
 
 
-def metrics(error_record: dict) -> dict:
+def test_pose_moves(before: tuple, after: tuple, distance: float) -> dict:
+  """How far test-time pose optimization moved each test camera from the (rotations [M,3,3], shifts [M,3]) of
+  before to those of after: the angle (degrees) between the rotations and the distance of the centres, a fraction
+  of distance; medians too."""
+  turns = np.degrees(alignment.rotation_angle(after[0] @ np.swapaxes(before[0], -1, -2)))
+  moves = np.linalg.norm(np.asarray(after[1], np.float64) - before[1], axis=-1) / distance
+  return {'rotation_deg_median': float(np.median(turns)), 'translation_median': float(np.median(moves)),
+          'per_view': {'rotation_deg': turns.tolist(), 'translation': moves.tolist()}}
+
+
+def metrics(error_record: dict, moves: Optional[dict] = None) -> dict:
   """The camera metrics of metrics.json's means (METRIC_WORDS): median errors of the final cameras against the
-  reference, after the similarity and, where the frames are shared, without it."""
+  reference, after the similarity and, where the frames are shared, without it; how far test-time pose
+  optimization moved the test cameras (moves of test_pose_moves), where it ran."""
   out = {}
+  if moves is not None:
+    out.update(test_pose_rotation_deg=moves['rotation_deg_median'], test_pose_translation=moves['translation_median'])
   for suffix in ('', '_unaligned'):
     against = error_record.get('final_vs_reference' + suffix)
     if against is not None:
@@ -195,14 +219,19 @@ def evaluation_rays(config, model, state, step: int, test_set: datasets.Dataset,
   cameras = training_cameras(train_set, getattr(state, 'cameras', None), reference_cameras(config, train_set))
   similarity = test_similarity(cameras)
   rotations, shifts = aligned_corrections(test_set, similarity)
+  moves = None
   if config.test_pose_steps:
     with pose_progress.PoseProgress(config, len(test_set.ids)) as on_step:
-      rotations, shifts = test_time_poses(config, model, state.params, step, test_set, rotations, shifts, on_step)
+      placed = test_time_poses(config, model, state.params, step, test_set, rotations, shifts, on_step)
+    moves = test_pose_moves((rotations, shifts), placed, cameras.distance)
+    rotations, shifts = placed
   record = {'refined': bool(config.optimize_cameras), 'reference': reference_words(config),
             'test_cameras': 'similarity' + (' + test-time pose optimization' if config.test_pose_steps else ''),
             'test_pose_steps': config.test_pose_steps,
             'similarity': {'scale': similarity.scale, 'rotation': similarity.rotation.tolist(),
                            'shift': similarity.shift.tolist()},
             'errors': errors(cameras)}
-  record['metrics'] = {name: METRIC_WORDS[name] for name in metrics(record['errors'])}
+  if moves is not None:
+    record['test_pose_moves'] = moves
+  record['metrics'] = {name: METRIC_WORDS[name] for name in metrics(record['errors'], moves)}
   return test_rays(test_set, train_set, rotations, shifts), record, similarity.scale

@@ -103,8 +103,8 @@ def evaluate(config) -> dict:
   run_dir = run_dir_lib.check_run_dir(config)
   test_set = datasets.load_dataset('test', config, ground_truth=True)  # Exact depths for the depth metrics.
   positions = select_positions(config, len(test_set.ids))
-  # The training split as trained on, where the training cameras may move (None otherwise).
-  train_set = datasets.load_dataset('train', config) if camera_evaluation.needs_alignment(config) else None
+  # The training split as trained on, where the evaluation places the test cameras (None otherwise).
+  train_set = datasets.load_dataset('train', config) if camera_evaluation.places_test_cameras(config) else None
   model, state = checkpoints.restore_model(config, run_dir, jax.tree.map(lambda x: x[0, 0, :8], test_set.rays),
                                            train_set)
   step = int(state.step)  # The newest intact checkpoint's.
@@ -143,7 +143,7 @@ def evaluate(config) -> dict:
                 seeds=[getattr(config, name) for name in configs.declared(configs.SEED)],
                 test_positions=positions, run_dir=os.path.abspath(run_dir))
   if camera_record is not None:
-    record['means'].update(camera_evaluation.metrics(camera_record['errors']))
+    record['means'].update(camera_evaluation.metrics(camera_record['errors'], camera_record.get('test_pose_moves')))
     record['cameras'] = camera_record
   write_csv(per_image, os.path.join(out_dir, 'metrics.csv'))
   results.write_record(metrics_path, record)

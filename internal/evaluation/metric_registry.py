@@ -13,7 +13,8 @@ PSEUDO_DEPTH = 'pseudo_depth'  # The depth errors against another run's depths (
 SFM_DEPTH = 'sfm_depth'        # The depth errors at the capture's structure-from-motion points (captures).
 # Training-camera errors where the cameras may move (camera_evaluation.py): medians over the training views against
 # the reference cameras after a similarity, rotation in degrees, translation as a fraction of the camera distance;
-# *_unaligned: without the similarity, where the cameras share the reference's frame.
+# *_unaligned: without the similarity, where the cameras share the reference's frame; test_pose_*: how far
+# test-time pose optimization moved the test cameras from where the similarity placed them (medians).
 CAMERAS = 'cameras'
 MASKED_SUFFIX = '_masked'
 PSEUDO_PREFIX = 'pseudo_'
@@ -44,7 +45,9 @@ METRICS: Dict[str, Metric] = {m.name: m for m in (
     + [Metric('camera_rotation_deg', 'camera rotation error (deg)', True, CAMERAS),
        Metric('camera_translation', 'camera translation error', True, CAMERAS),
        Metric('camera_rotation_deg_unaligned', 'camera rotation error without the similarity (deg)', True, CAMERAS),
-       Metric('camera_translation_unaligned', 'camera translation error without the similarity', True, CAMERAS)])}
+       Metric('camera_translation_unaligned', 'camera translation error without the similarity', True, CAMERAS),
+       Metric('test_pose_rotation_deg', 'test-time pose turn (deg)', True, CAMERAS),
+       Metric('test_pose_translation', 'test-time pose shift', True, CAMERAS)])}
 
 
 def names(group: str) -> Tuple[str, ...]:
