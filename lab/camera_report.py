@@ -2,7 +2,7 @@
 refinement targets.
 
 Usage: python -m lab.camera_report --out DIR [--runs RUN_DIR ...] [--study RESULTS_CSV [--axis noise
-                                      --clean exact --noisy 5deg --baseline freenerf]]
+                                      --clean exact --noisy 5deg --baseline freenerf --psnr psnr]]
 
 --runs: for each run that refined its cameras (<run>/cameras/cameras.json, internal/run/camera_export.py) writes
 DIR/cameras_<name>.png, name the run's study cell (or its folder): the given (before) and refined (after) cameras
@@ -12,7 +12,9 @@ centre and its viewing ray out to the depth of the scene's middle, so that a few
 apart; the title gives the median errors before and after.
 --study: a study's results.csv (lab.study); writes DIR/targets.md with provenance: per method and seed, the
 median camera errors on the noisy cameras and the share of the baseline's noise cost in PSNR (clean - noisy) that
-the method recovers on the noisy cameras, (method - baseline) / (baseline clean - baseline noisy), with its mean.
+the method recovers on the noisy cameras, (method - baseline) / (baseline clean - baseline noisy), with its mean;
+--psnr names the PSNR column (psnr@test_pose: under BARF's test-time pose optimization, lab/study/evaluations.py);
+where the method also ran on the clean cameras, its drift there (their median rotation error).
 The camera errors of the targets are after the similarity (camera_rotation_deg, camera_translation): a similarity
 explains part of any error, so a target on them is met only under that alignment; where the results hold the
 errors without it (cameras in the reference's frame: *_unaligned), their means follow.
@@ -112,7 +114,7 @@ def _rows(path: str) -> list:
     return [row for row in csv.DictReader(f) if row.get('status') == 'done']
 
 
-def check_study(rows: list, path: str, axis: str, clean: str, noisy: str, baseline: str) -> None:
+def check_study(rows: list, path: str, axis: str, clean: str, noisy: str, baseline: str, psnr: str) -> None:
   """ValueError naming the flag whose column or label the study's finished rows lack (a study without the noise
   axis, a noise label or baseline that no row has), or naming the file when no row finished."""
   if not rows:
@@ -120,28 +122,31 @@ def check_study(rows: list, path: str, axis: str, clean: str, noisy: str, baseli
   if axis not in rows[0]:
     raise ValueError(f'--axis {axis!r}: --study {path!r} has no such column; expected the study axis of the camera '
                      f'noise among its columns {sorted(rows[0])}')
-  missing = [c for c in ('method', 'seed', 'psnr') if c not in rows[0]]
+  missing = [c for c in ('method', 'seed', psnr) if c not in rows[0]]
   if missing:
     raise ValueError(f'--study {path!r} has no column {missing[0]!r}; expected a study with seeds whose results '
-                     'give method, seed and psnr')
+                     f'give method, seed and {psnr} (--psnr)')
   labels, methods = sorted({r[axis] for r in rows}), sorted({r['method'] for r in rows})
   for flag, value, known in (('--clean', clean, labels), ('--noisy', noisy, labels), ('--baseline', baseline, methods)):
     if value not in known:
       raise ValueError(f'{flag} {value!r}: no finished row of --study {path!r} has it; expected one of {known}')
 
 
-def targets(rows: list, axis: str, clean: str, noisy: str, baseline: str) -> list:
-  """[(method, seed, camera_rotation_deg, camera_translation, psnr, recovered share)] on the noisy cameras."""
-  psnr = {(r['method'], r[axis], r['seed']): float(r['psnr']) for r in rows}
+def targets(rows: list, axis: str, clean: str, noisy: str, baseline: str, column: str = 'psnr') -> list:
+  """[(method, seed, camera_rotation_deg, camera_translation, PSNR, recovered share, drift)] on the noisy cameras:
+  PSNR of the column given, drift the method's rotation error on the clean cameras (nan where it has none)."""
+  psnr = {(r['method'], r[axis], r['seed']): float(r[column] or 'nan') for r in rows}
+  rotation = {(r['method'], r[axis], r['seed']): float(r.get('camera_rotation_deg') or 'nan') for r in rows}
   out = []
   for r in rows:
     if r[axis] != noisy:
       continue
     key = (baseline, noisy, r['seed'])
     cost = psnr.get((baseline, clean, r['seed']), np.nan) - psnr.get(key, np.nan)
-    share = (float(r['psnr']) - psnr.get(key, np.nan)) / cost if cost else np.nan
-    out.append((r['method'], int(r['seed']), float(r.get('camera_rotation_deg') or 'nan'),
-                float(r.get('camera_translation') or 'nan'), float(r['psnr']), share))
+    share = (psnr[r['method'], noisy, r['seed']] - psnr.get(key, np.nan)) / cost if cost else np.nan
+    out.append((r['method'], int(r['seed']), rotation[r['method'], noisy, r['seed']],
+                float(r.get('camera_translation') or 'nan'), psnr[r['method'], noisy, r['seed']], share,
+                rotation.get((r['method'], clean, r['seed']), np.nan)))
   return sorted(out)
 
 
@@ -172,24 +177,31 @@ def unaligned_means(rows: list, axis: str, noisy: str) -> dict:
 def targets_markdown(found: list, args, argv, unaligned: dict) -> str:
   """targets.md: a row per method and seed, each method's means (and unaligned_means'), and the provenance."""
   lines = [f'On the {args.noisy!r} cameras of {cli.relative_paths(args.study)}; the share is (method - '
-           f'{args.baseline}) / ({args.baseline} {args.clean} - {args.baseline} {args.noisy}) in PSNR, per seed. '
-           'Camera errors are '
+           f'{args.baseline}) / ({args.baseline} {args.clean} - {args.baseline} {args.noisy}) in PSNR (`{args.psnr}`), '
+           'per seed. Camera errors are '
            'medians over the training views against the reference after the similarity taking the cameras onto it '
-           '(camera_rotation_deg, camera_translation): the alignment the targets use.', '',
-           '| method | seed | camera rotation error (deg, median) | camera translation error (median) | PSNR | '
-           'share of the noise cost recovered |', '|---|---|---|---|---|---|']
-  lines += [f'| {m} | {s} | {r:.3f} | {t:.4f} | {p:.3f} | {share:.2f} |' for m, s, r, t, p, share in found]
-  lines += ['', '| method | mean rotation error (deg) | mean translation error | mean PSNR | mean share |',
-            '|---|---|---|---|---|']
+           '(camera_rotation_deg, camera_translation): the alignment the targets use; the drift is the same '
+           f'method\'s rotation error on the {args.clean!r} cameras (blank where it did not run there).', '',
+           f'| method | seed | camera rotation error (deg, median) | camera translation error (median) | {args.psnr} | '
+           f'share of the noise cost recovered | drift on {args.clean} cameras (deg) |', '|---|---|---|---|---|---|---|']
+  lines += [f'| {m} | {s} | {r:.3f} | {t:.4f} | {p:.3f} | {share:.2f} | {_blank(drift)} |'
+            for m, s, r, t, p, share, drift in found]
+  lines += ['', f'| method | mean rotation error (deg) | mean translation error | mean {args.psnr} | mean share | '
+            'mean drift (deg) |', '|---|---|---|---|---|---|']
   for method in sorted({f[0] for f in found}):
     values = np.array([f[2:] for f in found if f[0] == method])
-    lines.append(f'| {method} | ' + ' | '.join(f'{v:.3f}' for v in values.mean(0)) + ' |')
+    lines.append(f'| {method} | ' + ' | '.join(_blank(v) for v in values.mean(0)) + ' |')
   if unaligned:
     lines += ['', 'Without the similarity (the cameras in the reference\'s frame):', '',
               '| method | mean rotation error (deg) | mean translation error |', '|---|---|---|']
     lines += [f'| {method} | {r:.3f} | {t:.4f} |' for method, (r, t) in unaligned.items()]
   return '\n'.join(lines + ['', '```json', json.dumps(provenance.record(['python', '-m', 'lab.camera_report',
                                                                          *argv]), indent=1), '```', ''])
+
+
+def _blank(value: float) -> str:
+  """A number with 3 decimals, '' for nan (a value the study does not hold)."""
+  return '' if np.isnan(value) else f'{value:.3f}'
 
 
 def main(argv=None) -> int:
@@ -202,6 +214,8 @@ def main(argv=None) -> int:
   parser.add_argument('--clean', default='exact', help='its label without noise')
   parser.add_argument('--noisy', default='5deg', help='its label with the noise of the targets')
   parser.add_argument('--baseline', default='freenerf', help='the method without refinement')
+  parser.add_argument('--psnr', default='psnr', help='the PSNR column of the share (psnr@test_pose: after '
+                      'test-time pose optimization, where the study evaluated it)')
   args = parser.parse_args(argv)
   check_runs(args.runs)
   rows = _study_rows(args)
@@ -214,7 +228,7 @@ def main(argv=None) -> int:
   if args.study:
     path = os.path.join(args.out, 'targets.md')
     with open(path, 'w', encoding='utf-8') as f:
-      f.write(targets_markdown(targets(rows, args.axis, args.clean, args.noisy, args.baseline), args, argv,
+      f.write(targets_markdown(targets(rows, args.axis, args.clean, args.noisy, args.baseline, args.psnr), args, argv,
                                unaligned_means(rows, args.axis, args.noisy)))
     print(path)
   return 0
@@ -227,7 +241,7 @@ def _study_rows(args) -> list:
   if not os.path.isfile(args.study):
     raise FileNotFoundError(f'--study {args.study!r} does not exist; expected a study\'s results.csv')
   rows = _rows(args.study)
-  check_study(rows, args.study, args.axis, args.clean, args.noisy, args.baseline)
+  check_study(rows, args.study, args.axis, args.clean, args.noisy, args.baseline, args.psnr)
   return rows
 
 

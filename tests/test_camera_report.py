@@ -15,8 +15,8 @@ def _write(path, rows):
     writer.writerows(rows)
 
 
-def _row(method, noise, seed, psnr, rotation=''):
-  return {'method': method, 'noise': noise, 'seed': seed, 'status': 'done', 'psnr': psnr,
+def _row(method, noise, seed, psnr, rotation='', posed=''):
+  return {'method': method, 'noise': noise, 'seed': seed, 'status': 'done', 'psnr': psnr, 'psnr@test_pose': posed,
           'camera_rotation_deg': rotation, 'camera_translation': rotation and .01,
           'camera_rotation_deg_unaligned': rotation and rotation + 1., 'camera_translation_unaligned': rotation and .02}
 
@@ -27,12 +27,25 @@ def test_the_share_of_the_noise_cost_recovered_per_seed(tmp_path):
           {**_row('refine', '5deg', 2, 30.), 'status': 'missing'}]
   _write(tmp_path / 'results.csv', rows)
   found = camera_report.targets(camera_report._rows(tmp_path / 'results.csv'), 'noise', 'exact', '5deg', 'freenerf')
-  assert [(m, s, share) for m, s, _, _, _, share in found] == [('freenerf', 0, 0.), ('freenerf', 1, 0.),
-                                                              ('refine', 0, .75), ('refine', 1, -.5)]
+  assert [(m, s, share) for m, s, _, _, _, share, _ in found] == [('freenerf', 0, 0.), ('freenerf', 1, 0.),
+                                                                 ('refine', 0, .75), ('refine', 1, -.5)]
   assert camera_report.main(['--out', str(tmp_path / 'out'), '--study', str(tmp_path / 'results.csv')]) == 0
   text = (tmp_path / 'out' / 'targets.md').read_text()
-  assert '| refine | 0.850 | 0.010 | 18.500 | 0.125 |' in text and '"command"' in text
+  assert '| refine | 0.850 | 0.010 | 18.500 | 0.125 |  |' in text and '"command"' in text  # No drift: blank.
   assert 'after the similarity' in text and '| refine | 1.850 | 0.0200 |' in text  # The target's alignment said.
+
+
+def test_the_share_under_another_psnr_column_and_the_drift_on_the_clean_cameras(tmp_path):
+  rows = [_row('freenerf', 'exact', 0, 20., posed=22.), _row('freenerf', '5deg', 0, 16., 4.5, 18.),
+          _row('refine', 'exact', 0, 19., .25, 21.5), _row('refine', '5deg', 0, 17., .8, 21.)]
+  _write(tmp_path / 'results.csv', rows)
+  found = camera_report.targets(camera_report._rows(tmp_path / 'results.csv'), 'noise', 'exact', '5deg', 'freenerf',
+                                'psnr@test_pose')
+  assert found[1] == ('refine', 0, .8, .01, 21., .75, .25)
+  assert camera_report.main(['--out', str(tmp_path / 'out'), '--study', str(tmp_path / 'results.csv'),
+                             '--psnr', 'psnr@test_pose']) == 0
+  text = (tmp_path / 'out' / 'targets.md').read_text()
+  assert '| refine | 0 | 0.800 | 0.0100 | 21.000 | 0.75 | 0.250 |' in text and 'in PSNR (`psnr@test_pose`)' in text
 
 
 @pytest.mark.parametrize('args, message', [
@@ -53,6 +66,9 @@ def test_bad_input_is_one_line(tmp_path, args, message, capsys):
     ([_row('freenerf', 'exact', 0, 20.), _row('freenerf', '5deg', 0, 16.)], ['--baseline', 'nerf'],
      "--baseline 'nerf': no finished row of --study '{study}' has it; expected one of ['freenerf']"),
     ([{**_row('freenerf', 'exact', 0, 20.), 'status': 'missing'}], [], "--study '{study}': no finished row"),
+    ([_row('freenerf', 'exact', 0, 20.), _row('freenerf', '5deg', 0, 16.)], ['--psnr', 'psnr@other'],
+     "--study '{study}' has no column 'psnr@other'; expected a study with seeds whose results give method, seed and "
+     "psnr@other (--psnr)"),
 ])
 def test_a_study_without_the_noise_axis_or_the_labels_asked_is_one_line(tmp_path, capsys, rows, args, message):
   _write(tmp_path / 'results.csv', rows)
