@@ -9,7 +9,9 @@ Each cell runs `train(config)` then eval's `evaluate(config)` in a subprocess (`
 --run-cell <cell dir>`: gin state stays per process and cells can run in parallel) in the run directory
 <out>/<study>/<cell id>/run/, and writes <out>/<study>/<cell id>/cell.json: the evaluation means, wall times (train, eval; they
 include data loading and compilation), steps/s, XLA's flop count of one train step, the process's peak RSS
-and, on accelerators, the device's peak bytes. Its output goes to <cell>/log.txt.
+and, on accelerators, the device's peak bytes. Its output goes to <cell>/log.txt. A study's [evaluations.<name>]
+evaluate each finished cell again under bookkeeping settings, into <cell>/evaluations/<name>/ (results.csv columns
+<metric>@<name>; lab/study/evaluations.py).
 Resumable: a cell with cell.json is skipped; a half-trained one resumes from its newest checkpoint. A cell process
 claims its cell first (lab/study/claim.py), so any number of runners may share a study folder. --reuse DIR
 takes the finished cells of an earlier export (another machine's, say) instead of running them again; --export DIR
@@ -512,7 +514,8 @@ def _run_one_cell(path: str, job: Optional[str]) -> int:
       signal.signal(signum, signal.SIG_IGN)
     print(f'{path}: {e}')
     return cli.signal_status(e.signum)
-  print(json.dumps(record, indent=1) if record else f'{path} was finished by another runner; not run again')
+  print(json.dumps(record, indent=1) if record else f'{path} was trained already (here or by another runner); not '
+        'trained again')
   return 0
 
 
