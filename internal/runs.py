@@ -242,6 +242,12 @@ def similarity(source: np.ndarray, target: np.ndarray) -> alignment.Similarity:
   return alignment.fit(source, target)
 
 
+def own_axes_turns(cameras: np.ndarray, reference: np.ndarray) -> np.ndarray:
+  """[N,3] rotation errors (degrees) of cameras against reference, both in one frame, in each reference camera's own
+  axes (alignment.own_axes_turns)."""
+  return alignment.own_axes_turns(cameras, reference)
+
+
 def camera_errors(cameras: np.ndarray, reference: np.ndarray, distance: float, align: bool = True) -> dict:
   """{'rotation_deg', 'translation'} per camera of cameras against reference (translation of the distance)."""
   return alignment.errors(cameras, reference, distance, align)

@@ -1,7 +1,7 @@
 """Camera refinement's report: pictures of the refined cameras of runs, and what a study's results say about the
 refinement targets.
 
-Usage: python -m lab.camera_report --out DIR [--runs RUN_DIR ...] [--study RESULTS_CSV [--axis noise
+Usage: python -m lab.camera_report --out DIR [--runs RUN_DIR ... [--modes]] [--study RESULTS_CSV [--axis noise
                                       --clean exact --noisy 5deg --baseline freenerf --psnr psnr]]
 
 --runs: for each run that refined its cameras (<run>/cameras/cameras.json, internal/run/camera_export.py) writes
@@ -10,6 +10,9 @@ carried onto the reference (exact, or the all-photo model's) by their best simil
 and from the side as tools.capture's camera picture frames them (tools/capture/picture.view_axes); each camera is its
 centre and its viewing ray out to the depth of the scene's middle, so that a few degrees show as the rays' ends
 apart; the title gives the median errors before and after.
+--modes: also DIR/camera_modes.md with provenance: per run, the given and refined cameras' rotation errors (after the
+similarity) in each camera's own axes, the turn that the views share there (their mean: a common tilt, which the
+similarity cannot take up and an image sees mostly as the scene moved) and the median error with that turn taken out.
 --study: a study's results.csv (lab.study); writes DIR/targets.md with provenance: per method and seed, the
 median camera errors on the noisy cameras and the share of the baseline's noise cost in PSNR (clean - noisy) that
 the method recovers on the noisy cameras, (method - baseline) / (baseline clean - baseline noisy), with its mean;
@@ -199,6 +202,27 @@ def targets_markdown(found: list, args, argv, unaligned: dict) -> str:
                                                                          *argv]), indent=1), '```', ''])
 
 
+def modes_row(name: str, cameras: dict, label: str) -> str:
+  """camera_modes.md's row of one set of run_cameras: the shared turn (x, y, z, its angle), the median error, the
+  median error without the shared turn (degrees)."""
+  turns = runs.own_axes_turns(cameras[label], cameras['reference'])
+  shared = turns.mean(0)
+  medians = [np.median(np.linalg.norm(t, axis=1)) for t in (turns, turns - shared)]
+  return (f'| {name} | {label} | ' + ' | '.join(f'{v:+.3f}' for v in shared) + f' | {np.linalg.norm(shared):.3f} | '
+          + ' | '.join(f'{v:.3f}' for v in medians) + ' |')
+
+
+def modes_markdown(rows: list, argv) -> str:
+  """camera_modes.md: the rows of modes_row under their header, and the provenance."""
+  lines = ['Rotation errors of the training cameras against the reference after the similarity, in each camera\'s own '
+           'axes (x right, y up, z along its axis; degrees): the turn every view shares (their mean) and the median '
+           'error with and without it.', '',
+           '| run | cameras | shared turn x | shared turn y | shared turn z | shared turn (deg) | median error (deg) | '
+           'median error without the shared turn (deg) |', '|---|---|---|---|---|---|---|---|'] + rows
+  return '\n'.join(lines + ['', '```json', json.dumps(provenance.record(['python', '-m', 'lab.camera_report', *argv]),
+                                                      indent=1), '```', ''])
+
+
 def _blank(value: float) -> str:
   """A number with 3 decimals, '' for nan (a value the study does not hold)."""
   return '' if np.isnan(value) else f'{value:.3f}'
@@ -209,6 +233,8 @@ def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('--out', required=True, help='folder to write into')
   parser.add_argument('--runs', nargs='*', default=[], help="run directories (a study cell's <cell>/run)")
+  parser.add_argument('--modes', action='store_true', help='with --runs: camera_modes.md, the turn the views share '
+                      'in their own axes')
   parser.add_argument('--study', help="a study's results.csv")
   parser.add_argument('--axis', default='noise', help='the study axis of the camera noise')
   parser.add_argument('--clean', default='exact', help='its label without noise')
@@ -220,10 +246,17 @@ def main(argv=None) -> int:
   check_runs(args.runs)
   rows = _study_rows(args)
   os.makedirs(args.out, exist_ok=True)
+  modes = []
   for run_dir in args.runs:
     cameras = run_cameras(run_dir)
     path = os.path.join(args.out, f'cameras_{run_name(run_dir)}.png')
     draw(path, cameras, errors_title(run_name(run_dir), cameras))
+    print(path)
+    modes += [modes_row(run_name(run_dir), cameras, label) for label in ('given', 'refined')]
+  if args.modes and modes:
+    path = os.path.join(args.out, 'camera_modes.md')
+    with open(path, 'w', encoding='utf-8') as f:
+      f.write(modes_markdown(modes, argv))
     print(path)
   if args.study:
     path = os.path.join(args.out, 'targets.md')

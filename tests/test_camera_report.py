@@ -2,9 +2,12 @@
 
 import csv
 
+import numpy as np
 import pytest
+from scipy.spatial import transform as spatial_transform
 
 from internal import cli
+from internal import runs
 from lab import camera_report
 
 
@@ -88,3 +91,15 @@ def test_two_runs_of_one_name_are_one_line_before_any_picture(tmp_path, capsys):
                  "folder, or the run's): both pictures would be cameras_freenerf__cup.png; give them in separate "
                  'commands with another --out\n')
   assert not (tmp_path / 'out').exists()
+
+
+def test_errors_in_each_camera_s_own_axes_and_the_turn_the_views_share():
+  rng = np.random.default_rng(0)
+  reference = np.concatenate([spatial_transform.Rotation.random(4, random_state=1).as_matrix(),
+                              rng.normal(size=(4, 3, 1))], -1)
+  own = np.array([[.3, 0., 0.], [.3, .2, 0.], [.3, -.2, 0.], [.3, 0., .4]])  # A tilt of .3 shared, and more.
+  turned = reference.copy()
+  turned[:, :, :3] = reference[:, :, :3] @ spatial_transform.Rotation.from_rotvec(np.deg2rad(own)).as_matrix()
+  np.testing.assert_allclose(runs.own_axes_turns(turned, reference), own, atol=1e-9)
+  row = camera_report.modes_row('r', {'reference': reference, 'refined': turned}, 'refined')
+  assert row == '| r | refined | +0.300 | +0.000 | +0.100 | 0.316 | 0.361 | 0.224 |'

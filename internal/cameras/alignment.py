@@ -15,6 +15,7 @@ without a capture's separate model) errors without the similarity are reported t
 from typing import NamedTuple, Optional
 
 import numpy as np
+from scipy.spatial import transform as spatial_transform
 
 from internal.cameras import algebra
 from internal.cameras.records import RaySpace
@@ -58,6 +59,14 @@ def rotation_angle(rotation: np.ndarray) -> np.ndarray:
   """Angles [...] (radians) of rotations [...,3,3], from their trace (float64)."""
   trace = np.trace(np.asarray(rotation, np.float64), axis1=-2, axis2=-1)
   return np.arccos(np.clip((trace - 1.) / 2., -1., 1.))
+
+
+def own_axes_turns(cameras: np.ndarray, reference: np.ndarray) -> np.ndarray:
+  """[N,3] rotation vectors (degrees) that turn each reference camera [N,3,4] into its counterpart in cameras
+  [N,3,4] (the same frame: align them first), in the reference camera's own axes (x right, y up, z along its axis):
+  a turn that every view shares there (a common tilt) is their mean."""
+  turns = np.swapaxes(np.asarray(reference, np.float64)[:, :, :3], 1, 2) @ np.asarray(cameras, np.float64)[:, :, :3]
+  return np.rad2deg(spatial_transform.Rotation.from_matrix(turns).as_rotvec())
 
 
 def camera_distance(camtoworlds: np.ndarray, space: Optional[RaySpace] = None) -> float:
