@@ -275,6 +275,9 @@ class Config:
   # The corrections' shifts in units of the camera distance (cameras/alignment.py), not scene units: with the large
   # epsilon above a step then moves an image as far by its shift as by its turn (training/camera_refinement.py).
   camera_shift_in_distances: bool = setting(False)
+  # Keep the corrections' rotations free of a tilt that every view shares about its own x or y axis, which images of
+  # cameras around an object hardly see (training/camera_refinement.py); off by default.
+  camera_fix_shared_tilt: bool = setting(False)
   # BARF's coarse-to-fine weighting of the encodings' frequency bands (models/coarse_to_fine.py): band k of L opens
   # smoothly as alpha = L * (progress - start) / (end - start) passes k; off by default (mip-NeRF's encodings).
   coarse_to_fine: bool = setting(False)

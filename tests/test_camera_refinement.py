@@ -45,6 +45,39 @@ def test_the_gauge_leaves_no_global_motion_and_is_a_projection():
   np.testing.assert_allclose(camera_refinement.gauge_fixed(free[:1], centres[:1], np), 0., atol=1e-12)
 
 
+def test_the_shared_tilt_is_taken_out_with_the_gauge_and_nothing_else():
+  rng = np.random.default_rng(1)
+  axes = np.stack([corrections.so3_exp(rng.normal(size=3))[:, :2] for _ in range(6)])  # Own x and y axes [6,3,2].
+  free, centres = rng.normal(size=(6, 6)), rng.normal(size=(6, 3))
+  fixed = np.asarray(camera_refinement.gauge_fixed(free, centres, np, axes))
+  omega = fixed[:, :3]
+  np.testing.assert_allclose(omega.sum(0), 0., atol=1e-12)                    # No turn shared in world axes,
+  np.testing.assert_allclose(np.einsum('nij,ni->j', axes, omega), 0., atol=1e-12)  # none about own x and y.
+  np.testing.assert_allclose(fixed[:, 3:], camera_refinement.gauge_fixed(free, centres, np)[:, 3:], atol=1e-12)
+  tilt = np.concatenate([axes @ np.array([.02, -.03]) + np.array([.01, .0, .04]), np.zeros((6, 3))], 1)
+  np.testing.assert_allclose(camera_refinement.gauge_fixed(free + tilt, centres, np, axes), fixed, atol=1e-12)
+  np.testing.assert_allclose(camera_refinement.gauge_fixed(fixed, centres, np, axes), fixed, atol=1e-12)
+  turned = np.asarray(camera_refinement.gauge_fixed(jnp.asarray(free, jnp.float32), jnp.asarray(centres, jnp.float32),
+                                                    jnp, jnp.asarray(axes, jnp.float32)))
+  np.testing.assert_allclose(turned, fixed, atol=1e-5)
+  roll = np.concatenate([np.cross(axes[:, :, 0], axes[:, :, 1]) * .05, np.zeros((6, 3))], 1)  # Own z: kept.
+  kept = np.asarray(camera_refinement.gauge_fixed(roll, centres, np, axes))
+  assert np.linalg.norm(kept) > .5 * np.linalg.norm(roll[:, :3])
+
+
+def test_a_step_with_the_shared_tilt_fixed_moves_the_cameras_without_one(scene_dir, tmp_path):
+  config, data, model, state, batch = _camera_batch(scene_dir, tmp_path, 'Config.camera_fix_shared_tilt = True')
+  new, stats = ts.make_train_step(config, model)(state, batch, random.PRNGKey(1))
+  axes = np.asarray(data.camtoworlds, np.float64)[:, :, :2]
+  np.testing.assert_allclose(np.asarray(new.cameras.tilt_axes), axes, atol=1e-6)
+  omega = np.asarray(camera_refinement.gauge_fixed(new.cameras.free, new.cameras.centres, jnp, new.cameras.tilt_axes))
+  assert np.abs(omega).max() > 0 and not bool(stats['skipped'])
+  np.testing.assert_allclose(np.einsum('nij,ni->j', axes, omega[:, :3]), 0., atol=1e-6)
+  refined = camera_refinement.refined_cameras(new.cameras, np.asarray(data.camtoworlds, np.float64))
+  turns = np.einsum('nji,njk->nik', np.asarray(data.camtoworlds, np.float64)[:, :, :3], refined[:, :, :3])
+  assert np.abs(turns - np.eye(3)).max() > 0
+
+
 def _camera_batch(scene_dir, tmp_path, *bindings):
   """(config, dataset, model, CameraTrainState, batch of step 1) of the tiny scene with noise and refinement."""
   config = tiny_config(scene_dir, tmp_path / 'run', *NOISE, *REFINE, *bindings)

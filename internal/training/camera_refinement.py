@@ -19,6 +19,12 @@ vectors and translations have mean zero and whose translations have no mean comp
 from their centroid (no global scaling). The mean rather than one fixed view, because every view is equally
 uncertain (noise, few-photo structure-from-motion): fixing one would tie the frame to that view's error. The frame
 can still drift by what the first-order projection leaves; evaluation aligns cameras by a similarity anyway.
+
+Near the gauge: cameras around an object that all tilt by the same angle about their own x or y axis (up-down,
+left-right) show the scene as if it had moved, save for parallax, so the photometric loss hardly sees such a shared
+tilt (on the generated object rig it was most of exact cameras' drift and was left in noisy ones:
+results/studies/cameras_target_reach). With Config.camera_fix_shared_tilt the rotation vectors are projected onto
+the complement of both the turns shared in world axes and those shared in the cameras' own x and y axes.
 """
 
 from typing import Any
@@ -60,6 +66,7 @@ class CameraState:
   space: RaySpace = flax.struct.field(pytree_node=False)
   given: StaticCameras = flax.struct.field(pytree_node=False)
   shift_unit: float = flax.struct.field(pytree_node=False, default=1.)
+  tilt_axes: Any = None  # [N, 3, 2] the given cameras' own x and y axes with Config.camera_fix_shared_tilt, else None.
 
 
 def init(config, dataset: base.Dataset) -> CameraState:
@@ -67,15 +74,29 @@ def init(config, dataset: base.Dataset) -> CameraState:
   free = jnp.zeros((len(dataset.ids), 6), jnp.float32)
   given = Cameras(*(None if x is None else np.asarray(x, np.float32) for x in dataset.cameras))
   unit = alignment.camera_distance(dataset.camtoworlds, dataset.space) if config.camera_shift_in_distances else 1.
+  tilt_axes = (jnp.asarray(dataset.camtoworlds[:, :, :2], jnp.float32) if config.camera_fix_shared_tilt
+               else None)
   return CameraState(free=free, opt_state=optim.adam(config.camera_adam_eps).init(free),
                      centres=jnp.asarray(dataset.camtoworlds[:, :, 3], jnp.float32), space=dataset.space,
-                     given=StaticCameras(given), shift_unit=float(unit))
+                     tilt_axes=tilt_axes, given=StaticCameras(given), shift_unit=float(unit))
 
 
-def gauge_fixed(free, centres, xp=jnp):
-  """Corrections [N, 6] of free parameters [N, 6]: rotation vectors and translations of mean zero, translations
-  without a component along the centres' offsets [N, 3] from their centroid (module docstring)."""
+def shared_turns_removed(omega, tilt_axes, xp=jnp):
+  """Rotation vectors [N, 3] less their least-squares part of the turns all views share in world axes and the tilts
+  they share about their own x and y axes (tilt_axes [N, 3, 2]; module docstring)."""
+  n = omega.shape[0]
+  basis = xp.concatenate([xp.tile(xp.eye(3), (n, 1)), tilt_axes.reshape(3 * n, 2)], axis=1)  # [3N, 5]
+  flat = omega.reshape(3 * n)
+  return (flat - basis @ (xp.linalg.pinv(basis) @ flat)).reshape(n, 3)
+
+
+def gauge_fixed(free, centres, xp=jnp, tilt_axes=None):
+  """Corrections [N, 6] of free parameters [N, 6]: rotation vectors and translations of mean zero (the rotation
+  vectors also without a shared tilt where tilt_axes [N, 3, 2] are given), translations without a component along
+  the centres' offsets [N, 3] from their centroid (module docstring)."""
   omega = free[:, :3] - xp.mean(free[:, :3], axis=0)
+  if tilt_axes is not None:
+    omega = shared_turns_removed(omega, tilt_axes, xp)
   tau = free[:, 3:] - xp.mean(free[:, 3:], axis=0)
   offsets = centres - xp.mean(centres, axis=0)
   spread = xp.sum(offsets * offsets)
@@ -83,16 +104,16 @@ def gauge_fixed(free, centres, xp=jnp):
   return xp.concatenate([omega, tau - scaling * offsets], axis=1)
 
 
-def view_corrections(free, centres, shift_unit: float = 1.) -> tuple:
+def view_corrections(free, centres, shift_unit: float = 1., tilt_axes=None) -> tuple:
   """(rotations [N, 3, 3], shifts [N, 3]) of the gauge-fixed corrections of free parameters [N, 6], the shifts
   in units of shift_unit."""
-  fixed = gauge_fixed(free, centres)
+  fixed = gauge_fixed(free, centres, jnp, tilt_axes)
   return corrections.so3_exp(fixed[:, :3], jnp), shift_unit * fixed[:, 3:]
 
 
 def corrected_batch(cameras: CameraState, free, batch: batching.Batch) -> batching.Batch:
   """The batch with the rays of every family of training views (their Pixels) made from the corrected cameras."""
-  rotations, shifts = view_corrections(free, cameras.centres, cameras.shift_unit)
+  rotations, shifts = view_corrections(free, cameras.centres, cameras.shift_unit, cameras.tilt_axes)
   fields = {}
   for rays_field, pixels_field in batching.FAMILIES:
     pixels = getattr(batch, pixels_field) if pixels_field else None
@@ -123,12 +144,13 @@ def update(config, cameras: CameraState, grads, step) -> tuple:
   lr = learning_rate(config, step)
   updates, opt_state = optim.adam(config.camera_adam_eps).update(grads, cameras.opt_state, cameras.free)
   cameras = cameras.replace(free=cameras.free - lr * updates, opt_state=opt_state)
-  angles = jnp.linalg.norm(gauge_fixed(cameras.free, cameras.centres)[:, :3], axis=1)
+  angles = jnp.linalg.norm(gauge_fixed(cameras.free, cameras.centres, jnp, cameras.tilt_axes)[:, :3], axis=1)
   return cameras, {'camera_lr': lr, 'camera_correction_deg': jnp.rad2deg(jnp.mean(angles))}
 
 
 def refined_cameras(cameras: CameraState, given: np.ndarray) -> np.ndarray:
   """[N, 3, 4] the given training cameras [N, 3, 4] corrected by the state's corrections (float64)."""
   free, centres = (np.asarray(jax.device_get(x), np.float64) for x in (cameras.free, cameras.centres))
-  fixed = gauge_fixed(free, centres, np)
+  tilt_axes = None if cameras.tilt_axes is None else np.asarray(jax.device_get(cameras.tilt_axes), np.float64)
+  fixed = gauge_fixed(free, centres, np, tilt_axes)
   return corrections.corrected_cameras(given, corrections.so3_exp(fixed[:, :3]), cameras.shift_unit * fixed[:, 3:])
