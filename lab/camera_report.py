@@ -16,7 +16,8 @@ similarity cannot take up and an image sees mostly as the scene moved) and the m
 --study: a study's results.csv (lab.study); writes DIR/targets.md with provenance: per method and seed, the
 median camera errors on the noisy cameras and the share of the baseline's noise cost in PSNR (clean - noisy) that
 the method recovers on the noisy cameras, (method - baseline) / (baseline clean - baseline noisy), with its mean;
---psnr names the PSNR column (psnr@test_pose: under BARF's test-time pose optimization, lab/study/evaluations.py);
+--psnr names the PSNR column (psnr@test_pose: under BARF's test-time pose optimization, lab/study/evaluations.py;
+written as DIR/targets_<column>.md, so that both protocols' targets stand side by side);
 where the method also ran on the clean cameras, its drift there (their median rotation error).
 The camera errors of the targets are after the similarity (camera_rotation_deg, camera_translation): a similarity
 explains part of any error, so a target on them is met only under that alignment; where the results hold the
@@ -259,7 +260,7 @@ def main(argv=None) -> int:
       f.write(modes_markdown(modes, argv))
     print(path)
   if args.study:
-    path = os.path.join(args.out, 'targets.md')
+    path = os.path.join(args.out, 'targets.md' if args.psnr == 'psnr' else f'targets_{args.psnr}.md')
     with open(path, 'w', encoding='utf-8') as f:
       f.write(targets_markdown(targets(rows, args.axis, args.clean, args.noisy, args.baseline, args.psnr), args, argv,
                                unaligned_means(rows, args.axis, args.noisy)))

@@ -47,7 +47,8 @@ def test_the_share_under_another_psnr_column_and_the_drift_on_the_clean_cameras(
   assert found[1] == ('refine', 0, .8, .01, 21., .75, .25)
   assert camera_report.main(['--out', str(tmp_path / 'out'), '--study', str(tmp_path / 'results.csv'),
                              '--psnr', 'psnr@test_pose']) == 0
-  text = (tmp_path / 'out' / 'targets.md').read_text()
+  assert not (tmp_path / 'out' / 'targets.md').exists()
+  text = (tmp_path / 'out' / 'targets_psnr@test_pose.md').read_text()
   assert '| refine | 0 | 0.800 | 0.0100 | 21.000 | 0.75 | 0.250 |' in text and 'in PSNR (`psnr@test_pose`)' in text
 
 
