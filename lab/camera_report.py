@@ -2,7 +2,8 @@
 refinement targets.
 
 Usage: python -m lab.camera_report --out DIR [--runs RUN_DIR ... [--modes]] [--study RESULTS_CSV [--axis noise
-                                      --clean exact --noisy 5deg --baseline freenerf --psnr psnr]]
+                                      --clean exact --noisy 5deg --baseline freenerf --psnr psnr
+                                      --methods M ... --name FILE]]
 
 --runs: for each run that refined its cameras (<run>/cameras/cameras.json, internal/run/camera_export.py) writes
 DIR/cameras_<name>.png, name the run's study cell (or its folder): the given (before) and refined (after) cameras
@@ -17,7 +18,9 @@ similarity cannot take up and an image sees mostly as the scene moved) and the m
 median camera errors on the noisy cameras and the share of the baseline's noise cost in PSNR (clean - noisy) that
 the method recovers on the noisy cameras, (method - baseline) / (baseline clean - baseline noisy), with its mean;
 --psnr names the PSNR column (psnr@test_pose: under BARF's test-time pose optimization, lab/study/evaluations.py;
-written as DIR/targets_<column>.md, so that both protocols' targets stand side by side);
+written as DIR/targets_<column>.md, so that both protocols' targets stand side by side; --name another file name);
+--methods keeps the rows of those methods and the baseline (a study whose methods differ in scale, each with its own
+baseline);
 where the method also ran on the clean cameras, its drift there (their median rotation error).
 The camera errors of the targets are after the similarity (camera_rotation_deg, camera_translation): a similarity
 explains part of any error, so a target on them is met only under that alignment; where the results hold the
@@ -234,6 +237,9 @@ def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('--out', required=True, help='folder to write into')
   parser.add_argument('--runs', nargs='*', default=[], help="run directories (a study cell's <cell>/run)")
+  parser.add_argument('--methods', nargs='+', help='with --study: only these methods\' rows (and the baseline\'s)')
+  parser.add_argument('--name', help='with --study: the targets file\'s name in --out (default targets.md, or '
+                      'targets_<--psnr>.md)')
   parser.add_argument('--modes', action='store_true', help='with --runs: camera_modes.md, the turn the views share '
                       'in their own axes')
   parser.add_argument('--study', help="a study's results.csv")
@@ -260,7 +266,7 @@ def main(argv=None) -> int:
       f.write(modes_markdown(modes, argv))
     print(path)
   if args.study:
-    path = os.path.join(args.out, 'targets.md' if args.psnr == 'psnr' else f'targets_{args.psnr}.md')
+    path = os.path.join(args.out, args.name or ('targets.md' if args.psnr == 'psnr' else f'targets_{args.psnr}.md'))
     with open(path, 'w', encoding='utf-8') as f:
       f.write(targets_markdown(targets(rows, args.axis, args.clean, args.noisy, args.baseline, args.psnr), args, argv,
                                unaligned_means(rows, args.axis, args.noisy)))
@@ -276,7 +282,10 @@ def _study_rows(args) -> list:
     raise FileNotFoundError(f'--study {args.study!r} does not exist; expected a study\'s results.csv')
   rows = _rows(args.study)
   check_study(rows, args.study, args.axis, args.clean, args.noisy, args.baseline, args.psnr)
-  return rows
+  unknown = sorted(set(args.methods or ()) - {r['method'] for r in rows})
+  if unknown:
+    raise ValueError(f'--methods {unknown}: no finished row of --study {args.study!r} has them')
+  return [r for r in rows if not args.methods or r['method'] in set(args.methods) | {args.baseline}]
 
 
 if __name__ == '__main__':

@@ -50,6 +50,9 @@ def test_the_share_under_another_psnr_column_and_the_drift_on_the_clean_cameras(
   assert not (tmp_path / 'out' / 'targets.md').exists()
   text = (tmp_path / 'out' / 'targets_psnr@test_pose.md').read_text()
   assert '| refine | 0 | 0.800 | 0.0100 | 21.000 | 0.75 | 0.250 |' in text and 'in PSNR (`psnr@test_pose`)' in text
+  assert camera_report.main(['--out', str(tmp_path / 'out'), '--study', str(tmp_path / 'results.csv'),
+                             '--methods', 'freenerf', '--name', 'baseline.md']) == 0
+  assert '| refine |' not in (tmp_path / 'out' / 'baseline.md').read_text()
 
 
 @pytest.mark.parametrize('args, message', [
@@ -70,6 +73,8 @@ def test_bad_input_is_one_line(tmp_path, args, message, capsys):
     ([_row('freenerf', 'exact', 0, 20.), _row('freenerf', '5deg', 0, 16.)], ['--baseline', 'nerf'],
      "--baseline 'nerf': no finished row of --study '{study}' has it; expected one of ['freenerf']"),
     ([{**_row('freenerf', 'exact', 0, 20.), 'status': 'missing'}], [], "--study '{study}': no finished row"),
+    ([_row('freenerf', 'exact', 0, 20.), _row('freenerf', '5deg', 0, 16.)], ['--methods', 'refine'],
+     "--methods ['refine']: no finished row of --study '{study}' has them"),
     ([_row('freenerf', 'exact', 0, 20.), _row('freenerf', '5deg', 0, 16.)], ['--psnr', 'psnr@other'],
      "--study '{study}' has no column 'psnr@other'; expected a study with seeds whose results give method, seed and "
      "psnr@other (--psnr)"),
