@@ -11,7 +11,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RESULTS = os.path.join(ROOT, 'results')
 MAX_BYTES = 1_000_000
 # A picture's name or a folder in a document: a link target or a word, with <placeholders> and * as wildcards.
-NAMED = re.compile(r'[\w./<>*=-]*\.png\b|[\w./<>*=-]+/(?=[`)\s,;])')
+NAMED = re.compile(r"[\w./<>*=@-]*\.png\b|[\w./<>*=@-]+/(?=[`)\s,;])")
 
 
 def _documents() -> list:

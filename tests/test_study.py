@@ -274,6 +274,16 @@ def test_pictures_come_from_the_first_seed_whose_cells_kept_their_renders(tmp_pa
   assert study_export._picture_cells(cells, paths, ['1']) == []
 
 
+def test_cells_rendered_at_other_sizes_get_a_picture_of_their_own(tmp_path):
+  cells = [{'cell': name, 'step': 20, 'labels': {}} for name in ('small', 'large', 'small_too')]
+  paths = {c['cell']: _cell_folder(tmp_path, c['cell'], False) for c in cells}
+  for name, size in (('small', (16, 12)), ('large', (32, 24)), ('small_too', (16, 12))):
+    Image.new('RGB', size).save(pathlib.Path(paths[name], study_lib.RUN_SUBDIR, 'test_preds_step_20', 'color_000.png'))
+  groups = study_export._by_render_size('object', cells, paths)  # pylint: disable=protected-access
+  assert [(name, [c['cell'] for c in group]) for name, group in groups] == [
+      ('side_by_side_object.png', ['small', 'small_too']), ('side_by_side_object_24x32.png', ['large'])]
+
+
 def test_an_out_folder_moved_since_its_cells_ran_exports_no_path_of_where_they_ran(ran, tmp_path):
   _, out, path = ran
   moved = tmp_path / 'elsewhere' / 'out'

@@ -4,7 +4,7 @@
 counts at which the comparisons were read, lab/study/looks.py) and the plots, cells.jsonl (a line per finished
 cell: its gin, its cell.json, its evaluation's metrics.json, whose run folder is written as the spec writes it,
 {out}/<study>/<cell>/run, and its learning curve; a cell reused from another study's export a reference to that
-export's line: lab/study/cells_file.py), a side-by-side picture per scene (ground truth, then each method's render
+export's line: lab/study/cells_file.py), a side-by-side picture per scene and render size (ground truth, then each method's render
 of the first evaluated test views, of the first seed; under each, its depth, the exact depth under the ground truth
 where the scene has one, each depth panel in its own colour range), table.md (per cell its metrics, wall times and
 commit) and provenance.json: the command (its paths relative to the repository: internal/cli.py's recorded_command),
@@ -188,6 +188,25 @@ def _picture_cells(cells: List[dict], paths: Dict[str, str], seeds: list) -> Lis
   return []
 
 
+def _render_size(cell_path: str, cell: dict) -> tuple:
+  """(height, width) of a finished cell's renders."""
+  first = sorted(glob.glob(os.path.join(eval_dir(cell_path, cell['step']), 'color_*.png')))[0]
+  with Image.open(first) as image:
+    return image.height, image.width
+
+
+def _by_render_size(scene: str, cells: List[dict], paths: Dict[str, str]) -> List[tuple]:
+  """[(picture name, cells)] of one scene's pictured cells, one picture per size of their renders (a study that
+  varies the image size): side_by_side_<scene>.png for the first cell's size, side_by_side_<scene>_<H>x<W>.png for
+  others, each with the ground truth of its own size."""
+  groups = {}
+  for cell in cells:
+    groups.setdefault(_render_size(paths[cell['cell']], cell), []).append(cell)
+  first = next(iter(groups))
+  return [(f'side_by_side_{scene}.png' if size == first else f'side_by_side_{scene}_{size[0]}x{size[1]}.png', group)
+          for size, group in groups.items()]
+
+
 def export(study: study_spec.Study, study_file: str, study_folder: str, dest: str, command: str) -> List[str]:
   """Copies the study's finished cells, results and plots into dest (absent or empty); returns the pictures written.
 
@@ -229,8 +248,9 @@ def _write(study: study_spec.Study, study_file: str, study_folder: str, dest: st
       print(f'warning: side_by_side_{scene}.png not drawn: no seed has every finished cell with its renders '
             f'(color_*.png) and cell_spec.json')
       continue
-    pictures.append(os.path.join(dest, f'side_by_side_{scene}.png'))
-    _scene_picture(cells, paths, _ground_truth(paths[cells[0]['cell']], cells[0], PICTURE_VIEWS), pictures[-1])
+    for name, group in _by_render_size(scene, cells, paths):
+      pictures.append(os.path.join(dest, name))
+      _scene_picture(group, paths, _ground_truth(paths[group[0]['cell']], group[0], PICTURE_VIEWS), pictures[-1])
   with open(os.path.join(dest, TABLE_FILE), 'w') as f:
     f.write(markdown_table(finished))
   record = {'command': command, 'machine': provenance.machine(),
