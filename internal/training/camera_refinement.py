@@ -22,9 +22,10 @@ can still drift by what the first-order projection leaves; evaluation aligns cam
 
 Near the gauge: cameras around an object that all tilt by the same angle about their own x or y axis (up-down,
 left-right) show the scene as if it had moved, save for parallax, so the photometric loss hardly sees such a shared
-tilt (on the generated object rig it was most of exact cameras' drift and was left in noisy ones:
+tilt (on the generated object rig exact cameras drifted into one, and noisy ones kept one the noise had brought:
 results/studies/cameras_target_reach). With Config.camera_fix_shared_tilt the rotation vectors are projected onto
-the complement of both the turns shared in world axes and those shared in the cameras' own x and y axes.
+the complement of both the turns shared in world axes and those shared in the cameras' own x and y axes; measured
+there, the drift stayed and noisy cameras were corrected worse, so it is off by default.
 """
 
 from typing import Any
