@@ -44,7 +44,8 @@ STUDIES = {
     'mini_llff_long': {'freenerf__fern': LONG},
     'capture_cup': {'freenerf__cup': MINI, 'freenerf_nerf__cup': MINI},
     'depth_prior_cup': {'freenerf__cup': (700, 630), 'freenerf_sfm__cup': (700, 630)},
-    'cameras_cup': {f'freenerf__cup__cameras={c}': (800, 560) for c in ('allphoto', 'sfm6', 'sfm6_refine')},
+    'cameras_cup': {f'freenerf__cup__cameras={c}': (800, 560) for c in ('allphoto', 'sfm6', 'sfm6_refine',
+                                                                                   'sfm6_prior', 'sfm6_refine_prior')},
     'depth_prior_cup_9views': {f'{m}__cup': (700, 350) for m in ('freenerf', 'freenerf_sfm', 'freenerf_sfm_strict')},
 }
 # Study files that once bound T in steps by hand (issue 59): T is now their method's gin fraction of the steps.

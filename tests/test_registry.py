@@ -26,7 +26,7 @@ DEPTH = ('depth_mae', 'depth_within_1pct', 'depth_within_5pct')
 PSEUDO = ('pseudo_depth_mae', 'pseudo_depth_within_1pct', 'pseudo_depth_within_5pct')
 SFM = ('sfm_depth_mae', 'sfm_depth_within_1pct', 'sfm_depth_within_5pct')
 CAMERAS = ('camera_rotation_deg', 'camera_translation', 'camera_rotation_deg_unaligned',
-           'camera_translation_unaligned')
+           'camera_translation_unaligned', 'test_pose_rotation_deg', 'test_pose_translation')
 
 
 def _written_metrics(tmp_path, monkeypatch) -> set:
@@ -45,7 +45,8 @@ def _written_metrics(tmp_path, monkeypatch) -> set:
   monkeypatch.setattr(depth_metrics.sfm_depth, 'evaluation_depths', lambda test_set, config: depth)
   keys |= set(depth_metrics.sfm_scorer(test_set, False, None)(0, depth[0]))
   summary = {'rotation_deg_median': 1., 'translation_median': .01}
-  keys |= set(camera_evaluation.metrics({'final_vs_reference': summary, 'final_vs_reference_unaligned': summary}))
+  keys |= set(camera_evaluation.metrics({'final_vs_reference': summary, 'final_vs_reference_unaligned': summary},
+                                        summary))
   return keys
 
 
@@ -72,7 +73,10 @@ def test_derived_metric_lists_equal_the_former_literal_lists():
 def test_hand_picked_metric_lists_name_registered_metrics():
   assert set(study_export.TABLE_METRICS) <= set(metric_registry.METRICS)
   for path in sorted(ROOT.glob('studies/*.toml')):
-    assert set(study_spec.load(path).plot.metrics) <= set(metric_registry.METRICS), path.name
+    study = study_spec.load(path)
+    plotted = [metric.split('@') for metric in study.plot.metrics]  # <metric> or <metric>@<evaluation>
+    assert {p[0] for p in plotted} <= set(metric_registry.METRICS), path.name
+    assert {p[1] for p in plotted if len(p) > 1} <= set(dict(study.evaluations)), path.name
 
 
 def test_unknown_metric_group_and_unregistered_metric_are_refused():

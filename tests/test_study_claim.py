@@ -160,13 +160,19 @@ def test_of_many_processes_that_race_for_a_cell_one_claims_it(tmp_path, stale):
 
 
 def test_a_finished_cell_is_neither_run_nor_written_again(tmp_path):
-  (tmp_path / study_lib.CELL_FILE).write_text('{"means": {"psnr": 10.5}}')
+  (tmp_path / study_lib.CELL_FILE).write_text('{"step": 100, "means": {"psnr": 10.5}}')
   before = (tmp_path / study_lib.CELL_FILE).read_text()
   assert study_lib.run_cell(str(tmp_path), 'job-a') is None        # Claimed, looked at again, not trained.
   with pytest.raises(FileExistsError):
     study_lib._publish(str(tmp_path), {'means': {'psnr': 1.}})  # pylint: disable=protected-access
   assert (tmp_path / study_lib.CELL_FILE).read_text() == before
   assert sorted(os.listdir(tmp_path)) == [study_lib.CELL_FILE]
+
+
+def test_a_cell_json_without_its_step_is_one_error_naming_the_file(tmp_path):
+  (tmp_path / study_lib.CELL_FILE).write_text('{"means": {"psnr": 10.5}}')
+  with pytest.raises(ValueError, match=rf'{tmp_path / study_lib.CELL_FILE}: .*final step'):
+    study_lib.read_cell(str(tmp_path))
 
 
 def test_a_malformed_cell_json_is_one_error_naming_the_file(tmp_path):

@@ -36,7 +36,7 @@ def finished_cells(root: str, count: int) -> list:
   for cell in study_spec.cells(study):
     path = os.path.join(root, study.name, cell.cell_id)
     os.makedirs(path)
-    atomic.write_text(os.path.join(path, 'cell.json'), json.dumps({'cell': cell.cell_id}))
+    atomic.write_text(os.path.join(path, 'cell.json'), json.dumps({'cell': cell.cell_id, 'step': 0}))
     paths.append(path)
   return paths
 

@@ -82,9 +82,15 @@ def cell_dir(study: spec.Study, cell: spec.Cell, out: str) -> str:
 
 
 def read_cell(path: str) -> Optional[dict]:
-  """The cell.json of a cell folder, or None when the cell has not finished; ValueError naming a malformed one."""
+  """The cell.json of a cell folder, or None when the cell has not finished; ValueError naming a malformed one (not
+  JSON, or without the final step its run reached)."""
   path = os.path.join(path, CELL_FILE)
-  return cells_file.read_json(path) if os.path.isfile(path) else None
+  if not os.path.isfile(path):
+    return None
+  record = cells_file.read_json(path)
+  if not isinstance(record, dict) or not isinstance(record.get('step'), int):
+    raise ValueError(f'{path}: a finished cell\'s record names its final step ("step": an integer); found none')
+  return record
 
 
 def write_spec(study: spec.Study, cell: spec.Cell, out: str, data_root: str, extra_bindings=()) -> str:
